@@ -1,0 +1,70 @@
+"""Eager input checks shared by the public constructors.
+
+Every message names the argument, the rule it broke and what was received, so that a user can fix
+the call without reading the source. Checks run on concrete (NumPy) values before any tracing.
+"""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+
+def delay_steps(value, name: str = "delay_steps") -> int:
+    """A non-negative whole number of steps (bools and non-integral floats are refused)."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
+        if isinstance(value, (numbers.Real, np.floating)) and float(value).is_integer() and not isinstance(value, bool):
+            value = int(value)
+        else:
+            raise ValueError(f"{name} must be a non-negative integer number of steps; got {value!r}")
+    if value < 0:
+        raise ValueError(f"{name} must be a non-negative integer number of steps; got {value}")
+    return int(value)
+
+
+def positive_int(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    return int(value)
+
+
+def positive_float(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a positive finite number; got {value!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a positive finite number; got {value!r}")
+    return v
+
+
+def array(value, name: str, shape: tuple, *, finite: bool = True) -> np.ndarray:
+    """Converts to a float64 array of the given shape; ``None`` entries of ``shape`` match anything."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be an array of numbers; got {type(value).__name__}") from None
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name} must have shape {want}; got shape {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{name} must be finite; got a non-finite value at index {tuple(int(i) for i in bad)}")
+    return arr
+
+
+def symmetric_psd(mat: np.ndarray, name: str, *, definite: bool, tol: float = 1e-10) -> np.ndarray:
+    """Checks that the trailing two axes hold symmetric positive (semi-)definite matrices."""
+    asym = np.max(np.abs(mat - np.swapaxes(mat, -1, -2)), initial=0.0)
+    scale = max(1.0, float(np.max(np.abs(mat), initial=0.0)))
+    if asym > tol * scale:
+        raise ValueError(f"{name} must be symmetric; got an asymmetry of {asym:.3g}")
+    if mat.shape[-1] == 0:
+        return mat
+    eig = np.linalg.eigvalsh(0.5 * (mat + np.swapaxes(mat, -1, -2)))
+    low = float(np.min(eig))
+    if definite and low <= 0:
+        raise ValueError(f"{name} must be positive definite; got a smallest eigenvalue of {low:.3g}")
+    if not definite and low < -tol * scale:
+        raise ValueError(f"{name} must be positive semi-definite; got a smallest eigenvalue of {low:.3g}")
+    return mat

@@ -1,0 +1,493 @@
+"""The delayed LQG problem of eq. (3)-(5) and its exact solutions.
+
+The system, in deviations from a nominal trajectory (time-major arrays, k = 0..K-1)::
+
+    dx_{k+1} = A_k dx_k + B0_k du_k + B1_k du_{k-l} + sum_j xi_{k,j} (c_{k,j} + C0_{k,j} du_k + C1_{k,j} du_{k-l})
+    cost_k   = d_tilde_k + 2 dx_k'd_k + dx_k'D_k dx_k + 2 du_k'e_k + du_k'E_k du_k          (eq. 4)
+    cost_K   = d_tilde_K + 2 dx_K'd_K + dx_K'D_K dx_K
+
+with dx_0 = 0, du_k = 0 for k < 0 and xi_{k,j} ~ N(0, 1) independent. For l = 0 the "delayed"
+command is the current one: B1 and C1 act on du_k like B0 and C0.
+
+Three solutions of the same problem live here:
+
+* :func:`backward_pass`: Theorem 1 (eq. 6-8), the structured recursion on the value function (7),
+  with the corrections of ``docs/derivation.md``. Per step it costs O(l^2 d^3 + l n^2 d + n^3).
+* :func:`augmented_backward_pass`: the independent reference, a plain Riccati recursion on the
+  augmented state z_k = [dx_k, du_{k-l}, ..., du_{k-1}]; per step O((n + l d)^3).
+* :func:`policy_cost`: the exact expected cost of *any* affine delayed policy, by propagating the
+  mean and second moment of z_k (no sampling); :func:`simulate_lqg` estimates it by Monte Carlo.
+
+Both backward passes accept a Levenberg-Marquardt shift ``reg`` (the solver's lambda): the gains
+use H + reg I, and the value function is the exact cost-to-go of the quadratic model under those
+gains, which works out as the usual update with H + 2 reg I (see ``docs/derivation.md`` §4).
+"""
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.linalg import cho_solve
+
+from . import _validate
+
+__all__ = [
+    "DelayedLQG",
+    "Gains",
+    "Value",
+    "LQGRuns",
+    "backward_pass",
+    "augmented_backward_pass",
+    "policy_cost",
+    "simulate_lqg",
+]
+
+_ARRAY_FIELDS = ("A", "B0", "B1", "c", "C0", "C1", "d_tilde", "d", "D", "e", "E")
+
+
+class DelayedLQG:
+    """The discrete delayed LQG approximation of eq. (3)-(4).
+
+    Args:
+        A: [K, n, n] state transition.
+        B0: [K, n, d] effect of the command sent now, du_k.
+        B1: [K, n, d] effect of the command sent l steps ago, du_{k-l}.
+        c: [K, p, n] noise columns (j-th column of the diffusion, already times sqrt(dt)).
+        C0: [K, p, n, d] control-dependent part of noise column j on du_k.
+        C1: [K, p, n, d] control-dependent part of noise column j on du_{k-l}.
+        d_tilde: [K+1] constant cost terms.
+        d: [K+1, n] linear state cost (factor-2 convention of eq. 4).
+        D: [K+1, n, n] quadratic state cost, symmetric.
+        e: [K, d] linear control cost.
+        E: [K, d, d] quadratic control cost, symmetric.
+        delay_steps: l >= 0, the input delay in steps.
+
+    ``p = 0`` (no noise) is allowed: pass arrays with a zero-length second axis, or ``None`` for
+    c, C0 and C1 together. Instances are JAX pytrees whose only static field is ``delay_steps``.
+    """
+
+    def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps):
+        self.delay_steps = _validate.delay_steps(delay_steps)
+        A = _validate.array(A, "A", (None, None, None))
+        K, n = A.shape[0], A.shape[1]
+        if K < 1:
+            raise ValueError(f"A must hold at least one time step (K >= 1); got shape {A.shape}")
+        A = _validate.array(A, "A", (K, n, n))
+        B0 = _validate.array(B0, "B0", (K, n, None))
+        nd = B0.shape[2]
+        B1 = _validate.array(B1, "B1", (K, n, nd))
+        if c is None and C0 is None and C1 is None:
+            c, C0, C1 = np.zeros((K, 0, n)), np.zeros((K, 0, n, nd)), np.zeros((K, 0, n, nd))
+        c = _validate.array(c, "c", (K, None, n))
+        p = c.shape[1]
+        C0 = _validate.array(C0, "C0", (K, p, n, nd))
+        C1 = _validate.array(C1, "C1", (K, p, n, nd))
+        d_tilde = _validate.array(d_tilde, "d_tilde", (K + 1,))
+        d = _validate.array(d, "d", (K + 1, n))
+        D = _check_symmetric(_validate.array(D, "D", (K + 1, n, n)), "D")
+        e = _validate.array(e, "e", (K, nd))
+        E = _check_symmetric(_validate.array(E, "E", (K, nd, nd)), "E")
+        for name, value in zip(_ARRAY_FIELDS, (A, B0, B1, c, C0, C1, d_tilde, d, D, e, E)):
+            setattr(self, name, jnp.asarray(value))
+
+    # -- sizes ---------------------------------------------------------------------------------
+    @property
+    def horizon(self) -> int:
+        """K, the number of control steps."""
+        return self.A.shape[0]
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def n_controls(self) -> int:
+        return self.B0.shape[2]
+
+    @property
+    def n_noise(self) -> int:
+        return self.c.shape[1]
+
+    def replace(self, **changes) -> "DelayedLQG":
+        """A copy with some arrays replaced (no validation: for internal use on traced data)."""
+        new = object.__new__(DelayedLQG)
+        new.__dict__.update(self.__dict__)
+        new.__dict__.update(changes)
+        return new
+
+    def __repr__(self) -> str:
+        return (f"DelayedLQG(K={self.horizon}, n={self.n_states}, d={self.n_controls}, "
+                f"p={self.n_noise}, delay_steps={self.delay_steps})")
+
+
+def _check_symmetric(mat: np.ndarray, name: str) -> np.ndarray:
+    asym = np.max(np.abs(mat - np.swapaxes(mat, -1, -2)), initial=0.0)
+    if asym > 1e-9 * max(1.0, float(np.max(np.abs(mat), initial=0.0))):
+        raise ValueError(f"{name} must be symmetric in its last two axes; got an asymmetry of {asym:.3g}")
+    return mat
+
+
+def _flatten(lqg: DelayedLQG):
+    return tuple(getattr(lqg, f) for f in _ARRAY_FIELDS), lqg.delay_steps
+
+
+def _unflatten(delay_steps, arrays):
+    new = object.__new__(DelayedLQG)
+    new.delay_steps = delay_steps
+    for name, value in zip(_ARRAY_FIELDS, arrays):
+        setattr(new, name, value)
+    return new
+
+
+jax.tree_util.register_pytree_node(DelayedLQG, _flatten, _unflatten)
+
+
+class Gains(NamedTuple):
+    """An affine delayed feedback law, eq. (6): du_k = I_k + L_k dx_k + sum_i M_k^i du_{k+i-l}.
+
+    Attributes:
+        feedforward: [K, d] I_k.
+        state_feedback: [K, d, n] L_k.
+        delay_feedback: [K, l, d, d] M_k^i; index i multiplies du_{k+i-l}, so i = 0 is the command
+            acting now (sent l steps ago) and i = l-1 the one sent at the previous step.
+    """
+
+    feedforward: jax.Array
+    state_feedback: jax.Array
+    delay_feedback: jax.Array
+
+
+class Value(NamedTuple):
+    """Coefficients of the cost-to-go (7), for k = 0..K (index K is the terminal cost).
+
+    J(k) = s_tilde + 2 dx's + dx'S dx + 2 sum_i du_i'r^i + 2 dx' sum_i Rt^i du_i + sum_ij du_i'R^ij du_j,
+    with du_i = du_{k+i-l}. Blocks for commands that no longer act (k + i >= K) are zero.
+
+    Attributes:
+        s_tilde: [K+1]; s: [K+1, n]; S: [K+1, n, n]; r: [K+1, l, d]; Rt: [K+1, l, n, d];
+        R: [K+1, l, l, d, d].
+        positive_definite: [] bool, every (regularised) H_k was positive definite. When False the
+            gains are not a minimiser and contain NaN at the failing steps.
+    """
+
+    s_tilde: jax.Array
+    s: jax.Array
+    S: jax.Array
+    r: jax.Array
+    Rt: jax.Array
+    R: jax.Array
+    positive_definite: jax.Array
+
+    @property
+    def expected_cost(self) -> jax.Array:
+        """J(0) = s_tilde_0: the optimal expected cost of the LQG problem (dx_0 = 0)."""
+        return self.s_tilde[0]
+
+
+# ---------------------------------------------------------------------------------------------
+# Theorem 1: the structured recursion
+# ---------------------------------------------------------------------------------------------
+
+def _sym(M):
+    return 0.5 * (M + jnp.swapaxes(M, -1, -2))
+
+
+def _merged_if_undelayed(lqg: DelayedLQG):
+    """For l = 0 the delayed command is the current one: fold B1, C1 into B0, C0."""
+    if lqg.delay_steps > 0:
+        return lqg
+    return lqg.replace(B0=lqg.B0 + lqg.B1, B1=jnp.zeros_like(lqg.B1),
+                       C0=lqg.C0 + lqg.C1, C1=jnp.zeros_like(lqg.C1))
+
+
+def _stage_data(lqg: DelayedLQG):
+    """Per-step inputs of the backward recursion, time-major, k = 0..K-1."""
+    return (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
+            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E)
+
+
+def _solve_gains(H, reg, rhs_list):
+    """Cholesky of H + reg I and -(H + reg I)^{-1} rhs for each rhs; flags a failed factorisation."""
+    nd = H.shape[0]
+    chol = jnp.linalg.cholesky(H + reg * jnp.eye(nd, dtype=H.dtype))
+    ok = jnp.all(jnp.isfinite(chol))
+    return ok, [-cho_solve((chol, True), rhs) for rhs in rhs_list]
+
+
+def _structured_step(carry, data, *, l: int, reg, store_value: bool):
+    """One step k -> k-1 of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
+
+    ``carry`` holds J(k)'s coefficients; ``data`` the model at k-1. Pending index i at time k-1 is
+    du_{k-1+i-l}: i = 0 is the new one (acting through B1_{k-1}); i >= 1 was index i-1 at time k;
+    index l-1 at time k is du_{k-1}, the command being eliminated.
+    """
+    s_tilde, s, S, r, Rt, R, ok = carry
+    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E = data
+    SB0, SB1 = S @ B0, S @ B1
+    Sc = c @ S                                              # [p, n], rows S c_j (S symmetric)
+    SC0 = jnp.einsum("mn,pnd->pmd", S, C0)
+    SC1 = jnp.einsum("mn,pnd->pmd", S, C1)
+
+    # Coefficients of the quadratic in du_{k-1}: H (d x d), g (d), G_x (d x n), G_M (l x d x d).
+    H = E + B0.T @ SB0 + jnp.einsum("pnd,pne->de", C0, SC0)
+    g = e + B0.T @ s + jnp.einsum("pnd,pn->d", C0, Sc)
+    Gx = SB0.T @ A
+    if l > 0:
+        Rt_last = Rt[-1]
+        H = H + R[-1, -1] + B0.T @ Rt_last + Rt_last.T @ B0
+        g = g + r[-1]
+        Gx = Gx + Rt_last.T @ A
+        GM0 = B0.T @ SB1 + jnp.einsum("pnd,pne->de", C0, SC1) + Rt_last.T @ B1
+        GMi = jnp.einsum("nd,ine->ide", B0, Rt[:-1]) + R[-1, :-1]
+        GM = jnp.concatenate([GM0[None], GMi])                     # [l, d, d]
+    H = _sym(H)
+    nd, nx = B0.shape[1], A.shape[0]
+    rhs = [g, Gx] + ([jnp.moveaxis(GM, 0, 1).reshape(nd, l * nd)] if l > 0 else [])
+    step_ok, sols = _solve_gains(H, reg, rhs)
+    I, L = sols[0], sols[1]
+    # Exact cost-to-go under the (regularised) gains: H + 2 reg I, see derivation §4.
+    Hv = H + 2.0 * reg * jnp.eye(nd, dtype=H.dtype)
+    HvI, HvL = Hv @ I, Hv @ L
+    s_tilde_new = d_tilde + s_tilde + jnp.sum(c * Sc) - I @ HvI
+    s_new = dv + A.T @ s - L.T @ HvI
+    S_new = _sym(D + A.T @ S @ A - L.T @ HvL)
+    if l > 0:
+        M = jnp.moveaxis(sols[2].reshape(nd, l, nd), 1, 0)          # [l, d, d]
+        HvM = jnp.einsum("de,ief->idf", Hv, M)
+        r_pre = jnp.concatenate([(B1.T @ s + jnp.einsum("pnd,pn->d", C1, Sc))[None], r[:-1]])
+        Rt_pre = jnp.concatenate([(A.T @ SB1)[None], jnp.einsum("mn,imd->ind", A, Rt[:-1])])
+        R00 = B1.T @ SB1 + jnp.einsum("pnd,pne->de", C1, SC1)
+        Ri0 = jnp.einsum("ind,ne->ide", Rt[:-1], B1)                # (Rt^{i-1})' B1
+        R_pre = jnp.pad(R[:-1, :-1], ((1, 0), (1, 0), (0, 0), (0, 0)))
+        R_pre = R_pre.at[0, 0].set(R00).at[1:, 0].set(Ri0).at[0, 1:].set(jnp.swapaxes(Ri0, -1, -2))
+        r_new = r_pre - jnp.einsum("ide,d->ie", M, HvI)
+        Rt_new = Rt_pre - jnp.einsum("dn,ide->ine", L, HvM)
+        R_new = R_pre - jnp.einsum("ida,jdb->ijab", M, HvM)
+        R_new = 0.5 * (R_new + jnp.swapaxes(jnp.swapaxes(R_new, 0, 1), -1, -2))
+    else:
+        M = jnp.zeros((0, nd, nd), A.dtype)
+        r_new, Rt_new, R_new = r, Rt, R
+    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, ok & step_ok)
+    out = (I, L, M, s_tilde_new, s_new, S_new)
+    if store_value:
+        out = out + (r_new, Rt_new, R_new)
+    return carry, out
+
+
+def _terminal(lqg: DelayedLQG):
+    l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
+    dt = lqg.A.dtype
+    return (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1], jnp.zeros((l, nd), dt), jnp.zeros((l, nx, nd), dt),
+            jnp.zeros((l, l, nd, nd), dt), jnp.asarray(True))
+
+
+def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True):
+    """Runs Theorem 1 backwards with ``lax.scan``; returns (Gains, outputs, positive_definite).
+
+    ``store_value=False`` keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
+    O(K l^2 d^2)); the solver uses it for long delays.
+    """
+    lqg = _merged_if_undelayed(lqg)
+    step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value)
+    carry, out = jax.lax.scan(step, _terminal(lqg), _stage_data(lqg), reverse=True)
+    return Gains(*out[:3]), out[3:], carry[-1]
+
+
+def _append_terminal(per_step, terminal):
+    return jnp.concatenate([per_step, terminal[None]])
+
+
+@jax.jit
+def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
+    """Theorem 1: the optimal delayed policy (6) and the value function (7), structured.
+
+    Args:
+        lqg: the problem.
+        reg: Levenberg-Marquardt shift lambda >= 0 added to H for the gains (0 gives the exact
+            LQG optimum).
+
+    Returns:
+        (gains, value). ``value.expected_cost`` is J(0). If some H_k + reg I is not positive
+        definite, ``value.positive_definite`` is False and the gains hold NaN from that step back.
+    """
+    gains, out, ok = structured_scan(lqg, reg, store_value=True)
+    term = _terminal(_merged_if_undelayed(lqg))
+    value = Value(*(_append_terminal(o, t) for o, t in zip(
+        (out[0], out[1], out[2], out[3], out[4], out[5]),
+        (term[0], term[1], term[2], term[3], term[4], term[5]))), positive_definite=ok)
+    return gains, value
+
+
+# ---------------------------------------------------------------------------------------------
+# Reference: ordinary Riccati recursion on the augmented state z = [dx, du_{k-l}, ..., du_{k-1}]
+# ---------------------------------------------------------------------------------------------
+
+def augment(lqg: DelayedLQG):
+    """The augmented (undelayed) system, time-major.
+
+    Returns a dict with Az [K, N, N], Bz [K, N, d], cz [K, p, N], Cz [K, p, N, N], Cu [K, p, N, d],
+    dz [K+1, N], Dz [K+1, N, N] where N = n + l d; the buffer holds du_{k-l} .. du_{k-1}.
+    """
+    lqg = _merged_if_undelayed(lqg)
+    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
+    N = nx + l * nd
+    dt = lqg.A.dtype
+    Az = jnp.zeros((K, N, N), dt).at[:, :nx, :nx].set(lqg.A)
+    Bz = jnp.zeros((K, N, nd), dt).at[:, :nx, :].set(lqg.B0)
+    Cz = jnp.zeros((K, p, N, N), dt)
+    Cu = jnp.zeros((K, p, N, nd), dt).at[:, :, :nx, :].set(lqg.C0)
+    if l > 0:
+        Az = Az.at[:, :nx, nx:nx + nd].set(lqg.B1)                          # du_{k-l} acts now
+        Az = Az.at[:, nx:N - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts
+        Bz = Bz.at[:, N - nd:, :].set(jnp.eye(nd, dtype=dt))                # du_k enters last
+        Cz = Cz.at[:, :, :nx, nx:nx + nd].set(lqg.C1)
+    cz = jnp.zeros((K, p, N), dt).at[:, :, :nx].set(lqg.c)
+    dz = jnp.zeros((K + 1, N), dt).at[:, :nx].set(lqg.d)
+    Dz = jnp.zeros((K + 1, N, N), dt).at[:, :nx, :nx].set(lqg.D)
+    return dict(Az=Az, Bz=Bz, cz=cz, Cz=Cz, Cu=Cu, dz=dz, Dz=Dz)
+
+
+def _augmented_step(carry, data, *, reg):
+    v0, v, V, ok = carry
+    Az, Bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E = data
+    Vc = cz @ V                                                  # [p, N]
+    VCz = jnp.einsum("mn,pnk->pmk", V, Cz)
+    VCu = jnp.einsum("mn,pnd->pmd", V, Cu)
+    Quu = _sym(E + Bz.T @ V @ Bz + jnp.einsum("pnd,pne->de", Cu, VCu))
+    Quz = Bz.T @ V @ Az + jnp.einsum("pnd,pnk->dk", Cu, VCz)
+    Qzz = Dz + Az.T @ V @ Az + jnp.einsum("pnk,pnm->km", Cz, VCz)
+    qu = e + Bz.T @ v + jnp.einsum("pnd,pn->d", Cu, Vc)
+    qz = dz + Az.T @ v + jnp.einsum("pnk,pn->k", Cz, Vc)
+    q0 = d_tilde + v0 + jnp.sum(cz * Vc)
+    step_ok, (I, Kz) = _solve_gains(Quu, reg, [qu, Quz])
+    Hv = Quu + 2.0 * reg * jnp.eye(Quu.shape[0], dtype=Quu.dtype)
+    carry = (q0 - I @ Hv @ I, qz - Kz.T @ Hv @ I, _sym(Qzz - Kz.T @ Hv @ Kz), ok & step_ok)
+    return carry, (I, Kz) + carry[:3]
+
+
+@jax.jit
+def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
+    """The state-augmentation reference: same problem, same return types as :func:`backward_pass`."""
+    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
+    aug = augment(lqg)
+    data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], lqg.d_tilde[:-1], aug["dz"][:-1],
+            aug["Dz"][:-1], lqg.e, lqg.E)
+    init = (lqg.d_tilde[-1], aug["dz"][-1], aug["Dz"][-1], jnp.asarray(True))
+    carry, (I, Kz, v0, v, V) = jax.lax.scan(partial(_augmented_step, reg=reg), init, data, reverse=True)
+    v0 = _append_terminal(v0, init[0])
+    v = _append_terminal(v, init[1])
+    V = _append_terminal(V, init[2])
+    K1 = v.shape[0]                                                   # K + 1
+    gains = Gains(I, Kz[:, :, :nx], jnp.moveaxis(Kz[:, :, nx:].reshape(K1 - 1, nd, l, nd), 2, 1))
+    value = Value(
+        s_tilde=v0, s=v[:, :nx], S=V[:, :nx, :nx],
+        r=v[:, nx:].reshape(K1, l, nd),
+        Rt=jnp.moveaxis(V[:, :nx, nx:].reshape(K1, nx, l, nd), 2, 1),
+        R=jnp.moveaxis(V[:, nx:, nx:].reshape(K1, l, nd, l, nd), 3, 2),
+        positive_definite=carry[-1])
+    return gains, value
+
+
+# ---------------------------------------------------------------------------------------------
+# Exact expected cost of any affine delayed policy, and Monte Carlo of the linear system
+# ---------------------------------------------------------------------------------------------
+
+def _check_gains(lqg: DelayedLQG, gains: Gains) -> Gains:
+    K, nx, nd, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps
+    return Gains(
+        jnp.asarray(_validate.array(gains.feedforward, "gains.feedforward", (K, nd))),
+        jnp.asarray(_validate.array(gains.state_feedback, "gains.state_feedback", (K, nd, nx))),
+        jnp.asarray(_validate.array(gains.delay_feedback, "gains.delay_feedback", (K, l, nd, nd))))
+
+
+@jax.jit
+def _policy_cost(lqg: DelayedLQG, gains: Gains):
+    nx = lqg.n_states
+    aug = augment(lqg)
+    Kz = jnp.concatenate([gains.state_feedback,
+                          jnp.moveaxis(gains.delay_feedback, 1, 2).reshape(lqg.horizon, lqg.n_controls, -1)],
+                         axis=2)                                      # [K, d, N]
+    N = Kz.shape[2]
+
+    def step(carry, data):
+        mu, X, total = carry
+        Az, Bz, cz, Cz, Cu, I, Kk, d_tilde, dz, Dz, e, E = data
+        Eu = I + Kk @ mu                                              # E[du]
+        Euu = jnp.outer(I, I) + Kk @ jnp.outer(mu, I) + jnp.outer(I, mu) @ Kk.T + Kk @ X @ Kk.T
+        total = total + d_tilde + 2 * dz @ mu + jnp.sum(Dz * X) + 2 * e @ Eu + jnp.sum(E * Euu)
+        F, f = Az + Bz @ Kk, Bz @ I
+        gcol = cz + Cu @ I                                            # [p, N]
+        Gcol = Cz + Cu @ Kk                                           # [p, N, N]
+        mu_new = F @ mu + f
+        Fm = F @ mu
+        X_new = F @ X @ F.T + jnp.outer(Fm, f) + jnp.outer(f, Fm) + jnp.outer(f, f)
+        Gm = jnp.einsum("pnk,k->pn", Gcol, mu)
+        X_new = X_new + jnp.einsum("pnk,kl,pml->nm", Gcol, X, Gcol) + jnp.einsum("pn,pm->nm", Gm, gcol) \
+            + jnp.einsum("pn,pm->nm", gcol, Gm) + jnp.einsum("pn,pm->nm", gcol, gcol)
+        return (mu_new, _sym(X_new), total), None
+
+    dt = lqg.A.dtype
+    init = (jnp.zeros(N, dt), jnp.zeros((N, N), dt), jnp.asarray(0.0, dt))
+    data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], gains.feedforward, Kz,
+            lqg.d_tilde[:-1], aug["dz"][:-1], aug["Dz"][:-1], lqg.e, lqg.E)
+    (mu, X, total), _ = jax.lax.scan(step, init, data)
+    return total + lqg.d_tilde[-1] + 2 * aug["dz"][-1] @ mu + jnp.sum(aug["Dz"][-1] * X)
+
+
+def policy_cost(lqg: DelayedLQG, gains: Gains) -> jax.Array:
+    """Exact E[J(0)] of the affine delayed policy ``gains`` on ``lqg`` (no sampling).
+
+    Propagates the mean mu_k and second moment X_k = E[z_k z_k'] of the augmented state z_k
+    through the closed loop, including the control-dependent noise, and sums the expected costs.
+    Cost O(K (n + l d)^3): a reference, not a hot path.
+    """
+    return _policy_cost(lqg, _check_gains(lqg, gains))
+
+
+class LQGRuns(NamedTuple):
+    """Monte Carlo trials of the linear delayed system.
+
+    Attributes: dx [N, K+1, n], du [N, K, d], cost [N] (eq. 4 summed over k = 0..K per trial).
+    """
+
+    dx: jax.Array
+    du: jax.Array
+    cost: jax.Array
+
+
+@partial(jax.jit, static_argnames=("n_trials",))
+def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
+    lqg = _merged_if_undelayed(lqg)
+    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
+    dt = lqg.A.dtype
+
+    def trial(trial_key):
+        xi = jax.random.normal(trial_key, (K, p), dt)
+
+        def step(carry, data):
+            dx, pending = carry                                       # pending[i] = du_{k+i-l}
+            A, B0, B1, c, C0, C1, I, L, M, xik, d_tilde, dv, D, e, E = data
+            du = I + L @ dx + jnp.einsum("ide,ie->d", M, pending)
+            du_delayed = pending[0] if l > 0 else jnp.zeros(nd, dt)
+            noise = xik @ (c + C0 @ du + C1 @ du_delayed)
+            dx_new = A @ dx + B0 @ du + B1 @ du_delayed + noise
+            cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du
+            pending = jnp.concatenate([pending[1:], du[None]]) if l > 0 else pending
+            return (dx_new, pending), (dx, du, cost)
+
+        data = (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, *gains, xi,
+                lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E)
+        (dxK, _), (dx, du, cost) = jax.lax.scan(step, (jnp.zeros(nx, dt), jnp.zeros((l, nd), dt)), data)
+        final = lqg.d_tilde[-1] + 2 * dxK @ lqg.d[-1] + dxK @ lqg.D[-1] @ dxK
+        return jnp.concatenate([dx, dxK[None]]), du, jnp.sum(cost) + final
+
+    return LQGRuns(*jax.vmap(trial)(jax.random.split(key, n_trials)))
+
+
+def simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, seed: int = 0) -> LQGRuns:
+    """Monte Carlo of the linear delayed system (3) under ``gains``, vectorised over trials."""
+    n_trials = _validate.positive_int(n_trials, "n_trials")
+    return _simulate_lqg(lqg, _check_gains(lqg, gains), n_trials, jax.random.PRNGKey(seed))
