@@ -4,6 +4,7 @@ The system, in deviations from a nominal trajectory (time-major arrays, k = 0..K
 
     dx_{k+1} = A_k dx_k + B0_k du_k + B1_k du_{k-l} + sum_j xi_{k,j} (c_{k,j} + C0_{k,j} du_k + C1_{k,j} du_{k-l})
     cost_k   = d_tilde_k + 2 dx_k'd_k + dx_k'D_k dx_k + 2 du_k'e_k + du_k'E_k du_k          (eq. 4)
+               + 2 du_k'N_k dx_k                           (cross term, zero in eq. 4)
     cost_K   = d_tilde_K + 2 dx_K'd_K + dx_K'D_K dx_K
 
 with dx_0 = 0, du_k = 0 for k < 0 and xi_{k,j} ~ N(0, 1) independent. For l = 0 the "delayed"
@@ -45,7 +46,7 @@ __all__ = [
     "simulate_lqg",
 ]
 
-_ARRAY_FIELDS = ("A", "B0", "B1", "c", "C0", "C1", "d_tilde", "d", "D", "e", "E")
+_ARRAY_FIELDS = ("A", "B0", "B1", "c", "C0", "C1", "d_tilde", "d", "D", "e", "E", "N")
 
 
 class DelayedLQG:
@@ -64,12 +65,14 @@ class DelayedLQG:
         e: [K, d] linear control cost.
         E: [K, d, d] quadratic control cost, symmetric.
         delay_steps: l >= 0, the input delay in steps.
+        N: optional [K, d, n] cross cost 2 du_k'N_k dx_k (absent from eq. 4, which is N = 0; a
+            general running cost l(x, u) has one).
 
     ``p = 0`` (no noise) is allowed: pass arrays with a zero-length second axis, or ``None`` for
     c, C0 and C1 together. Instances are JAX pytrees whose only static field is ``delay_steps``.
     """
 
-    def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps):
+    def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps, N=None):
         self.delay_steps = _validate.delay_steps(delay_steps)
         A = _validate.array(A, "A", (None, None, None))
         K, n = A.shape[0], A.shape[1]
@@ -90,7 +93,8 @@ class DelayedLQG:
         D = _check_symmetric(_validate.array(D, "D", (K + 1, n, n)), "D")
         e = _validate.array(e, "e", (K, nd))
         E = _check_symmetric(_validate.array(E, "E", (K, nd, nd)), "E")
-        for name, value in zip(_ARRAY_FIELDS, (A, B0, B1, c, C0, C1, d_tilde, d, D, e, E)):
+        N = np.zeros((K, nd, n)) if N is None else _validate.array(N, "N", (K, nd, n))
+        for name, value in zip(_ARRAY_FIELDS, (A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, N)):
             setattr(self, name, jnp.asarray(value))
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -206,7 +210,7 @@ def _merged_if_undelayed(lqg: DelayedLQG):
 def _stage_data(lqg: DelayedLQG):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1."""
     return (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
-            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E)
+            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
 
 
 def _solve_gains(H, reg, rhs_list):
@@ -225,7 +229,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool):
     index l-1 at time k is du_{k-1}, the command being eliminated.
     """
     s_tilde, s, S, r, Rt, R, ok = carry
-    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E = data
+    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu = data
     SB0, SB1 = S @ B0, S @ B1
     Sc = c @ S                                              # [p, n], rows S c_j (S symmetric)
     SC0 = jnp.einsum("mn,pnd->pmd", S, C0)
@@ -234,7 +238,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool):
     # Coefficients of the quadratic in du_{k-1}: H (d x d), g (d), G_x (d x n), G_M (l x d x d).
     H = E + B0.T @ SB0 + jnp.einsum("pnd,pne->de", C0, SC0)
     g = e + B0.T @ s + jnp.einsum("pnd,pn->d", C0, Sc)
-    Gx = SB0.T @ A
+    Gx = SB0.T @ A + Nxu
     if l > 0:
         Rt_last = Rt[-1]
         H = H + R[-1, -1] + B0.T @ Rt_last + Rt_last.T @ B0
@@ -329,7 +333,7 @@ def augment(lqg: DelayedLQG):
     """The augmented (undelayed) system, time-major.
 
     Returns a dict with Az [K, N, N], Bz [K, N, d], cz [K, p, N], Cz [K, p, N, N], Cu [K, p, N, d],
-    dz [K+1, N], Dz [K+1, N, N] where N = n + l d; the buffer holds du_{k-l} .. du_{k-1}.
+    dz [K+1, N], Dz [K+1, N, N], Nz [K, d, N] where N = n + l d; the buffer holds du_{k-l} .. du_{k-1}.
     """
     lqg = _merged_if_undelayed(lqg)
     K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
@@ -339,6 +343,7 @@ def augment(lqg: DelayedLQG):
     Bz = jnp.zeros((K, N, nd), dt).at[:, :nx, :].set(lqg.B0)
     Cz = jnp.zeros((K, p, N, N), dt)
     Cu = jnp.zeros((K, p, N, nd), dt).at[:, :, :nx, :].set(lqg.C0)
+    Nz = jnp.zeros((K, nd, N), dt).at[:, :, :nx].set(lqg.N)
     if l > 0:
         Az = Az.at[:, :nx, nx:nx + nd].set(lqg.B1)                          # du_{k-l} acts now
         Az = Az.at[:, nx:N - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts
@@ -347,17 +352,17 @@ def augment(lqg: DelayedLQG):
     cz = jnp.zeros((K, p, N), dt).at[:, :, :nx].set(lqg.c)
     dz = jnp.zeros((K + 1, N), dt).at[:, :nx].set(lqg.d)
     Dz = jnp.zeros((K + 1, N, N), dt).at[:, :nx, :nx].set(lqg.D)
-    return dict(Az=Az, Bz=Bz, cz=cz, Cz=Cz, Cu=Cu, dz=dz, Dz=Dz)
+    return dict(Az=Az, Bz=Bz, cz=cz, Cz=Cz, Cu=Cu, dz=dz, Dz=Dz, Nz=Nz)
 
 
 def _augmented_step(carry, data, *, reg):
     v0, v, V, ok = carry
-    Az, Bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E = data
+    Az, Bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E, Nz = data
     Vc = cz @ V                                                  # [p, N]
     VCz = jnp.einsum("mn,pnk->pmk", V, Cz)
     VCu = jnp.einsum("mn,pnd->pmd", V, Cu)
     Quu = _sym(E + Bz.T @ V @ Bz + jnp.einsum("pnd,pne->de", Cu, VCu))
-    Quz = Bz.T @ V @ Az + jnp.einsum("pnd,pnk->dk", Cu, VCz)
+    Quz = Bz.T @ V @ Az + jnp.einsum("pnd,pnk->dk", Cu, VCz) + Nz
     Qzz = Dz + Az.T @ V @ Az + jnp.einsum("pnk,pnm->km", Cz, VCz)
     qu = e + Bz.T @ v + jnp.einsum("pnd,pn->d", Cu, Vc)
     qz = dz + Az.T @ v + jnp.einsum("pnk,pn->k", Cz, Vc)
@@ -374,7 +379,7 @@ def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
     aug = augment(lqg)
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], lqg.d_tilde[:-1], aug["dz"][:-1],
-            aug["Dz"][:-1], lqg.e, lqg.E)
+            aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"])
     init = (lqg.d_tilde[-1], aug["dz"][-1], aug["Dz"][-1], jnp.asarray(True))
     carry, (I, Kz, v0, v, V) = jax.lax.scan(partial(_augmented_step, reg=reg), init, data, reverse=True)
     v0 = _append_terminal(v0, init[0])
@@ -414,10 +419,12 @@ def _policy_cost(lqg: DelayedLQG, gains: Gains):
 
     def step(carry, data):
         mu, X, total = carry
-        Az, Bz, cz, Cz, Cu, I, Kk, d_tilde, dz, Dz, e, E = data
+        Az, Bz, cz, Cz, Cu, I, Kk, d_tilde, dz, Dz, e, E, Nz = data
         Eu = I + Kk @ mu                                              # E[du]
         Euu = jnp.outer(I, I) + Kk @ jnp.outer(mu, I) + jnp.outer(I, mu) @ Kk.T + Kk @ X @ Kk.T
-        total = total + d_tilde + 2 * dz @ mu + jnp.sum(Dz * X) + 2 * e @ Eu + jnp.sum(E * Euu)
+        Ezu = jnp.outer(mu, I) + X @ Kk.T                              # E[z du']
+        total = total + d_tilde + 2 * dz @ mu + jnp.sum(Dz * X) + 2 * e @ Eu + jnp.sum(E * Euu) \
+            + 2 * jnp.sum(Nz.T * Ezu)
         F, f = Az + Bz @ Kk, Bz @ I
         gcol = cz + Cu @ I                                            # [p, N]
         Gcol = Cz + Cu @ Kk                                           # [p, N, N]
@@ -432,7 +439,7 @@ def _policy_cost(lqg: DelayedLQG, gains: Gains):
     dt = lqg.A.dtype
     init = (jnp.zeros(N, dt), jnp.zeros((N, N), dt), jnp.asarray(0.0, dt))
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], gains.feedforward, Kz,
-            lqg.d_tilde[:-1], aug["dz"][:-1], aug["Dz"][:-1], lqg.e, lqg.E)
+            lqg.d_tilde[:-1], aug["dz"][:-1], aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"])
     (mu, X, total), _ = jax.lax.scan(step, init, data)
     return total + lqg.d_tilde[-1] + 2 * aug["dz"][-1] @ mu + jnp.sum(aug["Dz"][-1] * X)
 
@@ -469,17 +476,17 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
 
         def step(carry, data):
             dx, pending = carry                                       # pending[i] = du_{k+i-l}
-            A, B0, B1, c, C0, C1, I, L, M, xik, d_tilde, dv, D, e, E = data
+            A, B0, B1, c, C0, C1, I, L, M, xik, d_tilde, dv, D, e, E, Nxu = data
             du = I + L @ dx + jnp.einsum("ide,ie->d", M, pending)
             du_delayed = pending[0] if l > 0 else jnp.zeros(nd, dt)
             noise = xik @ (c + C0 @ du + C1 @ du_delayed)
             dx_new = A @ dx + B0 @ du + B1 @ du_delayed + noise
-            cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du
+            cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du + 2 * du @ Nxu @ dx
             pending = jnp.concatenate([pending[1:], du[None]]) if l > 0 else pending
             return (dx_new, pending), (dx, du, cost)
 
         data = (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, *gains, xi,
-                lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E)
+                lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
         (dxK, _), (dx, du, cost) = jax.lax.scan(step, (jnp.zeros(nx, dt), jnp.zeros((l, nd), dt)), data)
         final = lqg.d_tilde[-1] + 2 * dxK @ lqg.d[-1] + dxK @ lqg.D[-1] @ dxK
         return jnp.concatenate([dx, dxK[None]]), du, jnp.sum(cost) + final

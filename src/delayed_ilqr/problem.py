@@ -1,0 +1,239 @@
+"""The nonlinear delayed optimal control problem, eq. (1)-(2), discretised as in eq. (3).
+
+    x_{k+1} = x_k + dt f(x_k, u_k, u_{k-l}) + sqrt(dt) F(x_k, u_k, u_{k-l}) xi_k,   u_k = 0 for k < 0
+    J = sum_{k<K} dt * running(x_k, u_k) + final(x_K)
+
+All callables are written with ``jax.numpy`` and see one time step (no batch axis). A
+:class:`Problem` is a JAX pytree: its arrays (x0, the cost's arrays or parameters, the limits) are
+data, its callables and sizes are static, so two problems that differ only in arrays share one
+compiled solver, and ``jax.vmap`` over a batch of problems works.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple, Optional
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _validate
+
+__all__ = ["Problem", "QuadraticCost", "GeneralCost"]
+
+
+class QuadraticCost(NamedTuple):
+    """Eq. (2): running cost x'P x + u'Q u (per unit time), final cost (x - x_target)'P_final (x - x_target).
+
+    Attributes:
+        P: [n, n] symmetric positive semi-definite state weight.
+        Q: [d, d] symmetric positive definite command weight.
+        P_final: [n, n] symmetric positive semi-definite final weight.
+        x_target: [n] final target state.
+    """
+
+    P: Any
+    Q: Any
+    P_final: Any
+    x_target: Any
+
+    def running(self, x, u):
+        return x @ self.P @ x + u @ self.Q @ u
+
+    def final(self, x):
+        err = x - self.x_target
+        return err @ self.P_final @ err
+
+
+class GeneralCost:
+    """A cost that is not quadratic in x, e.g. a hand-position error through the arm's kinematics.
+
+    Args:
+        running: ``running(x, u, params) -> scalar``, cost per unit time (multiplied by dt, eq. 2).
+        final: ``final(x, params) -> scalar`` (not multiplied by dt).
+        params: a pytree of arrays (targets, weights) passed to both; it is data, so problems that
+            differ only in ``params`` share one compiled solver.
+
+    The quadratisation keeps the x-u cross term of ``running``; the running cost may not depend on
+    the delayed command (eq. 4 has no such terms).
+    """
+
+    def __init__(self, running: Callable, final: Callable, params=None):
+        if not callable(running):
+            raise TypeError(f"running must be callable as running(x, u, params); got {type(running).__name__}")
+        if not callable(final):
+            raise TypeError(f"final must be callable as final(x, params); got {type(final).__name__}")
+        self.running_fn, self.final_fn = running, final
+        self.params = jax.tree_util.tree_map(jnp.asarray, params)
+
+    def running(self, x, u):
+        return self.running_fn(x, u, self.params)
+
+    def final(self, x):
+        return self.final_fn(x, self.params)
+
+    def __repr__(self):
+        return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r})"
+
+
+jax.tree_util.register_pytree_node(
+    GeneralCost,
+    lambda c: ((c.params,), (c.running_fn, c.final_fn)),
+    lambda aux, data: _general_cost_from(aux, data[0]),
+)
+
+
+def _general_cost_from(aux, params):
+    new = object.__new__(GeneralCost)
+    new.running_fn, new.final_fn = aux
+    new.params = params
+    return new
+
+
+class Problem:
+    """A nonlinear, possibly stochastic, optimal control problem with input delay.
+
+    Args:
+        dynamics: ``f(x, u, ud) -> dx/dt`` [n]; ``ud`` is the command acting now, u_{k-l}.
+        x0: [n] initial state.
+        dt: time step (s).
+        horizon: K, the number of control steps (final time K dt).
+        delay_steps: l >= 0, the input delay in steps (tau = l dt).
+        cost: a :class:`QuadraticCost` or :class:`GeneralCost`.
+        noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1).
+        u_min, u_max: optional [d] box limits on the commands (``-inf``/``inf`` for none).
+        n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
+        name: a label for reports.
+    """
+
+    def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
+                 u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem"):
+        if not callable(dynamics):
+            raise TypeError(f"dynamics must be callable as f(x, u, ud); got {type(dynamics).__name__}")
+        if noise is not None and not callable(noise):
+            raise TypeError(f"noise must be None or callable as F(x, u, ud); got {type(noise).__name__}")
+        self.dynamics, self.noise, self.name = dynamics, noise, str(name)
+        self.dt = _validate.positive_float(dt, "dt")
+        self.horizon = _validate.positive_int(horizon, "horizon")
+        self.delay_steps = _validate.delay_steps(delay_steps)
+        x0 = _validate.array(x0, "x0", (None,))
+        nx = x0.shape[0]
+        if isinstance(cost, QuadraticCost):
+            P = _validate.symmetric_psd(_validate.array(cost.P, "cost.P", (nx, nx)), "cost.P", definite=False)
+            Q = _validate.array(cost.Q, "cost.Q", (None, None))
+            nd_cost = Q.shape[0]
+            Q = _validate.symmetric_psd(_validate.array(Q, "cost.Q", (nd_cost, nd_cost)), "cost.Q", definite=True)
+            P_final = _validate.symmetric_psd(_validate.array(cost.P_final, "cost.P_final", (nx, nx)),
+                                              "cost.P_final", definite=False)
+            x_target = _validate.array(cost.x_target, "cost.x_target", (nx,))
+            cost = QuadraticCost(*(jnp.asarray(a) for a in (P, Q, P_final, x_target)))
+        elif isinstance(cost, GeneralCost):
+            nd_cost = None
+        else:
+            raise TypeError(f"cost must be a QuadraticCost or a GeneralCost; got {type(cost).__name__}")
+        nd = _resolve_n_controls(n_controls, nd_cost, u_min, u_max)
+        self.n_controls = nd
+        self.x0, self.cost = jnp.asarray(x0), cost
+        self.u_min, self.u_max = _limits(u_min, u_max, nd)
+        self._check_callables()
+
+    # -- sizes ---------------------------------------------------------------------------------
+    @property
+    def n_states(self) -> int:
+        return self.x0.shape[0]
+
+    @property
+    def n_noise(self) -> int:
+        """p, the number of noise columns (0 without noise)."""
+        if self.noise is None:
+            return 0
+        return jax.eval_shape(self.noise, self.x0, *(jnp.zeros(self.n_controls),) * 2).shape[1]
+
+    @property
+    def has_limits(self) -> bool:
+        return bool(np.any(np.isfinite(np.asarray(self.u_min))) or np.any(np.isfinite(np.asarray(self.u_max))))
+
+    @property
+    def delay(self) -> float:
+        """tau = l dt in seconds."""
+        return self.delay_steps * self.dt
+
+    def replace(self, **changes) -> "Problem":
+        """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``)."""
+        fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
+                      delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
+                      u_max=self.u_max, n_controls=self.n_controls, name=self.name)
+        fields.update(changes)
+        return Problem(**fields)
+
+    def _check_callables(self):
+        nx, nd = self.n_states, self.n_controls
+        x, u = jax.ShapeDtypeStruct((nx,), jnp.float64), jax.ShapeDtypeStruct((nd,), jnp.float64)
+        try:
+            out = jax.eval_shape(self.dynamics, x, u, u)
+        except Exception as exc:  # a user's function failing on shapes: say which and why
+            raise ValueError(f"dynamics(x, u, ud) failed on x of shape ({nx},) and u, ud of shape ({nd},): {exc}") from exc
+        if getattr(out, "shape", None) != (nx,):
+            raise ValueError(f"dynamics(x, u, ud) must return shape ({nx},); got {getattr(out, 'shape', type(out))}")
+        if self.noise is not None:
+            try:
+                out = jax.eval_shape(self.noise, x, u, u)
+            except Exception as exc:
+                raise ValueError(f"noise(x, u, ud) failed on x of shape ({nx},) and u, ud of shape ({nd},): {exc}") from exc
+            shape = getattr(out, "shape", None)
+            if shape is None or len(shape) != 2 or shape[0] != nx:
+                raise ValueError(f"noise(x, u, ud) must return shape ({nx}, p); got {shape}")
+        for what, fn, args in (("cost.running(x, u)", self.cost.running, (x, u)), ("cost.final(x)", self.cost.final, (x,))):
+            try:
+                out = jax.eval_shape(fn, *args)
+            except Exception as exc:
+                raise ValueError(f"{what} failed on x of shape ({nx},) and u of shape ({nd},): {exc}") from exc
+            if getattr(out, "shape", None) != ():
+                raise ValueError(f"{what} must return a scalar; got shape {getattr(out, 'shape', type(out))}")
+
+    def __repr__(self):
+        return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
+                f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps})")
+
+
+def _resolve_n_controls(n_controls, nd_cost, u_min, u_max) -> int:
+    candidates = {}
+    if n_controls is not None:
+        candidates["n_controls"] = _validate.positive_int(n_controls, "n_controls")
+    if nd_cost is not None:
+        candidates["cost.Q"] = nd_cost
+    for name, lim in (("u_min", u_min), ("u_max", u_max)):
+        if lim is not None and np.ndim(lim) == 1:
+            candidates[name] = np.shape(lim)[0]
+    if not candidates:
+        raise ValueError("n_controls must be given when it cannot be read from cost.Q, u_min or u_max; got None")
+    if len(set(candidates.values())) > 1:
+        raise ValueError(f"the number of controls must agree across arguments; got {candidates}")
+    return next(iter(candidates.values()))
+
+
+def _limits(u_min, u_max, nd):
+    lo = np.full(nd, -np.inf) if u_min is None else np.broadcast_to(
+        _validate.array(u_min, "u_min", (None,) * np.ndim(u_min), finite=False), (nd,)).copy()
+    hi = np.full(nd, np.inf) if u_max is None else np.broadcast_to(
+        _validate.array(u_max, "u_max", (None,) * np.ndim(u_max), finite=False), (nd,)).copy()
+    for name, lim in (("u_min", lo), ("u_max", hi)):
+        if np.any(np.isnan(lim)):
+            raise ValueError(f"{name} must not contain NaN; got {lim}")
+    if np.any(lo >= hi):
+        raise ValueError(f"u_min must be below u_max in every component; got u_min={lo}, u_max={hi}")
+    return jnp.asarray(lo), jnp.asarray(hi)
+
+
+def _problem_flatten(p: Problem):
+    return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
+                                               p.n_controls, p.name)
+
+
+def _problem_unflatten(aux, data):
+    new = object.__new__(Problem)
+    (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name) = aux
+    new.x0, new.cost, new.u_min, new.u_max = data
+    return new
+
+
+jax.tree_util.register_pytree_node(Problem, _problem_flatten, _problem_unflatten)
