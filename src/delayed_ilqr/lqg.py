@@ -21,7 +21,7 @@ Three solutions of the same problem live here:
 
 Both backward passes accept a Levenberg-Marquardt shift ``reg`` (the solver's lambda): the gains
 use H + reg I, and the value function is the exact cost-to-go of the quadratic model under those
-gains, which works out as the usual update with H + 2 reg I (see ``docs/derivation.md`` §4).
+gains (see ``docs/derivation.md`` §4), so that J(0) is always the true cost of the returned policy.
 """
 from __future__ import annotations
 
@@ -207,10 +207,10 @@ def _merged_if_undelayed(lqg: DelayedLQG):
                        C0=lqg.C0 + lqg.C1, C1=jnp.zeros_like(lqg.C1))
 
 
-def _stage_data(lqg: DelayedLQG):
+def _stage_data(lqg: DelayedLQG, bounds=None):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1."""
     return (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
-            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
+            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
 def _solve_gains(H, reg, rhs_list):
@@ -221,15 +221,27 @@ def _solve_gains(H, reg, rhs_list):
     return ok, [-cho_solve((chol, True), rhs) for rhs in rhs_list]
 
 
-def _structured_step(carry, data, *, l: int, reg, store_value: bool):
+def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
+    """Minimiser of du'H du + 2 du'(g + G y) with H replaced by H + reg I: (ok, I, K = [d, m])."""
+    ok, (I, K) = _solve_gains(H, reg, [g, G])
+    return ok, I, K
+
+
+def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     """One step k -> k-1 of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
 
     ``carry`` holds J(k)'s coefficients; ``data`` the model at k-1. Pending index i at time k-1 is
     du_{k-1+i-l}: i = 0 is the new one (acting through B1_{k-1}); i >= 1 was index i-1 at time k;
     index l-1 at time k is du_{k-1}, the command being eliminated.
+
+    The value update is the exact cost-to-go of the quadratic model under whatever gains
+    ``gains_fn`` returns (regularised, or clamped by control limits): with the quadratic
+    q0 + 2 y'q_y + y'Q_yy y + 2 du'(g + G y) + du'H du and du = I + K y it is
+    Q_yy + K'W + W'K with W = H K / 2 + G, q_y + K'(H I + g) + G'I and q0 + I'H I + 2 I'g
+    (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
     """
-    s_tilde, s, S, r, Rt, R, ok = carry
-    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu = data
+    s_tilde, s, S, r, Rt, R, ok, warm = carry
+    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
     SB0, SB1 = S @ B0, S @ B1
     Sc = c @ S                                              # [p, n], rows S c_j (S symmetric)
     SC0 = jnp.einsum("mn,pnd->pmd", S, C0)
@@ -239,6 +251,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool):
     H = E + B0.T @ SB0 + jnp.einsum("pnd,pne->de", C0, SC0)
     g = e + B0.T @ s + jnp.einsum("pnd,pn->d", C0, Sc)
     Gx = SB0.T @ A + Nxu
+    nd = B0.shape[1]
     if l > 0:
         Rt_last = Rt[-1]
         H = H + R[-1, -1] + B0.T @ Rt_last + Rt_last.T @ B0
@@ -247,34 +260,35 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool):
         GM0 = B0.T @ SB1 + jnp.einsum("pnd,pne->de", C0, SC1) + Rt_last.T @ B1
         GMi = jnp.einsum("nd,ine->ide", B0, Rt[:-1]) + R[-1, :-1]
         GM = jnp.concatenate([GM0[None], GMi])                     # [l, d, d]
+        G = jnp.concatenate([Gx, jnp.moveaxis(GM, 0, 1).reshape(nd, l * nd)], axis=1)
+    else:
+        G = Gx
     H = _sym(H)
-    nd, nx = B0.shape[1], A.shape[0]
-    rhs = [g, Gx] + ([jnp.moveaxis(GM, 0, 1).reshape(nd, l * nd)] if l > 0 else [])
-    step_ok, sols = _solve_gains(H, reg, rhs)
-    I, L = sols[0], sols[1]
-    # Exact cost-to-go under the (regularised) gains: H + 2 reg I, see derivation §4.
-    Hv = H + 2.0 * reg * jnp.eye(nd, dtype=H.dtype)
-    HvI, HvL = Hv @ I, Hv @ L
-    s_tilde_new = d_tilde + s_tilde + jnp.sum(c * Sc) - I @ HvI
-    s_new = dv + A.T @ s - L.T @ HvI
-    S_new = _sym(D + A.T @ S @ A - L.T @ HvL)
+    step_ok, I, K = gains_fn(H, reg, g, G, bounds, warm)
+    L = K[:, :Gx.shape[1]]
+    W = 0.5 * H @ K + G                                             # [d, n + l d]
+    Wx = W[:, :Gx.shape[1]]
+    HIg = H @ I + g
+    s_tilde_new = d_tilde + s_tilde + jnp.sum(c * Sc) + I @ (H @ I + 2.0 * g)
+    s_new = dv + A.T @ s + L.T @ HIg + Gx.T @ I
+    S_new = _sym(D + A.T @ S @ A + L.T @ Wx + Wx.T @ L)
     if l > 0:
-        M = jnp.moveaxis(sols[2].reshape(nd, l, nd), 1, 0)          # [l, d, d]
-        HvM = jnp.einsum("de,ief->idf", Hv, M)
+        M = jnp.moveaxis(K[:, Gx.shape[1]:].reshape(nd, l, nd), 1, 0)   # [l, d, d]
+        WM = jnp.moveaxis(W[:, Gx.shape[1]:].reshape(nd, l, nd), 1, 0)
         r_pre = jnp.concatenate([(B1.T @ s + jnp.einsum("pnd,pn->d", C1, Sc))[None], r[:-1]])
         Rt_pre = jnp.concatenate([(A.T @ SB1)[None], jnp.einsum("mn,imd->ind", A, Rt[:-1])])
         R00 = B1.T @ SB1 + jnp.einsum("pnd,pne->de", C1, SC1)
         Ri0 = jnp.einsum("ind,ne->ide", Rt[:-1], B1)                # (Rt^{i-1})' B1
         R_pre = jnp.pad(R[:-1, :-1], ((1, 0), (1, 0), (0, 0), (0, 0)))
         R_pre = R_pre.at[0, 0].set(R00).at[1:, 0].set(Ri0).at[0, 1:].set(jnp.swapaxes(Ri0, -1, -2))
-        r_new = r_pre - jnp.einsum("ide,d->ie", M, HvI)
-        Rt_new = Rt_pre - jnp.einsum("dn,ide->ine", L, HvM)
-        R_new = R_pre - jnp.einsum("ida,jdb->ijab", M, HvM)
-        R_new = 0.5 * (R_new + jnp.swapaxes(jnp.swapaxes(R_new, 0, 1), -1, -2))
+        r_new = r_pre + jnp.einsum("ide,d->ie", M, HIg) + jnp.einsum("ide,d->ie", GM, I)
+        Rt_new = Rt_pre + jnp.einsum("dn,ide->ine", L, WM) + jnp.einsum("dn,ide->ine", Wx, M)
+        MW = jnp.einsum("ida,jdb->ijab", M, WM)                       # (M^i)' W^j
+        R_new = R_pre + MW + jnp.swapaxes(jnp.swapaxes(MW, 0, 1), -1, -2)
     else:
         M = jnp.zeros((0, nd, nd), A.dtype)
         r_new, Rt_new, R_new = r, Rt, R
-    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, ok & step_ok)
+    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, ok & step_ok, I)
     out = (I, L, M, s_tilde_new, s_new, S_new)
     if store_value:
         out = out + (r_new, Rt_new, R_new)
@@ -285,19 +299,25 @@ def _terminal(lqg: DelayedLQG):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     dt = lqg.A.dtype
     return (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1], jnp.zeros((l, nd), dt), jnp.zeros((l, nx, nd), dt),
-            jnp.zeros((l, l, nd, nd), dt), jnp.asarray(True))
+            jnp.zeros((l, l, nd, nd), dt), jnp.asarray(True), jnp.zeros(nd, dt))
 
 
-def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True):
+def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
+                    bounds=None):
     """Runs Theorem 1 backwards with ``lax.scan``; returns (Gains, outputs, positive_definite).
 
-    ``store_value=False`` keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
-    O(K l^2 d^2)); the solver uses it for long delays.
+    Args:
+        store_value: False keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
+            O(K l^2 d^2)); the solver uses it for long delays.
+        gains_fn: ``(H, reg, g, G, bounds_k, warm) -> (ok, I, K)``, the minimiser of the step's
+            quadratic in du (default: unconstrained, Cholesky of H + reg I). The control-limited
+            solver passes a box-QP version; ``warm`` is the feedforward of the step after.
+        bounds: per-step data for ``gains_fn``, time-major (e.g. [K, 2, d] limits on du_k).
     """
     lqg = _merged_if_undelayed(lqg)
-    step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value)
-    carry, out = jax.lax.scan(step, _terminal(lqg), _stage_data(lqg), reverse=True)
-    return Gains(*out[:3]), out[3:], carry[-1]
+    step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value, gains_fn=gains_fn)
+    carry, out = jax.lax.scan(step, _terminal(lqg), _stage_data(lqg, bounds), reverse=True)
+    return Gains(*out[:3]), out[3:], carry[-2]
 
 
 def _append_terminal(per_step, terminal):
@@ -368,8 +388,10 @@ def _augmented_step(carry, data, *, reg):
     qz = dz + Az.T @ v + jnp.einsum("pnk,pn->k", Cz, Vc)
     q0 = d_tilde + v0 + jnp.sum(cz * Vc)
     step_ok, (I, Kz) = _solve_gains(Quu, reg, [qu, Quz])
-    Hv = Quu + 2.0 * reg * jnp.eye(Quu.shape[0], dtype=Quu.dtype)
-    carry = (q0 - I @ Hv @ I, qz - Kz.T @ Hv @ I, _sym(Qzz - Kz.T @ Hv @ Kz), ok & step_ok)
+    # exact cost-to-go of the quadratic under the gains (equal to the Riccati update when reg = 0)
+    W = 0.5 * Quu @ Kz + Quz
+    carry = (q0 + I @ (Quu @ I + 2.0 * qu), qz + Kz.T @ (Quu @ I + qu) + Quz.T @ I,
+             _sym(Qzz + Kz.T @ W + W.T @ Kz), ok & step_ok)
     return carry, (I, Kz) + carry[:3]
 
 
