@@ -26,6 +26,10 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from . import lqg  # noqa: E402
+from .problem import GeneralCost, Problem, QuadraticCost  # noqa: E402
+from .solution import Policy, Solution, Status, Trace  # noqa: E402
+from .solver import Options, solve  # noqa: E402
 
-__all__ = ["lqg"]
+__all__ = ["lqg", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve", "Solution", "Policy",
+           "Status", "Trace"]
 __version__ = "0.1.0"

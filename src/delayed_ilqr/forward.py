@@ -1,0 +1,124 @@
+"""Forward pass: closed-loop rollouts under the delayed feedback law, and the parallel line search.
+
+The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear plant)::
+
+    u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
+
+where u_{k+i-l} are the commands this rollout actually sent (the pending buffer), so the law feeds
+back commands that are already on their way but not yet acting. All alphas run at once (``vmap``).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .linearize import delayed_commands, noise_columns, trajectory_cost
+from .lqg import DelayedLQG, Gains
+from .problem import Problem
+
+__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search"]
+
+
+def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
+    """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
+    l, nd = problem.delay_steps, problem.n_controls
+    uds_bar = delayed_commands(problem, us_bar)
+
+    def step(carry, data):
+        x, pending = carry                                  # pending[i] = u_{k+i-l} - u_bar_{k+i-l}
+        x_bar, u_bar, ud_bar, I, L, M = data
+        du = alpha * I + L @ (x - x_bar) + jnp.einsum("ide,ie->d", M, pending)
+        u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
+        if l > 0:
+            ud = ud_bar + pending[0]
+            pending = jnp.concatenate([pending[1:], (u - u_bar)[None]])
+        else:
+            ud = u
+        x_new = x + problem.dt * problem.dynamics(x, u, ud)
+        return (x_new, pending), (x_new, u)
+
+    init = (problem.x0, jnp.zeros((l, nd), us_bar.dtype))
+    _, (xs, us) = jax.lax.scan(step, init, (xs_bar[:-1], us_bar, uds_bar, *gains))
+    return jnp.concatenate([problem.x0[None], xs]), us
+
+
+def noise_cost(problem: Problem, xs, us, S):
+    """sum_k sum_j c_{k,j}' S_{k+1} c_{k,j}: the LQG's noise cost of a nominal (S: [K+1, n, n])."""
+    c = noise_columns(problem, xs, us)
+    return jnp.einsum("kpn,knm,kpm->", c, S[1:], c)
+
+
+def merit(problem: Problem, xs, us, S):
+    """The quantity the line search minimises: eq. (2) on the nominal plus the noise cost.
+
+    With the value Hessians S of the last backward pass fixed, this is the LQG's expected cost of
+    the nominal under zero feedforward (s_tilde recursion with I = 0), so its stationary points are
+    those of the noise-aware iteration (I = 0). Without noise it is the plain cost (2).
+    """
+    cost = trajectory_cost(problem, xs, us)
+    if problem.noise is None:
+        return cost, cost
+    return cost, cost + noise_cost(problem, xs, us, S)
+
+
+def predicted_change(lqg: DelayedLQG, gains: Gains, S):
+    """(a, b) with merit(alpha) - merit(0) = alpha a + alpha^2 b under the LQG model.
+
+    The linear model with du_k = alpha I_k + L_k dx_k + sum_i M_k^i du_{k+i-l} and dx_0 = 0 is
+    linear in alpha: dx = alpha xi, du = alpha eta. Substituting into the quadratic cost (4) and the
+    noise cost gives the exact quadratic in alpha (derivation §5). O(K (n^2 + n d + l d^2)).
+    """
+    l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
+    B0 = lqg.B0 + lqg.B1 if l == 0 else lqg.B0
+    C0 = lqg.C0 + lqg.C1 if l == 0 else lqg.C0
+
+    def step(carry, data):
+        xi, pending = carry
+        A, B0k, B1, c, C0k, C1, I, L, M, Sn, dv, D, e, E, N = data
+        eta = I + L @ xi + jnp.einsum("ide,ie->d", M, pending)
+        eta_d = pending[0] if l > 0 else jnp.zeros(nd, xi.dtype)
+        dc = C0k @ eta + (C1 @ eta_d if l > 0 else 0.0)              # [p, n] change of noise columns
+        a = 2 * (xi @ dv + eta @ e) + 2 * jnp.einsum("pn,nm,pm->", c, Sn, dc)
+        b = xi @ D @ xi + eta @ E @ eta + 2 * eta @ N @ xi + jnp.einsum("pn,nm,pm->", dc, Sn, dc)
+        xi_new = A @ xi + B0k @ eta + (B1 @ eta_d if l > 0 else 0.0)
+        if l > 0:
+            pending = jnp.concatenate([pending[1:], eta[None]])
+        return (xi_new, pending), (a, b)
+
+    data = (lqg.A, B0, lqg.B1, lqg.c, C0, lqg.C1, *gains, S[1:], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
+    (xiK, _), (a, b) = jax.lax.scan(step, (jnp.zeros(nx), jnp.zeros((l, nd))), data)
+    return jnp.sum(a) + 2 * xiK @ lqg.d[-1], jnp.sum(b) + xiK @ lqg.D[-1] @ xiK
+
+
+class LineSearch(NamedTuple):
+    """Outcome of one parallel line search."""
+
+    accepted: jax.Array          # bool
+    xs: jax.Array                # best candidate
+    us: jax.Array
+    cost: jax.Array              # its cost (2)
+    merit: jax.Array             # its merit
+    alpha: jax.Array
+    actual: jax.Array            # merit reduction achieved
+    expected: jax.Array          # reduction predicted by the LQG model
+    all_non_finite: jax.Array    # bool: every candidate rollout blew up
+
+
+def line_search(problem: Problem, lqg: DelayedLQG, gains: Gains, S, xs, us, merit_now, alphas, z_min):
+    """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min."""
+    alphas = jnp.asarray(alphas)
+    cand_xs, cand_us = jax.vmap(lambda a: closed_loop_rollout(problem, xs, us, gains, a))(alphas)
+    cand_cost, cand_merit = jax.vmap(lambda x, u: merit(problem, x, u, S))(cand_xs, cand_us)
+    finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(1, 2))
+    cand_merit = jnp.where(finite, cand_merit, jnp.inf)
+    best = jnp.argmin(cand_merit)
+    a, b = predicted_change(lqg, gains, S)
+    alpha = alphas[best]
+    expected = -(alpha * a + alpha ** 2 * b)
+    actual = merit_now - cand_merit[best]
+    z = jnp.where(expected > 0, actual / jnp.where(expected > 0, expected, 1.0), jnp.sign(actual))
+    accepted = finite[best] & (z > z_min)
+    return LineSearch(accepted, cand_xs[best], cand_us[best], cand_cost[best], cand_merit[best], alpha,
+                      actual, expected, ~jnp.any(finite))

@@ -1,0 +1,199 @@
+"""iLQG with control delay: ``solve`` runs linearise -> backward pass -> line search -> accept/reject
+in one compiled ``lax.while_loop``.
+
+One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
+
+1. linearise (eq. 3-4) and run the backward pass (Theorem 1, or augmentation with
+   ``Options(method="augmented")``) with H + lambda I;
+2. if some H + lambda I is not positive definite: raise lambda and try again;
+3. if the feedforward is negligible (Tassa's gradient measure < tol_grad with lambda < 1e-5): stop;
+4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best, accept
+   when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
+   schedule); stop when an accepted reduction is below tol_cost (relative).
+
+The returned policy and ``expected_cost`` come from a last backward pass at the returned nominal.
+"""
+from __future__ import annotations
+
+import dataclasses
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _validate
+from .forward import line_search, merit
+from .linearize import linearize, rollout, trajectory_cost
+from .lqg import Gains, augmented_backward_pass, structured_scan
+from .problem import Problem
+from .solution import Policy, Solution, Status, Trace
+
+__all__ = ["Options", "solve"]
+
+_RUNNING = -1
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Solver settings (immutable, validated when built; defaults follow Tassa's iLQG.m where sensible).
+
+    Attributes:
+        method: "structured" (Theorem 1, the default) or "augmented" (state-augmentation reference).
+        max_iterations: iteration limit (rejected steps count).
+        tol_cost: stop when an accepted step reduces the merit by less than tol_cost * (1 + |merit|).
+        tol_grad: stop when mean_k max_i |I_k,i| / (|u_k,i| + 1) < tol_grad (and lambda < 1e-5).
+        alphas: line-search step sizes, tried in parallel (default 10^linspace(0, -3, 11)).
+        reg_init: initial lambda. 0 tries the exact Newton (LQG) step first, which makes a
+            linear-quadratic problem converge in one step; Tassa uses 1.
+        reg_min, reg_max, reg_factor: Tassa's schedule (lambda below reg_min is set to 0; the
+            solve stops when lambda exceeds reg_max).
+        z_min: minimal accepted ratio of actual to expected reduction.
+    """
+
+    method: str = "structured"
+    max_iterations: int = 100
+    tol_cost: float = 1e-10
+    tol_grad: float = 1e-7
+    alphas: tuple = tuple(float(a) for a in 10.0 ** np.linspace(0.0, -3.0, 11))
+    reg_init: float = 0.0
+    reg_min: float = 1e-6
+    reg_max: float = 1e10
+    reg_factor: float = 1.6
+    z_min: float = 0.0
+
+    def __post_init__(self):
+        if self.method not in ("structured", "augmented"):
+            raise ValueError(f"method must be 'structured' or 'augmented'; got {self.method!r}")
+        _validate.positive_int(self.max_iterations, "max_iterations")
+        for name in ("tol_cost", "tol_grad", "reg_min", "reg_max"):
+            _validate.positive_float(getattr(self, name), name)
+        if not (np.isfinite(self.reg_init) and self.reg_init >= 0):
+            raise ValueError(f"reg_init must be a finite number >= 0; got {self.reg_init!r}")
+        if not float(self.reg_factor) > 1:
+            raise ValueError(f"reg_factor must be greater than 1; got {self.reg_factor!r}")
+        alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
+        if not alphas or not all(0 < a <= 1 for a in alphas):
+            raise ValueError(f"alphas must be a non-empty sequence of step sizes in (0, 1]; got {self.alphas!r}")
+        object.__setattr__(self, "alphas", alphas)
+
+
+class _State(NamedTuple):
+    us: jax.Array
+    xs: jax.Array
+    cost: jax.Array
+    reg: jax.Array
+    dreg: jax.Array
+    iteration: jax.Array
+    status: jax.Array
+    trace: Trace
+
+
+def _backward(problem: Problem, xs, us, reg, method: str):
+    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite)."""
+    lqg = linearize(problem, xs, us)
+    if method == "augmented":
+        gains, value = augmented_backward_pass(lqg, reg)
+        return lqg, gains, value.S, value.s_tilde[0], value.positive_definite
+    gains, (s_tilde, _, S), ok = structured_scan(lqg, reg, store_value=False)
+    S = jnp.concatenate([S, lqg.D[-1:]])
+    return lqg, gains, S, s_tilde[0], ok
+
+
+def _grad_norm(gains: Gains, us):
+    return jnp.mean(jnp.max(jnp.abs(gains.feedforward) / (jnp.abs(us) + 1.0), axis=1))
+
+
+def _increase(reg, dreg, o: Options):
+    dreg = jnp.maximum(dreg * o.reg_factor, o.reg_factor)
+    return jnp.maximum(reg * dreg, o.reg_min), dreg
+
+
+def _decrease(reg, dreg, o: Options):
+    dreg = jnp.minimum(dreg / o.reg_factor, 1.0 / o.reg_factor)
+    reg = reg * dreg
+    return jnp.where(reg > o.reg_min, reg, 0.0), dreg
+
+
+def _iteration(problem: Problem, o: Options, st: _State) -> _State:
+    lqg, gains, S, _, pd = _backward(problem, st.xs, st.us, st.reg, o.method)
+    gnorm = _grad_norm(gains, st.us)
+    converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
+    _, merit_now = merit(problem, st.xs, st.us, S)
+    # NaN gains from a failed factorisation must not reach the rollout: use zero gains instead
+    safe = jax.tree_util.tree_map(lambda g: jnp.where(pd, g, 0.0), gains)
+    ls = line_search(problem, lqg, safe, S, st.xs, st.us, merit_now, o.alphas, o.z_min)
+    accept = pd & ~converged & ls.accepted
+    reg_up, dreg_up = _increase(st.reg, st.dreg, o)
+    reg_down, dreg_down = _decrease(st.reg, st.dreg, o)
+    reg = jnp.where(accept, reg_down, jnp.where(converged, st.reg, reg_up))
+    dreg = jnp.where(accept, dreg_down, jnp.where(converged, st.dreg, dreg_up))
+    small = accept & (ls.actual < o.tol_cost * (1.0 + jnp.abs(merit_now)))
+    it = st.iteration + 1
+    status = jnp.select(
+        [converged, small, ~accept & (reg > o.reg_max) & ls.all_non_finite & pd,
+         ~accept & (reg > o.reg_max), it >= o.max_iterations],
+        [Status.CONVERGED_GRADIENT, Status.CONVERGED_COST, Status.NON_FINITE_ROLLOUT,
+         Status.REGULARIZATION_LIMIT, Status.MAX_ITERATIONS], _RUNNING)
+    us = jnp.where(accept, ls.us, st.us)
+    xs = jnp.where(accept, ls.xs, st.xs)
+    cost = jnp.where(accept, ls.cost, st.cost)
+    t = st.trace
+    trace = Trace(
+        cost=t.cost.at[it].set(cost),
+        merit=t.merit.at[it].set(jnp.where(accept, ls.merit, merit_now)),
+        expected_reduction=t.expected_reduction.at[it].set(jnp.where(converged, 0.0, ls.expected)),
+        step_size=t.step_size.at[it].set(jnp.where(accept, ls.alpha, 0.0)),
+        reg=t.reg.at[it].set(st.reg),
+        grad_norm=t.grad_norm.at[it].set(gnorm))
+    return _State(us, xs, cost, reg, dreg, it, status.astype(jnp.int32), trace)
+
+
+@partial(jax.jit, static_argnames=("options",))
+def _solve(problem: Problem, u_init, options: Options) -> Solution:
+    xs = rollout(problem, u_init)
+    cost = trajectory_cost(problem, xs, u_init)
+    ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(xs))
+    nan = jnp.full(options.max_iterations + 1, jnp.nan)
+    trace = Trace(cost=nan.at[0].set(cost), merit=nan.at[0].set(cost), expected_reduction=nan,
+                  step_size=nan, reg=nan, grad_norm=nan)
+    init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
+                  jnp.asarray(0, jnp.int32),
+                  jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32), trace)
+    st = jax.lax.while_loop(lambda s: s.status == _RUNNING, partial(_iteration, problem, options), init)
+    # the policy and J(0) at the returned nominal
+    _, gains, _, expected_cost, _ = _backward(problem, st.xs, st.us, st.reg, options.method)
+    policy = Policy(st.xs, st.us, *gains)
+    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=expected_cost, status=st.status,
+                    iterations=st.iteration, policy=policy, trace=st.trace)
+
+
+def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solution:
+    """Locally-optimal delayed feedback control of ``problem`` by iLQG with input delay.
+
+    Args:
+        problem: the :class:`~delayed_ilqr.Problem`.
+        u_init: [K, d] initial commands (default zeros, clipped to the limits).
+        options: :class:`Options` (default ``Options()``).
+
+    Returns:
+        A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
+        reported in ``status`` / ``message``, never raised. Works under ``jax.vmap`` over problems
+        that differ only in their arrays (x0, cost arrays or parameters, limits).
+    """
+    if not isinstance(problem, Problem):
+        raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
+    options = Options() if options is None else options
+    if not isinstance(options, Options):
+        raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
+    shape = (problem.horizon, problem.n_controls)
+    if u_init is None:
+        u_init = jnp.zeros(shape)
+    elif isinstance(u_init, jax.core.Tracer):
+        if u_init.shape != shape:
+            raise ValueError(f"u_init must have shape {shape}; got shape {u_init.shape}")
+    else:
+        u_init = _validate.array(u_init, "u_init", shape, finite=False)
+    u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
+    return _solve(problem, u_init, options)
