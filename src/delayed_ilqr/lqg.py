@@ -115,6 +115,12 @@ class DelayedLQG:
     def n_noise(self) -> int:
         return self.c.shape[1]
 
+    @classmethod
+    def from_traced(cls, *, delay_steps: int, **arrays) -> "DelayedLQG":
+        """Builds an instance from (possibly traced) arrays without validation: for use inside jit,
+        where the arrays come from the library's own linearisation."""
+        return _unflatten(delay_steps, tuple(arrays[name] for name in _ARRAY_FIELDS))
+
     def replace(self, **changes) -> "DelayedLQG":
         """A copy with some arrays replaced (no validation: for internal use on traced data)."""
         new = object.__new__(DelayedLQG)
