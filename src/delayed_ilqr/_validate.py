@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numbers
 
+import jax
 import numpy as np
 
 
@@ -38,15 +39,25 @@ def positive_float(value, name: str) -> float:
     return v
 
 
-def array(value, name: str, shape: tuple, *, finite: bool = True) -> np.ndarray:
-    """Converts to a float64 array of the given shape; ``None`` entries of ``shape`` match anything."""
+def _shape_text(shape: tuple) -> str:
+    return "(" + ", ".join("*" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+
+
+def array(value, name: str, shape: tuple, *, finite: bool = True):
+    """Converts to a float64 array of the given shape; ``None`` entries of ``shape`` match anything.
+
+    Traced values (under ``jit`` / ``vmap``) are checked for shape only and returned as they are.
+    """
+    if isinstance(value, jax.core.Tracer):
+        if value.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, value.shape)):
+            raise ValueError(f"{name} must have shape {_shape_text(shape)}; got shape {value.shape}")
+        return value
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise TypeError(f"{name} must be an array of numbers; got {type(value).__name__}") from None
     if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
-        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
-        raise ValueError(f"{name} must have shape {want}; got shape {arr.shape}")
+        raise ValueError(f"{name} must have shape {_shape_text(shape)}; got shape {arr.shape}")
     if finite and not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise ValueError(f"{name} must be finite; got a non-finite value at index {tuple(int(i) for i in bad)}")
@@ -54,7 +65,9 @@ def array(value, name: str, shape: tuple, *, finite: bool = True) -> np.ndarray:
 
 
 def symmetric_psd(mat: np.ndarray, name: str, *, definite: bool, tol: float = 1e-10) -> np.ndarray:
-    """Checks that the trailing two axes hold symmetric positive (semi-)definite matrices."""
+    """Checks that the trailing two axes hold symmetric positive (semi-)definite matrices (not traced ones)."""
+    if isinstance(mat, jax.core.Tracer):
+        return mat
     asym = np.max(np.abs(mat - np.swapaxes(mat, -1, -2)), initial=0.0)
     scale = max(1.0, float(np.max(np.abs(mat), initial=0.0)))
     if asym > tol * scale:

@@ -42,7 +42,8 @@ class Options:
     Attributes:
         method: "structured" (Theorem 1, the default) or "augmented" (state-augmentation reference).
         max_iterations: iteration limit (rejected steps count).
-        tol_cost: stop when an accepted step reduces the merit by less than tol_cost * (1 + |merit|).
+        tol_cost: stop when an accepted step reduces the merit by less than tol_cost * |merit|
+            (relative: costs of motor tasks are often ~1e-4, where an absolute test stops early).
         tol_grad: stop when mean_k max_i |I_k,i| / (|u_k,i| + 1) < tol_grad (and lambda < 1e-5).
         alphas: line-search step sizes, tried in parallel (default 10^linspace(0, -3, 11)).
         reg_init: initial lambda. 0 tries the exact Newton (LQG) step first, which makes a
@@ -129,7 +130,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     reg_down, dreg_down = _decrease(st.reg, st.dreg, o)
     reg = jnp.where(accept, reg_down, jnp.where(converged, st.reg, reg_up))
     dreg = jnp.where(accept, dreg_down, jnp.where(converged, st.dreg, dreg_up))
-    small = accept & (ls.actual < o.tol_cost * (1.0 + jnp.abs(merit_now)))
+    small = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
     it = st.iteration + 1
     status = jnp.select(
         [converged, small, ~accept & (reg > o.reg_max) & ls.all_non_finite & pd,

@@ -1,0 +1,47 @@
+"""Model zoo: factories that return a ready :class:`~delayed_ilqr.Problem`.
+
+Every factory takes ``delay`` in seconds (a whole number of steps of ``dt``, checked by
+:func:`delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
+over dt). Dynamics and noise callables are frozen dataclasses compared and hashed by value, so two
+problems built with the same arguments share one compiled solver.
+
+=============  ==========================================================================
+point_mass     P1 / P1-noisy / P4 of ``benchmark_problems.md`` (damped planar point mass)
+arm2           P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters)
+pendulum       torque-limited pendulum swing-up
+cart_pole      cart-pole swing-up (Florian's frictionless equations)
+=============  ==========================================================================
+"""
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+from ._common import delay_to_steps
+from .arm2 import (ARM2_PARAMS, ARM2_PARAMS_ARM_DYN, Arm2Params, arm2, coriolis, hand_jacobian, hand_position,
+                   hand_velocity, joint_acceleration, mass_matrix, mass_matrix_inverse)
+from .cart_pole import cart_pole
+from .pendulum import pendulum
+from .point_mass import point_mass
+
+__all__ = ["point_mass", "arm2", "pendulum", "cart_pole", "REGISTRY", "ModelInfo", "delay_to_steps",
+           "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
+           "joint_acceleration", "hand_position", "hand_jacobian", "hand_velocity"]
+
+
+class ModelInfo(NamedTuple):
+    """A registry entry: ``factory(delay=..., noise=..., dt=..., horizon=...) -> Problem``."""
+
+    factory: Callable
+    description: str
+
+
+REGISTRY = {
+    "point_mass": ModelInfo(point_mass, "P1: damped planar point mass (m=1, b=0.5) pushed by a delayed force, "
+                                        "4 states, 2 controls, tf=0.6 s"),
+    "arm2": ModelInfo(arm2, "P2: two-link arm driven by delayed joint torques (Li & Todorov 2004), "
+                            "4 states, 2 controls, tf=0.5 s"),
+    "pendulum": ModelInfo(pendulum, "pendulum swing-up with a delayed torque limited to |u| <= 4 N m, "
+                                    "2 states, 1 control, tf=3 s"),
+    "cart_pole": ModelInfo(cart_pole, "cart-pole swing-up with a delayed force limited to |u| <= 10 N "
+                                      "(Florian's equations), 4 states, 1 control, tf=3 s"),
+}

@@ -1,0 +1,81 @@
+"""Argument checks shared by the model factories (delays in seconds, step sizes, horizons)."""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+
+from .. import _validate
+
+# A delay is accepted when tau / dt is within this relative distance of an integer: 0.03 / 0.01 is
+# 2.9999999999999996 in floating point and must give 3, while 0.025 / 0.01 = 2.5 must be refused.
+_STEP_RTOL = 1e-9
+
+
+def _real(value, name: str) -> float:
+    """A real scalar as a Python float (bools, strings, arrays are refused)."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a non-negative finite number of seconds; got {value!r}")
+    return float(value)
+
+
+def delay_to_steps(delay, dt, name: str = "delay") -> int:
+    """Converts an input delay tau in seconds into l = tau / dt steps.
+
+    Args:
+        delay: tau >= 0 in seconds; it must be a whole number of steps of ``dt`` (up to a relative
+            rounding tolerance of 1e-9, so that ``delay_to_steps(0.03, 0.01) == 3``).
+        dt: the time step in seconds (positive, finite).
+        name: the argument's name used in error messages.
+
+    Returns:
+        l, a non-negative Python int.
+
+    Raises:
+        ValueError: naming ``name`` (or ``dt``), the rule and the value received, e.g.
+            ``delay must be a whole number of steps of dt=0.01 s; got 0.025 s (2.5 steps)``.
+    """
+    dt = _validate.positive_float(dt, "dt")
+    tau = _real(delay, name)
+    if not math.isfinite(tau) or tau < 0:
+        raise ValueError(f"{name} must be a non-negative finite number of seconds; got {delay!r}")
+    steps = tau / dt
+    whole = round(steps)
+    if abs(steps - whole) > _STEP_RTOL * max(1.0, abs(steps)):
+        raise ValueError(f"{name} must be a whole number of steps of dt={dt!r} s; "
+                         f"got {tau!r} s ({steps:.6g} steps)")
+    return int(whole)
+
+
+def horizon_steps(horizon, final_time: float, dt: float) -> int:
+    """``horizon`` checked as a positive int, or, when None, the number of steps nearest tf / dt."""
+    if horizon is None:
+        return max(1, int(round(final_time / dt)))
+    return _validate.positive_int(horizon, "horizon")
+
+
+def vector(value, name: str, size: int) -> tuple:
+    """A length-``size`` finite vector, as a tuple of Python floats (hashable, readable in reprs)."""
+    arr = _validate.array(value, name, (size,))
+    return tuple(float(v) for v in arr)
+
+
+def positive(value, name: str) -> float:
+    return _validate.positive_float(value, name)
+
+
+def non_negative(value, name: str) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a non-negative finite number; got {value!r}") from None
+    if isinstance(value, bool) or not math.isfinite(v) or v < 0:
+        raise ValueError(f"{name} must be a non-negative finite number; got {value!r}")
+    return v
+
+
+def flag(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False; got {value!r}")
+    return bool(value)

@@ -1,0 +1,86 @@
+"""P1: a damped planar point mass pushed by a delayed force (``benchmark_problems.md``, P1 and P4).
+
+    x = [px, py, vx, vy],  u = [fx, fy] (N)
+    f(x, u, ud) = [vx, vy, (ud_x - b vx) / m, (ud_y - b vy) / m]       m = 1 kg, b = 0.5 N s/m
+
+The force that acts now is the command sent tau = l dt earlier (``ud``); the command sent now
+(``u``) does not enter the plant. Cost (eq. 2): P = 0, Q = 1e-4 I_2,
+P_f = diag(1e3, 1e3, 1e1, 1e1), target [0.2, 0.1, 0, 0]; tf = 0.6 s.
+
+P1-noisy adds the diffusion F(x, u, ud) [4, 4] (p = 4):
+columns 1, 2 are signal-dependent, sigma_u ud_j / m on velocity row j (sigma_u = 0.5); columns 3, 4
+are additive, sigma_a / m on velocity rows x and y (sigma_a = 0.05).
+
+P4 (scaling sweep) is ``point_mass(dt=0.001, delay=l * 0.001)``: K = 600.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+
+from ..problem import Problem, QuadraticCost
+from . import _common
+
+__all__ = ["point_mass", "PointMassDynamics", "PointMassNoise", "FINAL_TIME"]
+
+FINAL_TIME = 0.6  # s, tf of P1
+MASS = 1.0  # kg
+DAMPING = 0.5  # N s / m
+SIGMA_U = 0.5  # signal-dependent force noise (relative)
+SIGMA_A = 0.05  # additive force noise (N)
+
+
+@dataclass(frozen=True)
+class PointMassDynamics:
+    """f(x, u, ud) of P1; equal (and hashed) by value, so equal problems share one compilation."""
+
+    mass: float = MASS
+    damping: float = DAMPING
+
+    def __call__(self, x, u, ud):
+        vel = x[2:4]
+        return jnp.concatenate([vel, (ud - self.damping * vel) / self.mass])
+
+
+@dataclass(frozen=True)
+class PointMassNoise:
+    """F(x, u, ud) [4, 4] of P1-noisy: two signal-dependent and two additive noise columns."""
+
+    mass: float = MASS
+    sigma_u: float = SIGMA_U
+    sigma_a: float = SIGMA_A
+
+    def __call__(self, x, u, ud):
+        signal = jnp.diag(self.sigma_u * ud / self.mass)  # [2, 2]: column j scales velocity row j
+        additive = (self.sigma_a / self.mass) * jnp.eye(2, dtype=signal.dtype)
+        velocity_rows = jnp.concatenate([signal, additive], axis=1)  # [2, 4]
+        return jnp.concatenate([jnp.zeros_like(velocity_rows), velocity_rows], axis=0)
+
+
+def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1, 0.0, 0.0),
+               x0=(0.0, 0.0, 0.0, 0.0)) -> Problem:
+    """P1 of ``benchmark_problems.md``: the point mass reaching to (0.2, 0.1) m and stopping there.
+
+    Args:
+        delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P1).
+        noise: False for P1, True for P1-noisy (the [4, 4] diffusion of the module docstring).
+        dt: time step in seconds (0.01 in P1, 0.001 in P4).
+        horizon: K; default ``round(0.6 / dt)`` (60 at dt = 0.01, 600 at dt = 0.001).
+        x_target: [4] final target [px, py, vx, vy].
+        x0: [4] initial state.
+
+    Returns:
+        A :class:`~delayed_ilqr.Problem` named ``"point_mass"``.
+    """
+    dt = _common.positive(dt, "dt")
+    delay_steps = _common.delay_to_steps(delay, dt, "delay")
+    noise = _common.flag(noise, "noise")
+    horizon = _common.horizon_steps(horizon, FINAL_TIME, dt)
+    x0 = _common.vector(x0, "x0", 4)
+    x_target = _common.vector(x_target, "x_target", 4)
+    cost = QuadraticCost(P=jnp.zeros((4, 4)), Q=1e-4 * jnp.eye(2),
+                         P_final=jnp.diag(jnp.array([1e3, 1e3, 1e1, 1e1])), x_target=jnp.array(x_target))
+    return Problem(dynamics=PointMassDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
+                   delay_steps=delay_steps, cost=cost, noise=PointMassNoise() if noise else None,
+                   name="point_mass")

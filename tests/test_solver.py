@@ -1,0 +1,260 @@
+"""The nonlinear solver against independent references: the exact LQG optimum, a direct method
+(L-BFGS over the whole command sequence with autodiff gradients), the augmentation method, and
+exact expected costs of policies on the (linear) noisy point mass."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+import delayed_ilqr as di
+from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
+from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
+from delayed_ilqr.models import arm2, point_mass
+
+DELAYS = [0.0, 0.03, 0.1]
+
+
+def direct_optimum(problem):
+    """Independent reference: L-BFGS-B over all K*d commands, gradient by jax.grad of the rollout cost.
+
+    L-BFGS-B's ftol test has an absolute floor of 1, so the objective is rescaled to O(1) at the
+    point found and the search restarted there, twice.
+    """
+    K, nd = problem.horizon, problem.n_controls
+
+    def cost(flat):
+        us = flat.reshape(K, nd)
+        return trajectory_cost(problem, rollout(problem, us), us)
+
+    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
+    u = np.zeros(K * nd)
+    for _ in range(3):
+        scale = 1.0 / float(fun(u))
+        res = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
+                                      method="L-BFGS-B",
+                                      options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14, maxcor=50))
+        u = res.x
+    return float(fun(u))
+
+
+@pytest.mark.parametrize("delay", DELAYS)
+def test_linear_problem_converges_in_one_step_to_the_lqg_optimum(delay):
+    problem = point_mass(delay=delay)
+    sol = di.solve(problem)
+    us0 = jnp.zeros((problem.horizon, problem.n_controls))
+    optimum = backward_pass(linearize(problem, rollout(problem, us0), us0))[1].expected_cost
+    assert sol.converged, sol.message
+    assert float(sol.trace.step_size[1]) == 1.0                  # the full Newton step, first try
+    np.testing.assert_allclose(float(sol.trace.cost[1]), float(optimum), rtol=1e-10)
+    np.testing.assert_allclose(float(sol.cost), float(optimum), rtol=1e-10)
+    assert int(sol.iterations) == 2                               # the second only confirms I = 0
+
+
+@pytest.mark.parametrize("factory", [point_mass, arm2], ids=["P1", "P2"])
+@pytest.mark.parametrize("delay", DELAYS)
+def test_agrees_with_a_direct_method(factory, delay):
+    problem = factory(delay=delay)
+    sol = di.solve(problem)
+    assert sol.converged, sol.message
+    reference = direct_optimum(problem)
+    # iLQG may only be better than the direct method, and by no more than round-off of the latter
+    assert abs(float(sol.cost) - reference) <= 1e-7 * reference
+
+
+def test_structured_and_augmented_give_the_same_iterates_on_the_delayed_arm():
+    """Same LQG, two exact solutions: the iterations must coincide.
+
+    On P2 the gains of the two methods agree to ~5e-11 relative (H is ill-conditioned: E = dt Q =
+    1e-6), and steps that cut the cost by 80x (891 -> 11 in the first) amplify that round-off, so
+    per-iteration costs agree to ~6e-8 (measured), not to machine precision. What must hold exactly:
+    the same step sizes, statuses and iteration counts; the first backward pass to 1e-9; the
+    converged cost to 1e-12.
+    """
+    problem = arm2(delay=0.1)
+    us0 = jnp.zeros((problem.horizon, 2))
+    lqg = linearize(problem, rollout(problem, us0), us0)
+    for g_s, g_a in zip(backward_pass(lqg)[0], augmented_backward_pass(lqg)[0]):
+        np.testing.assert_allclose(np.asarray(g_s), np.asarray(g_a), rtol=0, atol=1e-9 * float(jnp.max(jnp.abs(g_a))))
+    a = di.solve(problem)
+    b = di.solve(problem, options=di.Options(method="augmented"))
+    assert int(a.iterations) == int(b.iterations) and int(a.status) == int(b.status)
+    n = int(a.iterations) + 1
+    np.testing.assert_array_equal(np.asarray(a.trace.step_size[:n]), np.asarray(b.trace.step_size[:n]))
+    np.testing.assert_allclose(np.asarray(a.trace.cost[:n]), np.asarray(b.trace.cost[:n]), rtol=1e-7)
+    np.testing.assert_allclose(float(a.cost), float(b.cost), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(a.policy.delay_feedback), np.asarray(b.policy.delay_feedback),
+                               rtol=1e-7, atol=1e-9)
+
+
+def test_zero_delay_is_ordinary_ilqg():
+    """l = 0: the structured recursion has no pending commands; augmentation has no buffer, so it
+    is the textbook Riccati iLQG. Both must produce the same iterates, and the delay feedback is empty."""
+    problem = arm2(delay=0.0)
+    a = di.solve(problem)
+    b = di.solve(problem, options=di.Options(method="augmented"))
+    n = int(a.iterations) + 1
+    assert a.policy.delay_feedback.shape == (problem.horizon, 0, 2, 2)
+    np.testing.assert_allclose(np.asarray(a.trace.cost[:n]), np.asarray(b.trace.cost[:n]), rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(a.policy.state_feedback), np.asarray(b.policy.state_feedback),
+                               rtol=1e-7, atol=1e-9)
+
+
+@pytest.mark.parametrize("delay", [0.03, 0.1])
+def test_cost_never_increases_over_accepted_iterations(delay):
+    sol = di.solve(arm2(delay=delay), options=di.Options(reg_init=1.0))
+    n = int(sol.iterations) + 1
+    cost = np.asarray(sol.trace.cost[:n])
+    assert np.all(np.diff(cost) <= 0.0)
+    accepted = np.asarray(sol.trace.step_size[1:n]) > 0
+    assert accepted.sum() >= 3                      # the test exercises several accepted steps
+
+
+def _exact_cost_in_noise(noisy, policy):
+    """E[J] of running ``policy`` (nominal + feedback, no feedforward) on the noisy plant.
+
+    The point mass is linear with linear noise in the command, so the LQG around any nominal is
+    exact, and policy_cost gives the exact expectation (no sampling).
+    """
+    lqg = linearize(noisy, policy.x_nominal, policy.u_nominal)
+    gains = Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
+    return float(policy_cost(lqg, gains))
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.03, 0.1])
+def test_noise_aware_policy_beats_the_deterministic_one_in_noise(delay):
+    noisy = point_mass(delay=delay, noise=True)
+    stochastic = di.solve(noisy)
+    deterministic = di.solve(point_mass(delay=delay))
+    assert stochastic.converged, stochastic.message
+    j_stochastic = _exact_cost_in_noise(noisy, stochastic.policy)
+    j_deterministic = _exact_cost_in_noise(noisy, deterministic.policy)
+    np.testing.assert_allclose(j_stochastic, float(stochastic.expected_cost), rtol=1e-8)
+    assert j_stochastic < 0.99 * j_deterministic     # signal-dependent noise: a real gain, not round-off
+
+
+def test_noisy_point_mass_expected_cost_matches_the_independent_value():
+    """paper_errata.md E7 reports 11.61 for the stochastic point mass at tau = 0.03, computed by an
+    independent implementation with the sqrt(dt) noise scaling."""
+    sol = di.solve(point_mass(delay=0.03, noise=True))
+    assert round(float(sol.expected_cost), 2) == 11.61
+
+
+def test_overflowing_initial_guess_reports_a_status():
+    problem = arm2(delay=0.03)
+    sol = di.solve(problem, u_init=np.full((problem.horizon, 2), 1e200))
+    assert int(sol.status) == di.Status.NON_FINITE_INITIAL
+    assert not sol.converged and "u_init" in sol.message
+    assert int(sol.iterations) == 0
+
+
+def test_iteration_limit_reports_a_status():
+    sol = di.solve(arm2(delay=0.03), options=di.Options(max_iterations=2, reg_init=1.0))
+    assert int(sol.status) == di.Status.MAX_ITERATIONS
+    assert "max_iterations" in sol.message
+    assert np.all(np.isfinite(np.asarray(sol.u)))
+
+
+def test_vmap_over_initial_states_matches_separate_solves():
+    problem = point_mass(delay=0.03)
+    x0s = jnp.array([[0.0, 0.0, 0.0, 0.0], [0.05, -0.02, 0.1, 0.0], [-0.1, 0.1, 0.0, -0.2]])
+
+    def solve_from(x0):
+        return di.solve(problem.replace(x0=x0)).cost
+
+    batched = jax.vmap(solve_from)(x0s)
+    separate = [float(di.solve(problem.replace(x0=x0)).cost) for x0 in np.asarray(x0s)]
+    np.testing.assert_allclose(np.asarray(batched), separate, rtol=1e-10)
+
+
+def test_solution_fields_have_documented_shapes():
+    problem = arm2(delay=0.03)
+    sol = di.solve(problem)
+    K, n, d, l = problem.horizon, 4, 2, problem.delay_steps
+    assert sol.x.shape == (K + 1, n) and sol.u.shape == (K, d)
+    assert sol.policy.state_feedback.shape == (K, d, n)
+    assert sol.policy.delay_feedback.shape == (K, l, d, d)
+    assert sol.x.dtype == jnp.float64
+    np.testing.assert_allclose(np.asarray(sol.x), np.asarray(rollout(problem, sol.u)), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(float(sol.cost), float(trajectory_cost(problem, sol.x, sol.u)), rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------------------------
+# validation: each rule names the argument, the rule and what was received
+# ------------------------------------------------------------------------------------------------
+
+def _f(x, u, ud):
+    return jnp.concatenate([x[2:], ud])
+
+
+COST = di.QuadraticCost(np.zeros((4, 4)), 1e-4 * np.eye(2), np.eye(4), np.zeros(4))
+
+
+def _problem(**kw):
+    args = dict(dynamics=_f, x0=np.zeros(4), dt=0.01, horizon=10, delay_steps=2, cost=COST)
+    args.update(kw)
+    return di.Problem(**args)
+
+
+@pytest.mark.parametrize("kwargs, error, message", [
+    (dict(dynamics="f"), TypeError, r"dynamics must be callable as f\(x, u, ud\); got str"),
+    (dict(noise=3), TypeError, r"noise must be None or callable as F\(x, u, ud\); got int"),
+    (dict(dt=0.0), ValueError, r"dt must be a positive finite number; got 0.0"),
+    (dict(dt=float("nan")), ValueError, r"dt must be a positive finite number; got nan"),
+    (dict(horizon=0), ValueError, r"horizon must be a positive integer; got 0"),
+    (dict(horizon=2.5), ValueError, r"horizon must be a positive integer; got 2.5"),
+    (dict(delay_steps=-1), ValueError, r"delay_steps must be a non-negative integer number of steps; got -1"),
+    (dict(delay_steps=1.5), ValueError, r"delay_steps must be a non-negative integer number of steps; got 1.5"),
+    (dict(x0=np.zeros((4, 1))), ValueError, r"x0 must have shape \(\*,\); got shape \(4, 1\)"),
+    (dict(x0=[0.0, np.nan, 0.0, 0.0]), ValueError, r"x0 must be finite; got a non-finite value at index \(1,\)"),
+    (dict(cost="quadratic"), TypeError, r"cost must be a QuadraticCost or a GeneralCost; got str"),
+    (dict(cost=COST._replace(Q=np.zeros((2, 2)))), ValueError,
+     r"cost.Q must be positive definite; got a smallest eigenvalue of 0"),
+    (dict(cost=COST._replace(P=-np.eye(4))), ValueError,
+     r"cost.P must be positive semi-definite; got a smallest eigenvalue of -1"),
+    (dict(cost=COST._replace(P_final=np.triu(np.ones((4, 4))))), ValueError, r"cost.P_final must be symmetric"),
+    (dict(cost=COST._replace(x_target=np.zeros(3))), ValueError,
+     r"cost.x_target must have shape \(4,\); got shape \(3,\)"),
+    (dict(u_min=[1.0, 1.0], u_max=[0.0, 2.0]), ValueError, r"u_min must be below u_max in every component"),
+    (dict(u_min=[0.0, 0.0, 0.0]), ValueError, r"the number of controls must agree across arguments"),
+    (dict(dynamics=lambda x, u, ud: x[:3]), ValueError, r"dynamics\(x, u, ud\) must return shape \(4,\); got \(3,\)"),
+    (dict(noise=lambda x, u, ud: jnp.ones(4)), ValueError, r"noise\(x, u, ud\) must return shape \(4, p\); got \(4,\)"),
+    (dict(dynamics=lambda x, u, ud: x @ jnp.ones((3, 4))), ValueError, r"dynamics\(x, u, ud\) failed on x of shape \(4,\)"),
+])
+def test_problem_validation(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        _problem(**kwargs)
+
+
+def test_general_cost_needs_the_number_of_controls():
+    cost = di.GeneralCost(lambda x, u, p: u @ u, lambda x, p: x @ x)
+    with pytest.raises(ValueError, match=r"n_controls must be given when it cannot be read from cost.Q"):
+        _problem(cost=cost)
+    assert _problem(cost=cost, n_controls=2).n_controls == 2
+    with pytest.raises(TypeError, match=r"running must be callable as running\(x, u, params\); got int"):
+        di.GeneralCost(1, lambda x, p: 0.0)
+    with pytest.raises(ValueError, match=r"cost.final\(x\) must return a scalar; got shape \(4,\)"):
+        _problem(cost=di.GeneralCost(lambda x, u, p: u @ u, lambda x, p: x), n_controls=2)
+
+
+@pytest.mark.parametrize("kwargs, error, message", [
+    (dict(method="dense"), ValueError, r"method must be 'structured' or 'augmented'; got 'dense'"),
+    (dict(max_iterations=0), ValueError, r"max_iterations must be a positive integer; got 0"),
+    (dict(tol_cost=-1.0), ValueError, r"tol_cost must be a positive finite number; got -1.0"),
+    (dict(reg_init=-1.0), ValueError, r"reg_init must be a finite number >= 0; got -1.0"),
+    (dict(reg_factor=1.0), ValueError, r"reg_factor must be greater than 1; got 1.0"),
+    (dict(alphas=(1.0, 2.0)), ValueError, r"alphas must be a non-empty sequence of step sizes in \(0, 1\]"),
+])
+def test_options_validation(kwargs, error, message):
+    with pytest.raises(error, match=message):
+        di.Options(**kwargs)
+
+
+def test_solve_validation():
+    problem = _problem()
+    with pytest.raises(ValueError, match=r"u_init must have shape \(10, 2\); got shape \(10, 3\)"):
+        di.solve(problem, u_init=np.zeros((10, 3)))
+    with pytest.raises(TypeError, match=r"problem must be a delayed_ilqr.Problem; got dict"):
+        di.solve({})
+    with pytest.raises(TypeError, match=r"options must be a delayed_ilqr.Options; got dict"):
+        di.solve(problem, options={})
