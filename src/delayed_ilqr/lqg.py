@@ -233,6 +233,25 @@ def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
     return ok, I, K
 
 
+def boxed_gains(H, reg, g, G, bounds, warm):
+    """Control-limited step (Tassa, Mansard & Todorov 2014): the feedforward solves the box QP
+    min du'(H + reg I) du + 2 du'g over lower <= du <= upper (warm-started from the next step's),
+    and the feedback acts only in the free directions: rows of L and of every M^i are zero for
+    clamped commands."""
+    from .boxqp import box_qp, free_solve       # local import: the unconstrained path never needs it
+
+    lower, upper = bounds
+    H_reg = H + reg * jnp.eye(H.shape[0], dtype=H.dtype)
+    qp = box_qp(H_reg, g, lower, upper, warm)
+    # The QP's stopping tests are absolute (|grad| < 1e-8), too loose when H ~ dt Q ~ 1e-6: once
+    # the active set is known, the free part is one exact Newton solve.
+    clamped = jnp.where(qp.free, 0.0, qp.x)
+    I = jnp.clip(clamped + free_solve(H_reg, qp.free, g + H_reg @ clamped), lower, upper)
+    K = free_solve(H_reg, qp.free, G)
+    ok = (qp.status != -1) & jnp.all(jnp.isfinite(K)) & jnp.all(jnp.isfinite(I))
+    return ok, I, K
+
+
 def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     """One step k -> k-1 of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
 
@@ -381,9 +400,9 @@ def augment(lqg: DelayedLQG):
     return dict(Az=Az, Bz=Bz, cz=cz, Cz=Cz, Cu=Cu, dz=dz, Dz=Dz, Nz=Nz)
 
 
-def _augmented_step(carry, data, *, reg):
-    v0, v, V, ok = carry
-    Az, Bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E, Nz = data
+def _augmented_step(carry, data, *, reg, gains_fn):
+    v0, v, V, ok, warm = carry
+    Az, Bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E, Nz, bounds = data
     Vc = cz @ V                                                  # [p, N]
     VCz = jnp.einsum("mn,pnk->pmk", V, Cz)
     VCu = jnp.einsum("mn,pnd->pmd", V, Cu)
@@ -393,23 +412,30 @@ def _augmented_step(carry, data, *, reg):
     qu = e + Bz.T @ v + jnp.einsum("pnd,pn->d", Cu, Vc)
     qz = dz + Az.T @ v + jnp.einsum("pnk,pn->k", Cz, Vc)
     q0 = d_tilde + v0 + jnp.sum(cz * Vc)
-    step_ok, (I, Kz) = _solve_gains(Quu, reg, [qu, Quz])
+    step_ok, I, Kz = gains_fn(Quu, reg, qu, Quz, bounds, warm)
     # exact cost-to-go of the quadratic under the gains (equal to the Riccati update when reg = 0)
     W = 0.5 * Quu @ Kz + Quz
     carry = (q0 + I @ (Quu @ I + 2.0 * qu), qz + Kz.T @ (Quu @ I + qu) + Quz.T @ I,
-             _sym(Qzz + Kz.T @ W + W.T @ Kz), ok & step_ok)
+             _sym(Qzz + Kz.T @ W + W.T @ Kz), ok & step_ok, I)
     return carry, (I, Kz) + carry[:3]
 
 
 @jax.jit
 def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     """The state-augmentation reference: same problem, same return types as :func:`backward_pass`."""
+    return augmented_scan(lqg, reg)
+
+
+def augmented_scan(lqg: DelayedLQG, reg=0.0, gains_fn=unconstrained_gains, bounds=None):
+    """Riccati recursion on z = [dx, du_{k-l}, ..., du_{k-1}]; ``gains_fn``/``bounds`` as in
+    :func:`structured_scan`."""
     nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
     aug = augment(lqg)
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], lqg.d_tilde[:-1], aug["dz"][:-1],
-            aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"])
-    init = (lqg.d_tilde[-1], aug["dz"][-1], aug["Dz"][-1], jnp.asarray(True))
-    carry, (I, Kz, v0, v, V) = jax.lax.scan(partial(_augmented_step, reg=reg), init, data, reverse=True)
+            aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"], bounds)
+    init = (lqg.d_tilde[-1], aug["dz"][-1], aug["Dz"][-1], jnp.asarray(True), jnp.zeros(nd, lqg.A.dtype))
+    carry, (I, Kz, v0, v, V) = jax.lax.scan(partial(_augmented_step, reg=reg, gains_fn=gains_fn), init, data,
+                                            reverse=True)
     v0 = _append_terminal(v0, init[0])
     v = _append_terminal(v, init[1])
     V = _append_terminal(V, init[2])
@@ -420,7 +446,7 @@ def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
         r=v[:, nx:].reshape(K1, l, nd),
         Rt=jnp.moveaxis(V[:, :nx, nx:].reshape(K1, nx, l, nd), 2, 1),
         R=jnp.moveaxis(V[:, nx:, nx:].reshape(K1, l, nd, l, nd), 3, 2),
-        positive_definite=carry[-1])
+        positive_definite=carry[3])
     return gains, value
 
 

@@ -134,6 +134,7 @@ class Problem:
         self.n_controls = nd
         self.x0, self.cost = jnp.asarray(x0), cost
         self.u_min, self.u_max = _limits(u_min, u_max, nd)
+        self._has_limits = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
         self._check_callables()
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -150,7 +151,8 @@ class Problem:
 
     @property
     def has_limits(self) -> bool:
-        return bool(np.any(np.isfinite(np.asarray(self.u_min))) or np.any(np.isfinite(np.asarray(self.u_max))))
+        """Whether any command limit is finite (static: fixed when the problem is built)."""
+        return self._has_limits
 
     @property
     def delay(self) -> float:
@@ -226,12 +228,13 @@ def _limits(u_min, u_max, nd):
 
 def _problem_flatten(p: Problem):
     return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                               p.n_controls, p.name)
+                                               p.n_controls, p.name, p._has_limits)
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
-    (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name) = aux
+    (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
+     new._has_limits) = aux
     new.x0, new.cost, new.u_min, new.u_max = data
     return new
 

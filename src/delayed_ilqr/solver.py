@@ -26,7 +26,7 @@ import numpy as np
 from . import _validate
 from .forward import line_search, merit
 from .linearize import linearize, rollout, trajectory_cost
-from .lqg import Gains, augmented_backward_pass, structured_scan
+from .lqg import Gains, augmented_scan, boxed_gains, structured_scan
 from .problem import Problem
 from .solution import Policy, Solution, Status, Trace
 
@@ -92,12 +92,19 @@ class _State(NamedTuple):
 
 
 def _backward(problem: Problem, xs, us, reg, method: str):
-    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite)."""
+    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite).
+
+    With control limits the feedforward of each step solves a box QP with bounds on du_k
+    (u_min - u_k, u_max - u_k), and clamped commands get no feedback.
+    """
     lqg = linearize(problem, xs, us)
+    kw = {}
+    if problem.has_limits:
+        kw = dict(gains_fn=boxed_gains, bounds=(problem.u_min - us, problem.u_max - us))
     if method == "augmented":
-        gains, value = augmented_backward_pass(lqg, reg)
+        gains, value = augmented_scan(lqg, reg, **kw)
         return lqg, gains, value.S, value.s_tilde[0], value.positive_definite
-    gains, (s_tilde, _, S), ok = structured_scan(lqg, reg, store_value=False)
+    gains, (s_tilde, _, S), ok = structured_scan(lqg, reg, store_value=False, **kw)
     S = jnp.concatenate([S, lqg.D[-1:]])
     return lqg, gains, S, s_tilde[0], ok
 

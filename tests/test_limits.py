@@ -1,0 +1,100 @@
+"""Control limits: the box-QP backward pass (Tassa, Mansard & Todorov 2014) inside the delayed
+recursion, checked at the LQG level (exactness under clamped gains, structured == augmented) and
+on the nonlinear problems against a bounded direct method (L-BFGS-B over all commands)."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+import delayed_ilqr as di
+from delayed_ilqr.linearize import rollout, trajectory_cost
+from delayed_ilqr.lqg import DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan
+from delayed_ilqr.models import arm2, point_mass
+
+
+def bounded_direct_optimum(problem, lower, upper):
+    """L-BFGS-B over all K*d commands with bounds; exact gradients by jax.grad; rescaled restarts."""
+    K, nd = problem.horizon, problem.n_controls
+
+    def cost(flat):
+        us = flat.reshape(K, nd)
+        return trajectory_cost(problem, rollout(problem, us), us)
+
+    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
+    u = np.zeros(K * nd)
+    for _ in range(3):
+        scale = 1.0 / float(fun(u))
+        u = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
+                                    method="L-BFGS-B", bounds=[(lower, upper)] * (K * nd),
+                                    options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14,
+                                                 maxcor=50)).x
+    return float(fun(u))
+
+
+def _random_lqg(K, nx, nd, p, l, seed):
+    rng = np.random.default_rng(seed)
+
+    def spd(m, *shape):
+        X = rng.normal(size=shape + (m, m))
+        return X @ np.swapaxes(X, -1, -2) / m + 0.1 * np.eye(m)
+
+    return DelayedLQG(np.eye(nx) + 0.3 * rng.normal(size=(K, nx, nx)), rng.normal(size=(K, nx, nd)),
+                      rng.normal(size=(K, nx, nd)), 0.3 * rng.normal(size=(K, p, nx)),
+                      0.2 * rng.normal(size=(K, p, nx, nd)), 0.2 * rng.normal(size=(K, p, nx, nd)),
+                      rng.normal(size=K + 1), rng.normal(size=(K + 1, nx)), spd(nx, K + 1),
+                      rng.normal(size=(K, nd)), spd(nd, K), l)
+
+
+@pytest.mark.parametrize("l", [0, 1, 3, 20])
+def test_clamped_recursion_is_exact_and_matches_augmentation(l):
+    lqg = _random_lqg(12, 3, 2, 1, l, seed=l)
+    free_gains = structured_scan(lqg, store_value=False)[0]
+    half = 0.5 * float(jnp.max(jnp.abs(free_gains.feedforward)))
+    bounds = (jnp.full((12, 2), -half), jnp.full((12, 2), half))
+    gains, (s_tilde, _, _), ok = structured_scan(lqg, store_value=False, gains_fn=boxed_gains, bounds=bounds)
+    gains_aug, value_aug = augmented_scan(lqg, gains_fn=boxed_gains, bounds=bounds)
+    assert bool(ok)
+    clamped = np.abs(np.asarray(gains.feedforward)) >= half * (1 - 1e-12)
+    assert clamped.any()                                           # the bounds do bind
+    assert np.all(np.abs(np.asarray(gains.feedforward)) <= half * (1 + 1e-12))
+    # feedback only in free directions
+    assert np.all(np.asarray(gains.state_feedback)[clamped] == 0.0)
+    assert np.all(np.moveaxis(np.asarray(gains.delay_feedback), 1, 2)[clamped] == 0.0)
+    # the value is the exact expected cost of the clamped policy, and both recursions agree
+    np.testing.assert_allclose(float(s_tilde[0]), float(policy_cost(lqg, gains)), rtol=1e-10)
+    np.testing.assert_allclose(float(s_tilde[0]), float(value_aug.s_tilde[0]), rtol=1e-10)
+    for a, b in zip(gains, gains_aug):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-11)
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.03, 0.1])
+def test_bounded_point_mass_matches_bounded_direct_method(delay):
+    problem = point_mass(delay=delay).replace(u_min=[-1.0, -1.0], u_max=[1.0, 1.0])
+    sol = di.solve(problem)
+    assert sol.converged, sol.message
+    assert np.all(np.abs(np.asarray(sol.u)) <= 1.0)
+    assert np.isclose(float(jnp.max(jnp.abs(sol.u))), 1.0)          # the limit binds
+    reference = bounded_direct_optimum(problem, -1.0, 1.0)
+    assert abs(float(sol.cost) - reference) <= 1e-6 * reference
+
+
+@pytest.mark.parametrize("delay", [0.03, 0.1])
+def test_bounded_arm_matches_bounded_direct_method(delay):
+    problem = arm2(delay=delay).replace(u_min=[-1.5, -1.5], u_max=[1.5, 1.5])
+    sol = di.solve(problem)
+    assert sol.converged, sol.message
+    assert np.all(np.abs(np.asarray(sol.u)) <= 1.5)
+    reference = bounded_direct_optimum(problem, -1.5, 1.5)
+    assert abs(float(sol.cost) - reference) <= 1e-6 * reference
+
+
+def test_limits_that_never_bind_change_nothing():
+    problem = point_mass(delay=0.03)
+    free = di.solve(problem)
+    wide = di.solve(problem.replace(u_min=[-1e5, -1e5], u_max=[1e5, 1e5]))
+    assert float(jnp.max(jnp.abs(wide.trace.grad_norm[1]))) < 1e3     # the first step stays far inside
+    assert int(free.iterations) == int(wide.iterations)
+    np.testing.assert_allclose(np.asarray(wide.u), np.asarray(free.u), rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(wide.policy.delay_feedback), np.asarray(free.policy.delay_feedback),
+                               rtol=1e-10, atol=1e-12)
