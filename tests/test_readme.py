@@ -1,0 +1,15 @@
+"""The README's LQG example runs and prints three agreeing numbers (J(0), exact cost, Monte Carlo)."""
+import contextlib
+import io
+import pathlib
+
+
+def test_readme_lqg_example_runs_and_agrees():
+    text = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
+    code = text.split("## The LQG layer in ten lines")[1].split("```python")[1].split("```")[0]
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        exec(compile(code, "README.md", "exec"), {})
+    expected, exact, monte_carlo = (float(v) for v in out.getvalue().split())
+    assert abs(expected - exact) <= 1e-10 * abs(exact)
+    assert abs(monte_carlo - exact) <= 0.02 * abs(exact)     # 10000 trials: a few standard errors
