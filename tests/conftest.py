@@ -1,0 +1,22 @@
+"""Shared test configuration: float64 JAX and a reproducible, time-bounded hypothesis profile."""
+import os
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+# Every distinct array shape recompiles the jitted solvers (about a second each on a small CPU),
+# so the example count is kept modest; derandomize makes every run draw the same examples.
+settings.register_profile(
+    "ci",
+    deadline=None,
+    max_examples=25,
+    derandomize=True,
+    print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+# A heavier profile for occasional local runs: HYPOTHESIS_PROFILE=thorough make test
+settings.register_profile("thorough", parent=settings.get_profile("ci"), max_examples=200)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
