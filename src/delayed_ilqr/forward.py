@@ -68,7 +68,7 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
 
     The linear model with du_k = alpha I_k + L_k dx_k + sum_i M_k^i du_{k+i-l} and dx_0 = 0 is
     linear in alpha: dx = alpha xi, du = alpha eta. Substituting into the quadratic cost (4) and the
-    noise cost gives the exact quadratic in alpha (derivation §5). O(K (n^2 + n d + l d^2)).
+    noise cost gives the exact quadratic in alpha (derivation §12). O(K (n^2 + n d + l d^2)).
     """
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     B0 = lqg.B0 + lqg.B1 if l == 0 else lqg.B0

@@ -1,0 +1,77 @@
+"""Eq. (3)-(4): the linearisation against central finite differences of the discrete step, and the
+general-cost path against the quadratic one."""
+import jax.numpy as jnp
+import numpy as np
+
+import delayed_ilqr as di
+from delayed_ilqr.linearize import delayed_commands, linearize, rollout
+from delayed_ilqr.models import arm2
+
+
+def _central(fun, z, h=1e-6):
+    cols = []
+    for i in range(z.size):
+        dz = np.zeros_like(z)
+        dz[i] = h
+        cols.append((np.asarray(fun(z + dz)) - np.asarray(fun(z - dz))) / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+def test_dynamics_and_noise_jacobians_match_finite_differences():
+    problem = arm2(delay=0.03, noise=True)
+    rng = np.random.default_rng(0)
+    us = jnp.asarray(rng.normal(size=(problem.horizon, 2)))
+    xs = rollout(problem, us)
+    lqg = linearize(problem, xs, us)
+    uds = delayed_commands(problem, us)
+    dt, f, F = problem.dt, problem.dynamics, problem.noise
+    for k in (0, 7, 31, problem.horizon - 1):
+        x, u, ud = (np.asarray(a[k]) for a in (xs, us, uds))
+        np.testing.assert_allclose(lqg.A[k], _central(lambda z: z + dt * f(z, u, ud), x), rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(lqg.B0[k], _central(lambda z: dt * f(x, z, ud), u), rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(lqg.B1[k], _central(lambda z: dt * f(x, u, z), ud), rtol=1e-6, atol=1e-8)
+        # noise column j of one step is sqrt(dt) F[:, j] (erratum E7: sqrt(dt), not dt, for C0 and C1)
+        np.testing.assert_allclose(lqg.c[k], np.sqrt(dt) * np.asarray(F(x, u, ud)).T, rtol=1e-12)
+        C1 = _central(lambda z: np.sqrt(dt) * np.asarray(F(x, u, z)).T, ud)          # [p, n, d]
+        np.testing.assert_allclose(lqg.C1[k], C1, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(lqg.C0[k], 0.0, atol=1e-15)                       # F ignores u
+
+
+def test_cost_expansion_matches_eq_4():
+    """d_k = dt P x_k, D_k = dt P, e_k = dt Q u_k, E_k = dt Q; final d = P_f (x - x*), D = P_f."""
+    problem = arm2(delay=0.03)
+    rng = np.random.default_rng(1)
+    us = jnp.asarray(rng.normal(size=(problem.horizon, 2)))
+    xs = rollout(problem, us)
+    lqg = linearize(problem, xs, us)
+    c = problem.cost
+    np.testing.assert_allclose(lqg.e, problem.dt * us @ np.asarray(c.Q), rtol=1e-12)
+    np.testing.assert_allclose(lqg.E, np.broadcast_to(problem.dt * np.asarray(c.Q), lqg.E.shape), rtol=1e-12)
+    err = np.asarray(xs[-1] - c.x_target)
+    np.testing.assert_allclose(lqg.d[-1], np.asarray(c.P_final) @ err, rtol=1e-12)
+    np.testing.assert_allclose(lqg.D[-1], np.asarray(c.P_final), rtol=1e-12)
+    np.testing.assert_allclose(lqg.d_tilde[-1], err @ np.asarray(c.P_final) @ err, rtol=1e-12)
+
+
+def test_general_cost_gives_the_quadratic_cost_solution():
+    quadratic = arm2(delay=0.1)
+    c = quadratic.cost
+    general = quadratic.replace(cost=di.GeneralCost(
+        lambda x, u, p: x @ p["P"] @ x + u @ p["Q"] @ u,
+        lambda x, p: (x - p["target"]) @ p["P_final"] @ (x - p["target"]),
+        dict(P=c.P, Q=c.Q, P_final=c.P_final, target=c.x_target)))
+    a, b = di.solve(quadratic), di.solve(general)
+    assert int(a.iterations) == int(b.iterations)
+    np.testing.assert_allclose(float(b.cost), float(a.cost), rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(b.u), np.asarray(a.u), rtol=1e-9, atol=1e-12)
+
+
+def test_cross_term_of_a_general_cost_reaches_the_lqg():
+    """running = (u - G x)'(u - G x) has a u-x cross term: N = dt * (-G) in the factor-2 convention."""
+    G = np.array([[0.5, 0.0, 0.1, 0.0], [0.0, 0.3, 0.0, 0.2]])
+    base = arm2(delay=0.03)
+    problem = base.replace(cost=di.GeneralCost(lambda x, u, p: (u - p @ x) @ (u - p @ x),
+                                               lambda x, p: jnp.sum(x ** 2), jnp.asarray(G)))
+    us = jnp.zeros((problem.horizon, 2))
+    lqg = linearize(problem, rollout(problem, us), us)
+    np.testing.assert_allclose(lqg.N, np.broadcast_to(-problem.dt * G, lqg.N.shape), rtol=1e-12)
