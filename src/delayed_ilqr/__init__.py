@@ -29,7 +29,8 @@ from . import lqg  # noqa: E402
 from .problem import GeneralCost, Problem, QuadraticCost  # noqa: E402
 from .solution import Policy, Solution, Status, Trace  # noqa: E402
 from .solver import Options, solve  # noqa: E402
+from .simulate import Runs, simulate  # noqa: E402
 
 __all__ = ["lqg", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve", "Solution", "Policy",
-           "Status", "Trace"]
+           "Status", "Trace", "simulate", "Runs"]
 __version__ = "0.1.0"

@@ -8,6 +8,8 @@ problems built with the same arguments share one compiled solver.
 =============  ==========================================================================
 point_mass     P1 / P1-noisy / P4 of ``benchmark_problems.md`` (damped planar point mass)
 arm2           P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters)
+arm2_muscle6   the same arm driven by six muscles through delayed excitations u in [0, 1]^6
+               (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching)
 pendulum       torque-limited pendulum swing-up
 cart_pole      cart-pole swing-up (Florian's frictionless equations)
 =============  ==========================================================================
@@ -19,11 +21,13 @@ from typing import Callable, NamedTuple
 from ._common import delay_to_steps
 from .arm2 import (ARM2_PARAMS, ARM2_PARAMS_ARM_DYN, Arm2Params, arm2, coriolis, hand_jacobian, hand_position,
                    hand_velocity, joint_acceleration, mass_matrix, mass_matrix_inverse)
+from .arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
 from .cart_pole import cart_pole
 from .pendulum import pendulum
 from .point_mass import point_mass
 
-__all__ = ["point_mass", "arm2", "pendulum", "cart_pole", "REGISTRY", "ModelInfo", "delay_to_steps",
+__all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole",
+           "REGISTRY", "ModelInfo", "delay_to_steps",
            "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
            "joint_acceleration", "hand_position", "hand_jacobian", "hand_velocity"]
 
@@ -40,6 +44,9 @@ REGISTRY = {
                                         "4 states, 2 controls, tf=0.6 s"),
     "arm2": ModelInfo(arm2, "P2: two-link arm driven by delayed joint torques (Li & Todorov 2004), "
                             "4 states, 2 controls, tf=0.5 s"),
+    "arm2_muscle6": ModelInfo(arm2_muscle6, "two-link arm driven by six muscles (Li & Todorov 2004 muscle model, "
+                                            "angle-dependent moment arms) through delayed excitations in [0, 1], "
+                                            "hand reaching cost, 10 states, 6 controls, tf=0.5 s"),
     "pendulum": ModelInfo(pendulum, "pendulum swing-up with a delayed torque limited to |u| <= 4 N m, "
                                     "2 states, 1 control, tf=3 s"),
     "cart_pole": ModelInfo(cart_pole, "cart-pole swing-up with a delayed force limited to |u| <= 10 N "

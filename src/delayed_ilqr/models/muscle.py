@@ -1,0 +1,275 @@
+"""The Li & Todorov six-muscle model of the planar arm: muscle force, activation and geometry.
+
+Pure ``jax.numpy`` functions (elementwise; they broadcast over leading axes) of the averaged
+Brown, Cheng & Loeb "virtual muscle" model as used by Li & Todorov (2004) and in Li's 2006 thesis,
+transcribed from ``shared/reference/models.md`` §1.3.
+
+Force (§1.3 (a), [V2 x6]); l is the fibre length normalised by its optimal length L0, v = dl/dt in
+L0 / s, a in [0, 1] the activation::
+
+    T(a, l, v) = A(a, l) (F_L(l) F_V(l, v) + F_P(l))
+    A(a, l)    = 1 - exp(-(a / (0.56 N_f(l)))^N_f(l)),     N_f(l) = 2.11 + 4.16 (1/l - 1)
+    F_L(l)     = exp(-|(l^1.93 - 1) / 1.03|^1.87)
+    F_V(l, v)  = (-5.72 - v) / (-5.72 + (1.38 + 2.09 l) v)                  v <= 0 (shortening)
+               = (0.62 - (-3.12 + 4.21 l - 2.67 l^2) v) / (0.62 + v)       v > 0 (lengthening)
+    F_P(l)     = -0.02 exp(13.8 - 18.7 l)       (13.8 as in five of six sources, not feedbax's 14.77)
+
+Activation (§1.3 (b), [V2 x4])::
+
+    da/dt = (u - a) / t(u, a),   t = t_deact + u (t_act - t_deact) if u > a else t_deact,
+    t_act = 50 ms, t_deact = 66 ms.
+
+Maximal force (§1.3 (c), [V2 x3]): F_max = 31.8 N/cm^2 x PCSA, PCSA = [18, 14, 22, 12, 5, 10] cm^2,
+i.e. :data:`F_MAX` = [572.4, 445.2, 699.6, 381.6, 159, 318] N.
+
+Muscle order everywhere (:data:`MUSCLES`): brachialis (elbow flexor), lateral triceps (elbow
+extensor), anterior deltoid (shoulder flexor), posterior deltoid (shoulder extensor), biceps
+(bi-articular flexor), long triceps (bi-articular extensor). Joint angles q = (shoulder, elbow),
+flexion positive (counter-clockwise, as in :mod:`delayed_ilqr.models.arm2`).
+
+Geometry (§1.3 (d)), two variants, each a frozen dataclass (hashable by value) with
+``moment_arms(q) -> [..., 2, 6]`` (metres), ``lengths(q) -> [..., 6]`` (normalised) and
+``velocities(q, dq) -> [..., 6]`` (L0 / s):
+
+* :class:`AngleDependentGeometry` (variant B, the default, :data:`ANGLE_DEPENDENT`): Van Wouwe et
+  al. 2022 / bioptim ``leuven_arm_model.py``, said there to be "from Li & Todorov 2004" [V2]:
+  d_ji(q_j) = a_ji + b_ji cos(c_ji q_j),
+  l_i = l_base_i + l_mult_i sum_j [a_ji q_j + b_ji sin(c_ji q_j) / c_ji],
+  v_i = l_mult_i sum_j d_ji(q_j) dq_j.
+* :class:`ConstantGeometry` (variant A, :data:`CONSTANT`): constant moment arms D of Li's 2006 thesis
+  (via jeremiedecock/pyarm) [V2], l_i = 1 - sum_j D_ji (q_j - q_ref_j) / L0_i,
+  v_i = -sum_j D_ji dq_j / L0_i.
+
+Sign convention (checked, and tested in ``tests/test_muscle.py``): a positive moment arm d_ji means
+that muscle i pulling with tension F >= 0 produces a positive (flexing) torque d_ji F on joint j.
+By virtual work the muscle then shortens when joint j flexes: d_ji = -L0_i dl_i/dq_j, with L0_i the
+optimal fibre length in metres. In variant B dl_i/dq_j = l_mult_i d_ji(q_j) and every l_mult_i < 0,
+so the published table is consistent with L0_i = -1 / l_mult_i (brachialis: L0 = 0.192 m; its
+length falls from 1.1 at full extension to 0.6 at full flexion, matching the table's "l at 0 -> pi"
+column, which ``tests/test_muscle.py`` reproduces for all six muscles). Variant A uses the same L0
+(a choice, [D]; pyarm leaves L0 as a TODO) and l = 1 at the reference posture q_ref =
+(pi/4, pi/2), the standard start posture of the reaching task (also a choice, [D]).
+
+Where b = 0 in variant B the term b sin(c q) / c is exactly 0 whatever c is (bioptim stores c = 0.01
+to avoid 0 / 0; here c = 1 is stored, which gives the same numbers).
+
+Non-smooth points and guards (so that jax derivatives stay finite; document-level deviations from
+the formulas, all outside or at the edge of the physiological range):
+
+* ``activation_rate`` has a discontinuous derivative at u = a (the time constant switches); jax
+  returns the deactivation branch's derivative there (``u > a`` is false). ``t`` uses u clipped to
+  [0, 1] so that an out-of-range command cannot make t <= 0 (identical for u in [0, 1]).
+* ``force_velocity`` has a continuous value but a kink (different one-sided slopes) at v = 0; each
+  branch is evaluated on v clipped to its own side, so the unused branch can never divide by zero.
+* ``|x|^1.87`` in F_L is evaluated as ``(x^2)^0.935`` behind a ``where`` (derivative 0 at x = 0).
+* ``A(a, l)`` is 0 for a <= :data:`A_EPS` (the value there is below 1e-16), computed through
+  ``exp(N_f log(a / (0.56 N_f)))`` with a safe argument, so that derivatives in a and in l (through
+  N_f in the exponent) are finite at a = 0.
+* N_f(l) uses l clipped to [:data:`L_MIN`, :data:`L_MAX_NF`] (N_f would reach 0 at l = 2.03 and 1/l
+  is singular at 0), and F_L uses l >= L_MIN (l^1.93 is undefined for l < 0). Variant B stays in
+  l in [0.6, 1.25] over the joint range [0, pi]^2.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+
+__all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "A_EPS", "L_MIN", "L_MAX_NF",
+           "activation_time_constant", "activation_rate", "n_f", "force_length", "force_velocity",
+           "passive_force", "activation_force", "tension", "AngleDependentGeometry", "ConstantGeometry",
+           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques"]
+
+MUSCLES = ("brachialis", "lateral triceps", "anterior deltoid", "posterior deltoid", "biceps", "long triceps")
+
+# §1.3 (c) [V2 x3]: bioptim Fiso, CasADi MPC Fmax, feedbax comment
+SPECIFIC_TENSION = 31.8  # N / cm^2
+PCSA = (18.0, 14.0, 22.0, 12.0, 5.0, 10.0)  # cm^2, in MUSCLES order
+F_MAX = tuple(SPECIFIC_TENSION * p for p in PCSA)  # N: 572.4, 445.2, 699.6, 381.6, 159, 318
+
+# §1.3 (b) [V2 x4]
+T_ACT = 0.05  # s
+T_DEACT = 0.066  # s
+
+# §1.3 (a) [V2 x6]: Brown et al. slow/fast-twitch averages (feedbax TODOROV_LI_VIRTUALMUSCLE_PARAMS names)
+BETA, OMEGA, RHO = 1.93, 1.03, 1.87  # force-length
+V_MAX, CV0, CV1 = -5.72, 1.38, 2.09  # force-velocity, shortening
+AV0, AV1, AV2, BV = -3.12, 4.21, -2.67, 0.62  # force-velocity, lengthening
+NF0, NF1, AF = 2.11, 4.16, 0.56  # activation-frequency relation
+C2, K2, PE_OFFSET = -0.02, -18.7, 13.8  # passive element: C2 exp(13.8 + K2 l)
+
+# domain guards (see the module docstring)
+A_EPS = 1e-10
+L_MIN = 0.2
+L_MAX_NF = 1.6
+
+
+# ------------------------------------------------------------------------------------------------
+# activation dynamics
+# ------------------------------------------------------------------------------------------------
+def activation_time_constant(u, a, t_act=T_ACT, t_deact=T_DEACT):
+    """t(u, a) = t_deact + u (t_act - t_deact) if u > a else t_deact (u clipped to [0, 1] inside)."""
+    uc = jnp.clip(u, 0.0, 1.0)
+    return jnp.where(u > a, t_deact + uc * (t_act - t_deact), t_deact)
+
+
+def activation_rate(u, a, t_act=T_ACT, t_deact=T_DEACT):
+    """da/dt = (u - a) / t(u, a): faster activation (50 ms at u = 1) than deactivation (66 ms).
+
+    The derivative is discontinuous at u = a (where the time constant switches); jax returns the
+    deactivation branch's derivative there.
+    """
+    return (u - a) / activation_time_constant(u, a, t_act, t_deact)
+
+
+# ------------------------------------------------------------------------------------------------
+# force
+# ------------------------------------------------------------------------------------------------
+def n_f(l):
+    """N_f(l) = 2.11 + 4.16 (1/l - 1), the activation-frequency exponent (l clipped to [L_MIN, L_MAX_NF])."""
+    lc = jnp.clip(l, L_MIN, L_MAX_NF)
+    return NF0 + NF1 * (1.0 / lc - 1.0)
+
+
+def _abs_pow(x, p):
+    """|x|^p for p > 1 with a finite derivative (0) at x = 0."""
+    x2 = x * x
+    nonzero = x2 > 0
+    return jnp.where(nonzero, jnp.where(nonzero, x2, 1.0) ** (0.5 * p), 0.0)
+
+
+def force_length(l):
+    """F_L(l) = exp(-|(l^1.93 - 1) / 1.03|^1.87); F_L(1) = 1 (l >= L_MIN inside)."""
+    lc = jnp.maximum(l, L_MIN)
+    return jnp.exp(-_abs_pow((lc ** BETA - 1.0) / OMEGA, RHO))
+
+
+def force_velocity(l, v):
+    """F_V(l, v): Brown's hyperbola for shortening (v <= 0) and lengthening (v > 0); F_V(l, 0) = 1.
+
+    Continuous at v = 0 with different one-sided slopes (a kink).
+    """
+    vs = jnp.minimum(v, 0.0)  # each branch sees only its own side: no 0 / 0 in the unused one
+    vl = jnp.maximum(v, 0.0)
+    shortening = (V_MAX - vs) / (V_MAX + (CV0 + CV1 * l) * vs)
+    lengthening = (BV - (AV0 + AV1 * l + AV2 * l * l) * vl) / (BV + vl)
+    return jnp.where(v <= 0, shortening, lengthening)
+
+
+def passive_force(l):
+    """F_P(l) = -0.02 exp(13.8 - 18.7 l) (Brown's PE2 element, negative: resists compression)."""
+    return C2 * jnp.exp(PE_OFFSET + K2 * l)
+
+
+def activation_force(a, l):
+    """A(a, l) = 1 - exp(-(a / (0.56 N_f(l)))^N_f(l)); 0 for a <= A_EPS (finite derivatives at a = 0)."""
+    nf = n_f(l)
+    pos = a > A_EPS
+    a_safe = jnp.where(pos, a, 1.0)
+    z = jnp.exp(nf * jnp.log(a_safe / (AF * nf)))
+    return jnp.where(pos, -jnp.expm1(-z), 0.0)
+
+
+def tension(a, l, v):
+    """T(a, l, v) = A(a, l) (F_L(l) F_V(l, v) + F_P(l)), the normalised muscle tension (times F_max = N)."""
+    return activation_force(a, l) * (force_length(l) * force_velocity(l, v) + passive_force(l))
+
+
+# ------------------------------------------------------------------------------------------------
+# geometry
+# ------------------------------------------------------------------------------------------------
+def _rows(value, name, shape):
+    arr = tuple(tuple(float(v) for v in row) for row in value)
+    if (len(arr), len(arr[0])) != shape:
+        raise ValueError(f"{name} must have shape {shape}; got {(len(arr), len(arr[0]))}")
+    return arr
+
+
+@dataclass(frozen=True)
+class AngleDependentGeometry:
+    """Variant B (§1.3 (d), [V2]: Van Wouwe et al. 2022 / bioptim ``leuven_arm_model.py``).
+
+    Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
+        a, b: [2][6] moment-arm coefficients in metres, d_ji(q_j) = a_ji + b_ji cos(c_ji q_j).
+        c: [2][6] (1/rad); 1.0 is stored where b = 0 (the term is then exactly 0).
+        l_base: [6] normalised fibre length at q = 0.
+        l_mult: [6] (1 / m): dl_i/dq_j = l_mult_i d_ji(q_j), so L0_i = -1 / l_mult_i.
+    """
+
+    a: tuple = ((0.0, 0.0, 0.040, -0.042, 0.030, -0.039),
+                (0.030, -0.019, 0.0, 0.0, 0.032, -0.022))
+    b: tuple = ((0.0, 0.0, -0.008, 0.0, -0.011, 0.0),
+                (-0.011, 0.0, 0.0, 0.0, -0.010, 0.0))
+    c: tuple = ((1.0, 1.0, 1.9, 1.0, 1.9, 1.0),
+                (1.9, 1.0, 1.0, 1.0, 1.9, 1.0))
+    l_base: tuple = (1.1, 0.8, 1.2, 0.7, 1.1, 0.85)
+    l_mult: tuple = (-5.2063, -7.5389, -3.9381, -3.0315, -2.5228, -1.8264)
+
+    @property
+    def optimal_lengths(self):
+        """L0_i = -1 / l_mult_i in metres (the length scale implied by d = -L0 dl/dq)."""
+        return tuple(-1.0 / m for m in self.l_mult)
+
+    def moment_arms(self, q):
+        """d(q) [..., 2, 6] in metres."""
+        a, b, c = jnp.asarray(self.a), jnp.asarray(self.b), jnp.asarray(self.c)
+        return a + b * jnp.cos(c * q[..., :, None])
+
+    def lengths(self, q):
+        """l(q) [..., 6], normalised by L0."""
+        a, b, c = jnp.asarray(self.a), jnp.asarray(self.b), jnp.asarray(self.c)
+        qq = q[..., :, None]
+        integral = jnp.sum(a * qq + b * jnp.sin(c * qq) / c, axis=-2)
+        return jnp.asarray(self.l_base) + jnp.asarray(self.l_mult) * integral
+
+    def velocities(self, q, dq):
+        """v = dl/dt [..., 6] in L0 / s."""
+        return jnp.asarray(self.l_mult) * jnp.sum(self.moment_arms(q) * dq[..., :, None], axis=-2)
+
+
+@dataclass(frozen=True)
+class ConstantGeometry:
+    """Variant A (§1.3 (d), [V2]: Li 2006 thesis via jeremiedecock/pyarm): constant moment arms.
+
+    Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
+        D: [2][6] moment arms in metres. The thesis matrix (columns sh.flex, sh.ext, el.flex,
+            el.ext, bi.flex, bi.ext; cm) [[4, -4, 0, 0, 2.8, -3.5], [0, 0, 2.5, -2.5, 2.8, -3.5]]
+            reordered to :data:`MUSCLES`.
+        L0: [6] optimal fibre lengths in metres; default -1 / l_mult of variant B ([D], a choice:
+            the thesis value was not retrieved).
+        q_ref: [2] posture where every l_i = 1; default the start posture (pi/4, pi/2) ([D]).
+    """
+
+    D: tuple = ((0.0, 0.0, 0.040, -0.040, 0.028, -0.035),
+                (0.025, -0.025, 0.0, 0.0, 0.028, -0.035))
+    L0: tuple = tuple(-1.0 / m for m in AngleDependentGeometry.l_mult)
+    q_ref: tuple = (math.pi / 4, math.pi / 2)
+
+    @property
+    def optimal_lengths(self):
+        return self.L0
+
+    def moment_arms(self, q):
+        """D [..., 2, 6] in metres (independent of q)."""
+        return jnp.broadcast_to(jnp.asarray(self.D), q.shape[:-1] + (2, 6))
+
+    def lengths(self, q):
+        """l_i = 1 - sum_j D_ji (q_j - q_ref_j) / L0_i [..., 6]."""
+        dq = q - jnp.asarray(self.q_ref)
+        return 1.0 - jnp.einsum("ji,...j->...i", jnp.asarray(self.D), dq) / jnp.asarray(self.L0)
+
+    def velocities(self, q, dq):
+        """v_i = -sum_j D_ji dq_j / L0_i [..., 6] in L0 / s."""
+        return -jnp.einsum("ji,...j->...i", jnp.asarray(self.D), dq) / jnp.asarray(self.L0)
+
+
+ANGLE_DEPENDENT = AngleDependentGeometry()
+CONSTANT = ConstantGeometry()
+
+
+def joint_torques(q, dq, a, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
+    """tau = d(q) (F_max * T(a, l(q), v(q, dq))) [..., 2] in N m, for q, dq [..., 2] and a [..., 6]."""
+    T = tension(a, geometry.lengths(q), geometry.velocities(q, dq))
+    force = jnp.asarray(f_max) * T
+    return jnp.einsum("...ji,...i->...j", geometry.moment_arms(q), force)

@@ -1,0 +1,290 @@
+"""Monte Carlo of the nonlinear stochastic plant (eq. 1) under a delayed feedback :class:`Policy`.
+
+Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-Maruyama, with
+``substeps`` sub-steps of length h = dt / substeps per control step (zero-order hold of u and ud)::
+
+    x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
+
+The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
+terms, without the feedforward, see :class:`~delayed_ilqr.Policy`)::
+
+    u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
+    ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
+
+where l_p = ``policy.delay_feedback.shape[1]`` is the delay the policy was designed for. It may
+differ from the plant's l: a delay-ignorant policy (designed with l_p = 0) can be run on a delayed
+plant, which is how the cost of ignoring the delay is measured.
+
+Trials run in parallel (``jax.vmap`` over per-trial keys, ``lax.scan`` over time) in one compiled
+function; the result depends only on ``seed`` (``jax.random.PRNGKey(seed)`` split into one key per
+trial), so two calls with the same arguments give identical trajectories, and two policies run with
+the same seed see the same noise samples (common random numbers: their cost difference has a much
+smaller variance than either cost).
+"""
+from __future__ import annotations
+
+import math
+import numbers
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _validate
+from .linearize import trajectory_cost
+from .problem import Problem
+from .solution import Policy
+
+__all__ = ["simulate", "Runs", "Summary", "SampleStats", "sample_stats", "summarize"]
+
+_Z95 = 1.959963984540054  # the 97.5 % quantile of the standard normal
+
+
+class SampleStats(NamedTuple):
+    """Statistics of one per-trial quantity (a cost, an endpoint error) over N trials.
+
+    Trials whose value is not finite (the closed loop blew up: inf or NaN) count as +inf: they are
+    counted in ``n_diverged``, they make the mean, standard deviation, standard error and 95 %
+    interval infinite (an expectation dominated by blow-ups is not finite in floating point), and
+    they rank last for the median, which stays informative while fewer than half the trials diverge.
+    Costs of controllers that are nearly unstable are heavy-tailed: prefer the median and its
+    interval to compare them.
+
+    Attributes:
+        n: N.
+        n_diverged: number of non-finite trials.
+        mean: sample mean.
+        std: sample standard deviation (ddof = 1; NaN for N = 1).
+        standard_error: std / sqrt(N).
+        ci95: (low, high), the normal-approximation 95 % confidence interval of the mean,
+            mean -/+ 1.96 standard_error.
+        median: sample median.
+        median_ci95: (low, high), the distribution-free 95 % confidence interval of the median
+            (order statistics of ranks N/2 -/+ 1.96 sqrt(N)/2, clipped to the sample).
+    """
+
+    n: int
+    n_diverged: int
+    mean: float
+    std: float
+    standard_error: float
+    ci95: tuple
+    median: float
+    median_ci95: tuple
+
+    def to_dict(self) -> dict:
+        """Plain Python types; non-finite numbers become ``None`` (strict JSON has no inf or NaN)."""
+        return dict(n=int(self.n), n_diverged=int(self.n_diverged), mean=_json_float(self.mean),
+                    std=_json_float(self.std), standard_error=_json_float(self.standard_error),
+                    ci95=[_json_float(v) for v in self.ci95], median=_json_float(self.median),
+                    median_ci95=[_json_float(v) for v in self.median_ci95])
+
+
+def _json_float(value):
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def sample_stats(values) -> SampleStats:
+    """The :class:`SampleStats` of a 1-D sample [N] (non-finite entries count as +inf)."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    n = v.shape[0]
+    if n == 0:
+        raise ValueError("values must hold at least one trial; got an empty array")
+    finite = np.isfinite(v)
+    n_diverged = int(n - np.count_nonzero(finite))
+    v = np.where(finite, v, np.inf)
+    if n_diverged:
+        mean = std = se = math.inf
+        ci = (math.inf, math.inf)
+    else:
+        mean = float(np.mean(v))
+        with np.errstate(over="ignore", invalid="ignore"):
+            std = float(np.std(v, ddof=1)) if n > 1 else math.nan
+        se = std / math.sqrt(n)
+        ci = (mean - _Z95 * se, mean + _Z95 * se)
+    ordered = np.sort(v)
+    half_width = _Z95 * math.sqrt(n) / 2
+    lo = min(max(int(math.floor(n / 2 - half_width)), 1), n)     # 1-based ranks
+    hi = min(max(int(math.ceil(n / 2 + half_width)), 1), n)
+    return SampleStats(n=n, n_diverged=n_diverged, mean=mean, std=std, standard_error=se, ci95=ci,
+                       median=float(np.median(v)), median_ci95=(float(ordered[lo - 1]), float(ordered[hi - 1])))
+
+
+class Summary(NamedTuple):
+    """Sample statistics of a Monte Carlo run (see :meth:`Runs.summary`).
+
+    Attributes:
+        n_trials: N.
+        n_diverged: trials whose cost is not finite (the closed loop blew up).
+        mean_cost: the sample mean of the per-trial cost (eq. 2), an estimate of E[J] (inf when
+            some trial diverged).
+        std_cost: the sample standard deviation (ddof = 1; NaN for N = 1).
+        standard_error: std_cost / sqrt(N), the standard error of ``mean_cost``.
+        ci95: (low, high), the normal-approximation 95 % confidence interval of E[J],
+            mean_cost -/+ 1.96 standard_error.
+        median_cost, median_ci95: the median cost and its distribution-free 95 % interval (robust
+            to the heavy tails of nearly unstable closed loops; see :class:`SampleStats`).
+        final_state_mean: [n] sample mean of x_K over the trials whose x_K is finite.
+        final_state_cov: [n, n] sample covariance of x_K (ddof = 1) over the same trials.
+    """
+
+    n_trials: int
+    n_diverged: int
+    mean_cost: float
+    std_cost: float
+    standard_error: float
+    ci95: tuple
+    median_cost: float
+    median_ci95: tuple
+    final_state_mean: np.ndarray
+    final_state_cov: np.ndarray
+
+    def to_dict(self) -> dict:
+        """Plain Python types (floats, nested lists; non-finite numbers as ``None``), ready for ``json.dump``."""
+        def matrix(a):
+            return [_json_float(v) for v in a] if np.ndim(a) == 1 else [matrix(row) for row in a]
+        return dict(n_trials=int(self.n_trials), n_diverged=int(self.n_diverged),
+                    mean_cost=_json_float(self.mean_cost), std_cost=_json_float(self.std_cost),
+                    standard_error=_json_float(self.standard_error), ci95=[_json_float(v) for v in self.ci95],
+                    median_cost=_json_float(self.median_cost),
+                    median_ci95=[_json_float(v) for v in self.median_ci95],
+                    final_state_mean=matrix(np.asarray(self.final_state_mean)),
+                    final_state_cov=matrix(np.asarray(self.final_state_cov)))
+
+
+class Runs(NamedTuple):
+    """Monte Carlo trials of the nonlinear plant under a policy.
+
+    Attributes:
+        x: [N, K+1, n] states (x[:, 0] = x0).
+        u: [N, K, d] commands sent (the plant receives them ``problem.delay_steps`` steps later).
+        cost: [N] eq. (2) of each trial, ``trajectory_cost(problem, x, u)``.
+    """
+
+    x: jax.Array
+    u: jax.Array
+    cost: jax.Array
+
+    def summary(self) -> Summary:
+        """Mean and median cost with 95 % confidence intervals; mean and covariance of x_K."""
+        return summarize(self.cost, self.x[:, -1])
+
+
+def summarize(cost, final_state) -> Summary:
+    """The :class:`Summary` of per-trial costs [N] and final states [N, n]."""
+    stats = sample_stats(cost)
+    final_state = np.asarray(final_state, dtype=np.float64)
+    final_state = final_state[np.all(np.isfinite(final_state), axis=1)]
+    nx = final_state.shape[1]
+    mean = np.mean(final_state, axis=0) if final_state.shape[0] else np.full(nx, np.nan)
+    with np.errstate(over="ignore", invalid="ignore"):      # finite but huge states of near blow-ups
+        cov = np.atleast_2d(np.cov(final_state, rowvar=False, ddof=1)) if final_state.shape[0] > 1 \
+            else np.full((nx, nx), np.nan)
+    return Summary(n_trials=stats.n, n_diverged=stats.n_diverged, mean_cost=stats.mean, std_cost=stats.std,
+                   standard_error=stats.standard_error, ci95=stats.ci95, median_cost=stats.median,
+                   median_ci95=stats.median_ci95, final_state_mean=mean, final_state_cov=cov)
+
+
+def _delayed_law_step(problem: Problem, policy: Policy, l_p: int, m: int, substeps: int):
+    """The scan body of one trial: state and the last m sent commands (and their nominals) in the carry."""
+    l = problem.delay_steps
+    h = problem.dt / substeps
+    root_h = math.sqrt(h)
+
+    def step(carry, data):
+        x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
+        x_bar, u_bar, L, M, xi = data            # xi: [substeps, p]
+        du = L @ (x - x_bar)
+        if l_p > 0:
+            pending = sent[m - l_p:] - nominal[m - l_p:]                 # u_{k+i-l_p} - u_nominal, i < l_p
+            du = du + jnp.einsum("ide,ie->d", M, pending)
+        u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
+        ud = sent[m - l] if l > 0 else u
+
+        def substep(x, xi_j):
+            x_new = x + h * problem.dynamics(x, u, ud)
+            if problem.noise is not None:
+                x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
+            return x_new, None
+
+        x_new, _ = jax.lax.scan(substep, x, xi)
+        if m > 0:
+            sent = jnp.concatenate([sent[1:], u[None]])
+            nominal = jnp.concatenate([nominal[1:], u_bar[None]])
+        return (x_new, sent, nominal), (x_new, u)
+
+    return step
+
+
+@partial(jax.jit, static_argnames=("n_trials", "substeps"))
+def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, key) -> Runs:
+    K, nd, p = problem.horizon, problem.n_controls, problem.n_noise
+    l_p = policy.delay_feedback.shape[1]
+    m = max(problem.delay_steps, l_p)
+    step = _delayed_law_step(problem, policy, l_p, m, substeps)
+    dtype = problem.x0.dtype
+
+    def trial(trial_key):
+        xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
+        init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
+        data = (policy.x_nominal[:-1], policy.u_nominal, policy.state_feedback, policy.delay_feedback, xi)
+        _, (xs, us) = jax.lax.scan(step, init, data)
+        xs = jnp.concatenate([problem.x0[None], xs])
+        return xs, us, trajectory_cost(problem, xs, us)
+
+    return Runs(*jax.vmap(trial)(jax.random.split(key, n_trials)))
+
+
+def _check_policy(problem: Problem, policy) -> Policy:
+    if not isinstance(policy, Policy):
+        raise TypeError(f"policy must be a delayed_ilqr.Policy (e.g. solve(...).policy); got {type(policy).__name__}")
+    K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
+    l_p = np.shape(policy.delay_feedback)[1] if np.ndim(policy.delay_feedback) == 4 else None
+    checked = [
+        _validate.array(policy.x_nominal, "policy.x_nominal", (K + 1, nx)),
+        _validate.array(policy.u_nominal, "policy.u_nominal", (K, nd)),
+        _validate.array(policy.feedforward, "policy.feedforward", (K, nd), finite=False),
+        _validate.array(policy.state_feedback, "policy.state_feedback", (K, nd, nx)),
+        _validate.array(policy.delay_feedback, "policy.delay_feedback", (K, l_p, nd, nd)),
+    ]
+    return Policy(*(jnp.asarray(a, jnp.float64) for a in checked))
+
+
+def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1) -> Runs:
+    """Monte Carlo of ``problem``'s stochastic plant under the delayed feedback law of ``policy``.
+
+    Args:
+        problem: the plant (dynamics, noise, delay ``delay_steps`` = l, limits, cost). Without
+            noise (``problem.noise`` None) every trial is the same deterministic closed loop.
+        policy: the :class:`~delayed_ilqr.Policy` to run, e.g. ``solve(problem).policy``. Its
+            arrays must match the problem's horizon K, states n and controls d; its delay l_p
+            (``delay_feedback.shape[1]``) may differ from the plant's l.
+        n_trials: N, the number of independent trials (positive int).
+        seed: non-negative integer; the trials use ``jax.random.split(jax.random.PRNGKey(seed), N)``.
+        substeps: Euler-Maruyama sub-steps per control step (positive int); 1 integrates at dt,
+            exactly like :func:`~delayed_ilqr.linearize.rollout` in the noise-free case.
+
+    Returns:
+        :class:`Runs` with x [N, K+1, n], u [N, K, d], cost [N]; ``runs.summary()`` gives the mean
+        cost, its standard error and 95 % confidence interval, the median, and the final-state
+        statistics. A trial whose closed loop blows up has a non-finite cost (counted in
+        ``summary().n_diverged``); nothing is raised.
+
+    Raises:
+        TypeError, ValueError: naming the argument, for a wrong problem or policy type, a policy
+            whose shapes do not match the problem, a non-positive ``n_trials`` / ``substeps``, or
+            a seed that is not a non-negative integer.
+    """
+    if not isinstance(problem, Problem):
+        raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
+    n_trials = _validate.positive_int(n_trials, "n_trials")
+    substeps = _validate.positive_int(substeps, "substeps")
+    if isinstance(seed, bool) or not isinstance(seed, (numbers.Integral, np.integer)):
+        raise TypeError(f"seed must be a non-negative integer; got {seed!r}")
+    if not 0 <= seed < 2 ** 63:
+        raise ValueError(f"seed must be a non-negative integer below 2**63; got {seed!r}")
+    policy = _check_policy(problem, policy)
+    return _simulate(problem, policy, n_trials, substeps, jax.random.PRNGKey(int(seed)))

@@ -1,0 +1,172 @@
+"""The ``delayed-ilqr`` command line, run in-process with click's CliRunner.
+
+Settings reuse the shapes the other tests compile (noisy point mass at 30 ms, noisy arm at 50 and
+100 ms with 300 trials), so most calls hit JAX's compilation cache.
+"""
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import delayed_ilqr as di
+from delayed_ilqr import cli
+from delayed_ilqr.models import REGISTRY, arm2, point_mass
+
+
+def run(*args):
+    return CliRunner().invoke(cli.main, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_models_lists_the_registry():
+    result = run("models")
+    assert result.exit_code == 0
+    lines = result.output.strip().splitlines()
+    assert len(lines) == len(REGISTRY)
+    for name, info in REGISTRY.items():
+        assert any(line.startswith(name) and info.description in line for line in lines)
+
+
+def test_solve_writes_json_npz_and_figures_consistent_with_the_api(tmp_path):
+    result = run("solve", "point_mass", "--delay", "0.03", "--noise", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    assert "CONVERGED" in result.output and "expected cost (LQG)" in result.output
+    sol = di.solve(point_mass(delay=0.03, noise=True))
+    data = json.loads((tmp_path / "solution.json").read_text())
+    assert data["model"] == "point_mass" and data["delay_steps"] == 3 and data["noise"] is True
+    assert data["converged"] is True and data["iterations"] == int(sol.iterations)
+    np.testing.assert_allclose(data["cost"], float(sol.cost), rtol=1e-12)
+    np.testing.assert_allclose(data["expected_cost"], float(sol.expected_cost), rtol=1e-12)
+    target = np.asarray(point_mass().cost.x_target)
+    np.testing.assert_allclose(data["endpoint_error"], np.linalg.norm(np.asarray(sol.x[-1, :2]) - target[:2]),
+                               rtol=1e-12)
+    with np.load(tmp_path / "solution.npz") as npz:
+        assert npz["x"].shape == (61, 4) and npz["u"].shape == (60, 2)
+        assert npz["state_feedback"].shape == (60, 2, 4) and npz["delay_feedback"].shape == (60, 3, 2, 2)
+        assert npz["trace_cost"].shape == (int(sol.iterations) + 1,)
+        np.testing.assert_allclose(npz["u"], np.asarray(sol.u), rtol=1e-12)
+    for png in ("trajectories.png", "convergence.png"):
+        assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_solve_that_does_not_converge_exits_with_1(monkeypatch):
+    real = cli.study.timed_solve
+
+    def stopped_early(*args, **kwargs):            # the solution as if the iteration limit had been hit
+        sol, solve_time, first = real(*args, **kwargs)
+        return sol._replace(status=np.int32(di.Status.MAX_ITERATIONS)), solve_time, first
+
+    monkeypatch.setattr(cli.study, "timed_solve", stopped_early)
+    result = CliRunner().invoke(cli.main, ["solve", "point_mass", "--delay", "0.03", "--noise"])
+    assert result.exit_code == 1
+    assert "did not converge" in result.output and "MAX_ITERATIONS" in result.output
+
+
+def test_simulate_summary_matches_a_direct_monte_carlo(tmp_path):
+    result = run("simulate", "point_mass", "--delay", "0.03", "--trials", 16, "--seed", 3, "--noise",
+                 "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    assert "Monte Carlo mean J" in result.output
+    problem = point_mass(delay=0.03, noise=True)
+    runs = di.simulate(problem, di.solve(problem).policy, 16, seed=3)
+    summary = runs.summary()
+    data = json.loads((tmp_path / "simulate.json").read_text())
+    assert data["settings"] == dict(model="point_mass", noise=True, trials=16, seed=3, substeps=1, delay=0.03,
+                                    controller="aware")
+    res = data["result"]
+    np.testing.assert_allclose(res["cost"]["mean"], summary.mean_cost, rtol=1e-12)
+    np.testing.assert_allclose(res["cost"]["ci95"], summary.ci95, rtol=1e-12)
+    np.testing.assert_allclose(res["summary"]["final_state_cov"], summary.final_state_cov, rtol=1e-10)
+    with np.load(tmp_path / "runs.npz") as npz:
+        assert npz["x"].shape == (16, 61, 4) and npz["u"].shape == (16, 60, 2) and npz["cost"].shape == (16,)
+        np.testing.assert_allclose(npz["cost"], np.asarray(runs.cost), rtol=1e-12)
+        assert npz["delay_feedback"].shape == (60, 3, 2, 2)
+    assert (tmp_path / "trajectories.png").exists() and not (tmp_path / "hand_paths.png").exists()
+
+
+def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
+    result = run("compare", "arm2", "--delays", "0.05,0.1", "--trials", 300, "--seed", 0, "--out", tmp_path)
+    assert result.exit_code in (0, 1), result.output          # 1: a solve did not converge (said so)
+    if result.exit_code == 1:
+        assert "did not converge" in result.output
+    for word in ("delay [s]", "controller", "aware", "ignorant", "MC median J", "hand position error [mm]"):
+        assert word in result.output
+    data = json.loads((tmp_path / "compare.json").read_text())
+    assert data["settings"]["delays"] == [0.05, 0.1] and data["settings"]["trials"] == 300
+    rows = data["results"]
+    assert [(r["delay"], r["controller"]) for r in rows] == [(0.05, "aware"), (0.05, "ignorant"),
+                                                             (0.1, "aware"), (0.1, "ignorant")]
+    problem = arm2(delay=0.1, noise=True)
+    sol = di.solve(problem)
+    summary = di.simulate(problem, sol.policy, 300, seed=0).summary()
+    aware = rows[2]
+    np.testing.assert_allclose(aware["cost"]["mean"], summary.mean_cost, rtol=1e-12)
+    np.testing.assert_allclose(aware["cost"]["median"], summary.median_cost, rtol=1e-12)
+    np.testing.assert_allclose(aware["predicted_cost"], float(sol.expected_cost), rtol=1e-12)
+    assert rows[3]["cost"]["median"] > 10 * aware["cost"]["median"]
+    with np.load(tmp_path / "compare_runs.npz") as npz:
+        assert npz["aware_100ms_x"].shape == (300, 51, 4)
+        assert npz["ignorant_100ms_delay_feedback"].shape == (50, 0, 2, 2)
+        assert npz["aware_100ms_delay_feedback"].shape == (50, 10, 2, 2)
+    assert "| delay [s] |" in (tmp_path / "compare.md").read_text()
+    for png in ("cost_vs_delay.png", "hand_paths.png", "convergence.png"):
+        assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_demo_writes_the_report(tmp_path):
+    out = tmp_path / "report"
+    result = run("demo", "--out", out, "--trials", 300)
+    assert result.exit_code in (0, 1), result.output
+    if result.exit_code == 1:
+        assert "did not converge" in result.output
+    assert result.output.count("aware") >= 3 and result.output.count("ignorant") >= 3
+    report = (out / "report.md").read_text()
+    assert "| delay [s] |" in report and "![" in report
+    data = json.loads((out / "report.json").read_text())
+    assert data["settings"]["model"] == "arm2" and data["settings"]["noise"] is True
+    assert [r["delay"] for r in data["results"]] == [0.0, 0.0, 0.05, 0.05, 0.1, 0.1]
+    assert all(r["n_trials"] == 300 for r in data["results"])
+    for png in ("cost_vs_delay.png", "hand_paths.png", "convergence.png"):
+        assert (out / png).exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["solve", "no_such_model"], "'no_such_model' is not one of"),
+    (["solve", "arm2", "--delay", "0.025"], "delay must be a whole number of steps of dt=0.01 s"),
+    (["solve", "arm2", "--delay", "-0.01"], "--delay"),
+    (["simulate", "arm2", "--delay", "0.025", "--trials", "3"], "--delay"),
+    (["simulate", "arm2", "--trials", "0"], "--trials"),
+    (["simulate", "arm2", "--trials", "-4"], "--trials"),
+    (["simulate", "arm2", "--seed", "-1"], "--seed"),
+    (["compare", "arm2", "--delays", "0,0.025"], "--delays"),
+    (["compare", "arm2", "--delays", "a,b"], "--delays"),
+    (["compare", "arm2", "--trials", "0"], "--trials"),
+    (["demo", "--trials", "0"], "--trials"),
+    (["solve", "arm2", "--method", "dense"], "--method"),
+])
+def test_bad_arguments_exit_with_2_and_say_why(args, message):
+    result = CliRunner().invoke(cli.main, args)
+    assert result.exit_code == 2, result.output
+    assert message in result.output
+    assert "Error" in result.output
+
+
+def test_delay_error_names_the_option():
+    result = CliRunner().invoke(cli.main, ["solve", "arm2", "--delay", "0.025"])
+    assert "Invalid value for '--delay'" in result.output and "got 0.025 s (2.5 steps)" in result.output
+
+
+@pytest.mark.parametrize("command", sorted(cli.main.commands))
+def test_help_documents_every_option(command):
+    cmd = cli.main.commands[command]
+    result = CliRunner().invoke(cli.main, [command, "--help"])
+    assert result.exit_code == 0
+    options = [p for p in cmd.params if p.param_type_name == "option"]
+    for param in options:
+        for opt in param.opts + param.secondary_opts:
+            assert opt in result.output, (command, opt)
+        if param.name != "help":
+            assert param.help, (command, param.name)
+    assert (cmd.help or "").strip()
+    top = CliRunner().invoke(cli.main, ["--help"])
+    assert command in top.output
