@@ -10,9 +10,12 @@ import pytest
 from click.testing import CliRunner
 
 import delayed_ilqr as di
+from delayed_ilqr.study import design_problem
 from delayed_ilqr import cli
 from delayed_ilqr.models import REGISTRY, arm2, point_mass
 
+
+DESIGN = design_problem(point_mass(), "aware")[1]   # the options the CLI designs controllers with
 
 def run(*args):
     return CliRunner().invoke(cli.main, [str(a) for a in args], catch_exceptions=False)
@@ -31,7 +34,7 @@ def test_solve_writes_json_npz_and_figures_consistent_with_the_api(tmp_path):
     result = run("solve", "point_mass", "--delay", "0.03", "--noise", "--out", tmp_path)
     assert result.exit_code == 0, result.output
     assert "CONVERGED" in result.output and "expected cost (LQG)" in result.output
-    sol = di.solve(point_mass(delay=0.03, noise=True))
+    sol = di.solve(point_mass(delay=0.03, noise=True))   # `solve` uses the default Options
     data = json.loads((tmp_path / "solution.json").read_text())
     assert data["model"] == "point_mass" and data["delay_steps"] == 3 and data["noise"] is True
     assert data["converged"] is True and data["iterations"] == int(sol.iterations)
@@ -68,7 +71,7 @@ def test_simulate_summary_matches_a_direct_monte_carlo(tmp_path):
     assert result.exit_code == 0, result.output
     assert "Monte Carlo mean J" in result.output
     problem = point_mass(delay=0.03, noise=True)
-    runs = di.simulate(problem, di.solve(problem).policy, 16, seed=3)
+    runs = di.simulate(problem, di.solve(problem, options=DESIGN).policy, 16, seed=3)
     summary = runs.summary()
     data = json.loads((tmp_path / "simulate.json").read_text())
     assert data["settings"] == dict(model="point_mass", noise=True, trials=16, seed=3, substeps=1, delay=0.03,
@@ -97,7 +100,7 @@ def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
     assert [(r["delay"], r["controller"]) for r in rows] == [(0.05, "aware"), (0.05, "ignorant"),
                                                              (0.1, "aware"), (0.1, "ignorant")]
     problem = arm2(delay=0.1, noise=True)
-    sol = di.solve(problem)
+    sol = di.solve(problem, options=DESIGN)
     summary = di.simulate(problem, sol.policy, 300, seed=0).summary()
     aware = rows[2]
     np.testing.assert_allclose(aware["cost"]["mean"], summary.mean_cost, rtol=1e-12)
