@@ -19,7 +19,8 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q tests
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python benchmarks/bench_lqg.py
+	$(BIN)/python benchmarks/solve_p1_p2.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .hypothesis
