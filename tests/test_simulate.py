@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
+from delayed_ilqr.study import design_problem
 from delayed_ilqr import study
 from delayed_ilqr.linearize import linearize
 from delayed_ilqr.lqg import Gains, policy_cost
@@ -223,7 +224,8 @@ def test_delay_aware_beats_delay_ignorant_on_the_noisy_delayed_arm(arm_study):
 def test_study_results_are_the_direct_api_results(arm_study):
     aware, ignorant = arm_study[0:2]
     problem = arm2(delay=0.05, noise=True)
-    sol = di.solve(problem)
+    design, options = design_problem(problem, "aware")              # the options the study designs with
+    sol = di.solve(design, options=options)
     runs = di.simulate(problem, sol.policy, 300, seed=0)
     np.testing.assert_array_equal(np.asarray(aware.runs.cost), np.asarray(runs.cost))
     assert aware.cost == sample_stats(runs.cost)
