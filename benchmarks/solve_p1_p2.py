@@ -7,28 +7,10 @@ import time
 
 import jax
 import numpy as np
-import scipy.optimize
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import rollout, trajectory_cost
+from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
-
-
-def direct_optimum(problem):
-    K, nd = problem.horizon, problem.n_controls
-
-    def cost(flat):
-        us = flat.reshape(K, nd)
-        return trajectory_cost(problem, rollout(problem, us), us)
-
-    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
-    u = np.zeros(K * nd)
-    for _ in range(3):        # L-BFGS-B's ftol has an absolute floor: rescale to O(1) and restart
-        scale = 1.0 / float(fun(u))
-        u = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
-                                    method="L-BFGS-B", options=dict(maxiter=50000, maxfun=100000, ftol=1e-16,
-                                                                    gtol=1e-14, maxcor=50)).x
-    return float(fun(u))
 
 
 def timed_solve(problem, repeats=7):

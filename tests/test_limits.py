@@ -1,35 +1,14 @@
 """Control limits: the box-QP backward pass (Tassa, Mansard & Todorov 2014) inside the delayed
 recursion, checked at the LQG level (exactness under clamped gains, structured == augmented) and
 on the nonlinear problems against a bounded direct method (L-BFGS-B over all commands)."""
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.optimize
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import rollout, trajectory_cost
 from delayed_ilqr.lqg import DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan
+from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
-
-
-def bounded_direct_optimum(problem, lower, upper):
-    """L-BFGS-B over all K*d commands with bounds; exact gradients by jax.grad; rescaled restarts."""
-    K, nd = problem.horizon, problem.n_controls
-
-    def cost(flat):
-        us = flat.reshape(K, nd)
-        return trajectory_cost(problem, rollout(problem, us), us)
-
-    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
-    u = np.zeros(K * nd)
-    for _ in range(3):
-        scale = 1.0 / float(fun(u))
-        u = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
-                                    method="L-BFGS-B", bounds=[(lower, upper)] * (K * nd),
-                                    options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14,
-                                                 maxcor=50)).x
-    return float(fun(u))
 
 
 def _random_lqg(K, nx, nd, p, l, seed):
@@ -75,7 +54,7 @@ def test_bounded_point_mass_matches_bounded_direct_method(delay):
     assert sol.converged, sol.message
     assert np.all(np.abs(np.asarray(sol.u)) <= 1.0)
     assert np.isclose(float(jnp.max(jnp.abs(sol.u))), 1.0)          # the limit binds
-    reference = bounded_direct_optimum(problem, -1.0, 1.0)
+    reference = direct_optimum(problem)
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference
 
 
@@ -85,7 +64,7 @@ def test_bounded_arm_matches_bounded_direct_method(delay):
     sol = di.solve(problem)
     assert sol.converged, sol.message
     assert np.all(np.abs(np.asarray(sol.u)) <= 1.5)
-    reference = bounded_direct_optimum(problem, -1.5, 1.5)
+    reference = direct_optimum(problem)
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference
 
 

@@ -5,37 +5,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.optimize
 
 import delayed_ilqr as di
 from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
+from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
 
 DELAYS = [0.0, 0.03, 0.1]
-
-
-def direct_optimum(problem):
-    """Independent reference: L-BFGS-B over all K*d commands, gradient by jax.grad of the rollout cost.
-
-    L-BFGS-B's ftol test has an absolute floor of 1, so the objective is rescaled to O(1) at the
-    point found and the search restarted there, twice.
-    """
-    K, nd = problem.horizon, problem.n_controls
-
-    def cost(flat):
-        us = flat.reshape(K, nd)
-        return trajectory_cost(problem, rollout(problem, us), us)
-
-    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
-    u = np.zeros(K * nd)
-    for _ in range(3):
-        scale = 1.0 / float(fun(u))
-        res = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
-                                      method="L-BFGS-B",
-                                      options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14, maxcor=50))
-        u = res.x
-    return float(fun(u))
 
 
 @pytest.mark.parametrize("delay", DELAYS)

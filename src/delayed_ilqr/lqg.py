@@ -364,9 +364,8 @@ def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     """
     gains, out, ok = structured_scan(lqg, reg, store_value=True)
     term = _terminal(_merged_if_undelayed(lqg))
-    value = Value(*(_append_terminal(o, t) for o, t in zip(
-        (out[0], out[1], out[2], out[3], out[4], out[5]),
-        (term[0], term[1], term[2], term[3], term[4], term[5]))), positive_definite=ok)
+    # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; term holds the same at k = K
+    value = Value(*(_append_terminal(o, t) for o, t in zip(out, term[:6])), positive_definite=ok)
     return gains, value
 
 
@@ -464,7 +463,6 @@ def _check_gains(lqg: DelayedLQG, gains: Gains) -> Gains:
 
 @jax.jit
 def _policy_cost(lqg: DelayedLQG, gains: Gains):
-    nx = lqg.n_states
     aug = augment(lqg)
     Kz = jnp.concatenate([gains.state_feedback,
                           jnp.moveaxis(gains.delay_feedback, 1, 2).reshape(lqg.horizon, lqg.n_controls, -1)],

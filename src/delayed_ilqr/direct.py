@@ -1,0 +1,43 @@
+"""An independent reference for the nonlinear solver: direct single shooting.
+
+L-BFGS-B (SciPy) over all K d commands at once, with exact gradients from ``jax.grad`` of the
+rollout cost (2). It shares nothing with iLQG but the rollout and the cost, which is what makes it
+a check. Needs SciPy (the ``test`` extra); it is for tests and benchmarks, not a solver to use.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .linearize import rollout, trajectory_cost
+from .problem import Problem
+
+__all__ = ["direct_optimum"]
+
+
+def direct_optimum(problem: Problem, restarts: int = 3) -> float:
+    """The cost (2) of the best command sequence L-BFGS-B finds, within ``problem``'s limits.
+
+    L-BFGS-B's ftol test has an absolute floor of 1, and motor-task costs are ~1e-4, so the
+    objective is rescaled to O(1) at the point found and the search restarted there.
+    """
+    import scipy.optimize  # lazy: SciPy is a test dependency
+
+    K, nd = problem.horizon, problem.n_controls
+
+    def cost(flat):
+        us = flat.reshape(K, nd)
+        return trajectory_cost(problem, rollout(problem, us), us)
+
+    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
+    lower, upper = (np.tile(np.asarray(b), K) for b in (problem.u_min, problem.u_max))
+    bounds = list(zip(np.where(np.isfinite(lower), lower, None), np.where(np.isfinite(upper), upper, None)))
+    u = np.clip(np.zeros(K * nd), lower, upper)
+    for _ in range(restarts):
+        scale = 1.0 / float(fun(jnp.asarray(u)))
+        u = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
+                                    method="L-BFGS-B", bounds=bounds,
+                                    options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14,
+                                                 maxcor=50)).x
+    return float(fun(jnp.asarray(u)))
