@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, Gains
+from .lqg import DelayedLQG, Gains, merged_if_undelayed
 from .problem import Problem
 
 __all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search"]
@@ -71,23 +71,22 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
     noise cost gives the exact quadratic in alpha (derivation §12). O(K (n^2 + n d + l d^2)).
     """
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
-    B0 = lqg.B0 + lqg.B1 if l == 0 else lqg.B0
-    C0 = lqg.C0 + lqg.C1 if l == 0 else lqg.C0
+    lqg = merged_if_undelayed(lqg)
 
     def step(carry, data):
         xi, pending = carry
-        A, B0k, B1, c, C0k, C1, I, L, M, Sn, dv, D, e, E, N = data
+        A, B0, B1, c, C0, C1, I, L, M, Sn, dv, D, e, E, N = data
         eta = I + L @ xi + jnp.einsum("ide,ie->d", M, pending)
         eta_d = pending[0] if l > 0 else jnp.zeros(nd, xi.dtype)
-        dc = C0k @ eta + (C1 @ eta_d if l > 0 else 0.0)              # [p, n] change of noise columns
+        dc = C0 @ eta + (C1 @ eta_d if l > 0 else 0.0)              # [p, n] change of noise columns
         a = 2 * (xi @ dv + eta @ e) + 2 * jnp.einsum("pn,nm,pm->", c, Sn, dc)
         b = xi @ D @ xi + eta @ E @ eta + 2 * eta @ N @ xi + jnp.einsum("pn,nm,pm->", dc, Sn, dc)
-        xi_new = A @ xi + B0k @ eta + (B1 @ eta_d if l > 0 else 0.0)
+        xi_new = A @ xi + B0 @ eta + (B1 @ eta_d if l > 0 else 0.0)
         if l > 0:
             pending = jnp.concatenate([pending[1:], eta[None]])
         return (xi_new, pending), (a, b)
 
-    data = (lqg.A, B0, lqg.B1, lqg.c, C0, lqg.C1, *gains, S[1:], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
+    data = (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, *gains, S[1:], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
     (xiK, _), (a, b) = jax.lax.scan(step, (jnp.zeros(nx), jnp.zeros((l, nd))), data)
     return jnp.sum(a) + 2 * xiK @ lqg.d[-1], jnp.sum(b) + xiK @ lqg.D[-1] @ xiK
 

@@ -205,7 +205,7 @@ def _sym(M):
     return 0.5 * (M + jnp.swapaxes(M, -1, -2))
 
 
-def _merged_if_undelayed(lqg: DelayedLQG):
+def merged_if_undelayed(lqg: DelayedLQG):
     """For l = 0 the delayed command is the current one: fold B1, C1 into B0, C0."""
     if lqg.delay_steps > 0:
         return lqg
@@ -339,7 +339,7 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
             solver passes a box-QP version; ``warm`` is the feedforward of the step after.
         bounds: per-step data for ``gains_fn``, time-major (e.g. [K, 2, d] limits on du_k).
     """
-    lqg = _merged_if_undelayed(lqg)
+    lqg = merged_if_undelayed(lqg)
     step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value, gains_fn=gains_fn)
     carry, out = jax.lax.scan(step, _terminal(lqg), _stage_data(lqg, bounds), reverse=True)
     return Gains(*out[:3]), out[3:], carry[-2]
@@ -363,7 +363,7 @@ def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
         definite, ``value.positive_definite`` is False and the gains hold NaN from that step back.
     """
     gains, out, ok = structured_scan(lqg, reg, store_value=True)
-    term = _terminal(_merged_if_undelayed(lqg))
+    term = _terminal(merged_if_undelayed(lqg))
     # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; term holds the same at k = K
     value = Value(*(_append_terminal(o, t) for o, t in zip(out, term[:6])), positive_definite=ok)
     return gains, value
@@ -379,7 +379,7 @@ def augment(lqg: DelayedLQG):
     Returns a dict with Az [K, N, N], Bz [K, N, d], cz [K, p, N], Cz [K, p, N, N], Cu [K, p, N, d],
     dz [K+1, N], Dz [K+1, N, N], Nz [K, d, N] where N = n + l d; the buffer holds du_{k-l} .. du_{k-1}.
     """
-    lqg = _merged_if_undelayed(lqg)
+    lqg = merged_if_undelayed(lqg)
     K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
     N = nx + l * nd
     dt = lqg.A.dtype
@@ -519,7 +519,7 @@ class LQGRuns(NamedTuple):
 
 @partial(jax.jit, static_argnames=("n_trials",))
 def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
-    lqg = _merged_if_undelayed(lqg)
+    lqg = merged_if_undelayed(lqg)
     K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
     dt = lqg.A.dtype
 
