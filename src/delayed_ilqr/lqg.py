@@ -215,7 +215,7 @@ def merged_if_undelayed(lqg: DelayedLQG):
 
 def _stage_data(lqg: DelayedLQG, bounds=None):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1."""
-    return (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
+    return (jnp.arange(lqg.horizon), lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
             lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
@@ -252,12 +252,24 @@ def boxed_gains(H, reg, g, G, bounds, warm):
     return ok, I, K
 
 
-def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
-    """One step k -> k-1 of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
+def _pending_order(k, l: int, nd: int):
+    """Positions in the slot-ordered pending axis of du_{k-l}, ..., du_{k-1} (eq. 6's order i = 0..l-1).
 
-    ``carry`` holds J(k)'s coefficients; ``data`` the model at k-1. Pending index i at time k-1 is
-    du_{k-1+i-l}: i = 0 is the new one (acting through B1_{k-1}); i >= 1 was index i-1 at time k;
-    index l-1 at time k is du_{k-1}, the command being eliminated.
+    The recursion stores the pending commands in a circular frame: du_j lives in slot j mod l, so
+    the command eliminated at step k (du_k) and the one that becomes pending (du_{k-l}) share a slot
+    and no block ever moves. Returns [l d] indices into the flattened (slot, component) axis.
+    """
+    slots = (k + jnp.arange(l)) % l
+    return (slots[:, None] * nd + jnp.arange(nd)).reshape(-1)
+
+
+def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
+    """Step k+1 -> k of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
+
+    ``carry`` holds J(k+1)'s coefficients with the pending commands in slot order (see
+    :func:`_pending_order`): r [l d], Rt [n, l d], R [l d, l d]; ``data`` the model at k. The
+    command eliminated here, du_k, occupies slot sigma = k mod l at k+1; at k the same slot holds
+    du_{k-l}, the command acting through B1_k. Every other block keeps its place.
 
     The value update is the exact cost-to-go of the quadratic model under whatever gains
     ``gains_fn`` returns (regularised, or clamped by control limits): with the quadratic
@@ -265,66 +277,101 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     Q_yy + K'W + W'K with W = H K / 2 + G, q_y + K'(H I + g) + G'I and q0 + I'H I + 2 I'g
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
     """
-    s_tilde, s, S, r, Rt, R, ok, warm = carry
-    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
+    s_tilde, s, S, r, Rt, R, R_s, ok, warm = carry
+    k, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
+    nx, nd = B0.shape
     SB0, SB1 = S @ B0, S @ B1
     Sc = c @ S                                              # [p, n], rows S c_j (S symmetric)
     SC0 = jnp.einsum("mn,pnd->pmd", S, C0)
-    SC1 = jnp.einsum("mn,pnd->pmd", S, C1)
 
-    # Coefficients of the quadratic in du_{k-1}: H (d x d), g (d), G_x (d x n), G_M (l x d x d).
+    # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
     H = E + B0.T @ SB0 + jnp.einsum("pnd,pne->de", C0, SC0)
     g = e + B0.T @ s + jnp.einsum("pnd,pn->d", C0, Sc)
     Gx = SB0.T @ A + Nxu
-    nd = B0.shape[1]
     if l > 0:
-        Rt_last = Rt[-1]
-        H = H + R[-1, -1] + B0.T @ Rt_last + Rt_last.T @ B0
-        g = g + r[-1]
-        Gx = Gx + Rt_last.T @ A
-        GM0 = B0.T @ SB1 + jnp.einsum("pnd,pne->de", C0, SC1) + Rt_last.T @ B1
-        GMi = jnp.einsum("nd,ine->ide", B0, Rt[:-1]) + R[-1, :-1]
-        GM = jnp.concatenate([GM0[None], GMi])                     # [l, d, d]
-        G = jnp.concatenate([Gx, jnp.moveaxis(GM, 0, 1).reshape(nd, l * nd)], axis=1)
+        j0 = (k % l) * nd                                   # slot sigma in the flattened pending axis
+        SC1 = jnp.einsum("mn,pnd->pmd", S, C1)
+        Rt_s = jax.lax.dynamic_slice_in_dim(Rt, j0, nd, axis=1)      # [n, d]  Rt^sigma
+        R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
+        H = H + R_ss + B0.T @ Rt_s + Rt_s.T @ B0
+        g = g + jax.lax.dynamic_slice_in_dim(r, j0, nd)
+        Gx = Gx + Rt_s.T @ A
+        # du_k against the other pending commands; in slot sigma, against du_{k-l} (via B1_k)
+        G_new = B0.T @ SB1 + jnp.einsum("pnd,pne->de", C0, SC1) + Rt_s.T @ B1
+        Gw = jax.lax.dynamic_update_slice(B0.T @ Rt + R_s, G_new, (0, j0))
+        G = jnp.concatenate([Gx, Gw], axis=1)
     else:
         G = Gx
     H = _sym(H)
     step_ok, I, K = gains_fn(H, reg, g, G, bounds, warm)
-    L = K[:, :Gx.shape[1]]
+    L = K[:, :nx]
     W = 0.5 * H @ K + G                                             # [d, n + l d]
-    Wx = W[:, :Gx.shape[1]]
+    Wx = W[:, :nx]
     HIg = H @ I + g
     s_tilde_new = d_tilde + s_tilde + jnp.sum(c * Sc) + I @ (H @ I + 2.0 * g)
     s_new = dv + A.T @ s + L.T @ HIg + Gx.T @ I
     S_new = _sym(D + A.T @ S @ A + L.T @ Wx + Wx.T @ L)
     if l > 0:
-        M = jnp.moveaxis(K[:, Gx.shape[1]:].reshape(nd, l, nd), 1, 0)   # [l, d, d]
-        WM = jnp.moveaxis(W[:, Gx.shape[1]:].reshape(nd, l, nd), 1, 0)
-        r_pre = jnp.concatenate([(B1.T @ s + jnp.einsum("pnd,pn->d", C1, Sc))[None], r[:-1]])
-        Rt_pre = jnp.concatenate([(A.T @ SB1)[None], jnp.einsum("mn,imd->ind", A, Rt[:-1])])
-        R00 = B1.T @ SB1 + jnp.einsum("pnd,pne->de", C1, SC1)
-        Ri0 = jnp.einsum("ind,ne->ide", Rt[:-1], B1)                # (Rt^{i-1})' B1
-        R_pre = jnp.pad(R[:-1, :-1], ((1, 0), (1, 0), (0, 0), (0, 0)))
-        R_pre = R_pre.at[0, 0].set(R00).at[1:, 0].set(Ri0).at[0, 1:].set(jnp.swapaxes(Ri0, -1, -2))
-        r_new = r_pre + jnp.einsum("ide,d->ie", M, HIg) + jnp.einsum("ide,d->ie", GM, I)
-        Rt_new = Rt_pre + jnp.einsum("dn,ide->ine", L, WM) + jnp.einsum("dn,ide->ine", Wx, M)
-        MW = jnp.einsum("ida,jdb->ijab", M, WM)                       # (M^i)' W^j
-        R_new = R_pre + MW + jnp.swapaxes(jnp.swapaxes(MW, 0, 1), -1, -2)
+        Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
+        # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
+        r_pre = jax.lax.dynamic_update_slice(r, B1.T @ s + jnp.einsum("pnd,pn->d", C1, Sc), (j0,))
+        Rt_pre = jax.lax.dynamic_update_slice(A.T @ Rt, A.T @ SB1, (0, j0))
+        row = jax.lax.dynamic_update_slice(
+            B1.T @ Rt, B1.T @ SB1 + jnp.einsum("pnd,pne->de", C1, SC1), (0, j0))    # [d, l d]
+        r_new = r_pre + Mw.T @ HIg + Gw.T @ I
+        Rt_new = Rt_pre + L.T @ Ww + Wx.T @ Mw
+        R_new = _r_update(R, R_s, row, Mw, Ww, j0)
+        R_s = jax.lax.dynamic_slice_in_dim(R_new, ((k - 1) % l) * nd, nd, axis=0)   # for step k-1
+        order = _pending_order(k, l, nd)
+        M = jnp.moveaxis(Mw[:, order].reshape(nd, l, nd), 1, 0)       # [l, d, d], eq. 6's order
     else:
         M = jnp.zeros((0, nd, nd), A.dtype)
         r_new, Rt_new, R_new = r, Rt, R
-    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, ok & step_ok, I)
+    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I)
     out = (I, L, M, s_tilde_new, s_new, S_new)
     if store_value:
-        out = out + (r_new, Rt_new, R_new)
+        out = out + _value_blocks(r_new, Rt_new, R_new, k, l, nd)
     return carry, out
+
+
+def _r_update(R, R_s, row, Mw, Ww, j0):
+    """R at k from R at k+1 (the hot spot: [l d, l d] per step, everything else is O(l d^2)).
+
+    Slot sigma's rows R_s [d, l d] are replaced by ``row`` (du_{k-l} against the pending commands)
+    and the columns by row', then M'W + W'M is added. The replacement is itself a rank-2d update:
+    with Delta = row - R_s, its sigma-sigma block halved, R + P Delta + Delta'P' (P selects slot
+    sigma). So R_new = R + sum_a (u_a v_a' + v_a u_a') over 2d pairs, written as broadcast
+    products (no matrix product, no slice updates) so that XLA fuses it into one loop that reads
+    and writes R once, in place; the rows the next step needs are sliced from the result.
+    """
+    nd, ld = row.shape
+    in_slot = (jnp.arange(ld) >= j0) & (jnp.arange(ld) < j0 + nd)
+    delta = (row - R_s) * jnp.where(in_slot, 0.5, 1.0)
+    onehot = (jnp.arange(ld)[None, :] == (j0 + jnp.arange(nd))[:, None]).astype(R.dtype)  # P'
+    # the factors are materialised first: fused into the loop they would be recomputed per element
+    U, V = jax.lax.optimization_barrier((jnp.concatenate([onehot, Mw]), jnp.concatenate([delta, Ww])))
+    for a in range(2 * nd):
+        R = R + U[a][:, None] * V[a][None, :] + V[a][:, None] * U[a][None, :]
+    return R
+
+
+def _value_blocks(r, Rt, R, k, l: int, nd: int):
+    """J(k)'s pending blocks from slot order to eq. 7's order: r [l, d], Rt [l, n, d], R [l, l, d, d]."""
+    if l == 0:
+        nx = Rt.shape[0]
+        return (jnp.zeros((0, nd)), jnp.zeros((0, nx, nd)), jnp.zeros((0, 0, nd, nd)))
+    order = _pending_order(k, l, nd)
+    nx = Rt.shape[0]
+    return (r[order].reshape(l, nd),
+            jnp.moveaxis(Rt[:, order].reshape(nx, l, nd), 1, 0),
+            jnp.moveaxis(R[order][:, order].reshape(l, nd, l, nd), 2, 1))
 
 
 def _terminal(lqg: DelayedLQG):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     dt = lqg.A.dtype
-    return (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1], jnp.zeros((l, nd), dt), jnp.zeros((l, nx, nd), dt),
-            jnp.zeros((l, l, nd, nd), dt), jnp.asarray(True), jnp.zeros(nd, dt))
+    return (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1], jnp.zeros(l * nd, dt), jnp.zeros((nx, l * nd), dt),
+            jnp.zeros((l * nd, l * nd), dt), jnp.zeros((nd, l * nd), dt), jnp.asarray(True), jnp.zeros(nd, dt))
 
 
 def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
@@ -363,9 +410,10 @@ def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
         definite, ``value.positive_definite`` is False and the gains hold NaN from that step back.
     """
     gains, out, ok = structured_scan(lqg, reg, store_value=True)
+    # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; the terminal J(K) has no pending blocks
     term = _terminal(merged_if_undelayed(lqg))
-    # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; term holds the same at k = K
-    value = Value(*(_append_terminal(o, t) for o, t in zip(out, term[:6])), positive_definite=ok)
+    term = term[:3] + tuple(jnp.zeros_like(o[0]) for o in out[3:])
+    value = Value(*(_append_terminal(o, t) for o, t in zip(out, term)), positive_definite=ok)
     return gains, value
 
 
