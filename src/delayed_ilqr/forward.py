@@ -18,7 +18,7 @@ from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, Gains, merged_if_undelayed
 from .problem import Problem
 
-__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search"]
+__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
 
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
@@ -103,6 +103,12 @@ class LineSearch(NamedTuple):
     actual: jax.Array            # merit reduction achieved
     expected: jax.Array          # reduction predicted by the LQG model
     all_non_finite: jax.Array    # bool: every candidate rollout blew up
+
+
+def no_step(xs, us, cost, merit_now) -> LineSearch:
+    """The outcome of a line search that was not run (converged iteration, final pass)."""
+    zero = jnp.zeros_like(merit_now)
+    return LineSearch(jnp.asarray(False), xs, us, cost, merit_now, zero, zero, zero, jnp.asarray(False))
 
 
 def line_search(problem: Problem, lqg: DelayedLQG, gains: Gains, S, xs, us, merit_now, alphas, z_min):

@@ -11,7 +11,8 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
    schedule); stop when an accepted reduction is below tol_cost (relative).
 
-The returned policy and ``expected_cost`` come from a last backward pass at the returned nominal.
+The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
+converging iteration's own, or one more pass when the last iteration moved the nominal.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _validate
-from .forward import line_search, merit
+from .forward import line_search, merit, no_step
 from .linearize import linearize, rollout, trajectory_cost
 from .lqg import Gains, augmented_scan, boxed_gains, structured_scan
 from .problem import Problem
@@ -88,6 +89,9 @@ class _State(NamedTuple):
     dreg: jax.Array
     iteration: jax.Array
     status: jax.Array
+    final_pass: jax.Array        # bool: the nominal moved after the last backward pass
+    gains: Gains                 # from the last backward pass
+    expected_cost: jax.Array     # its J(0)
     trace: Trace
 
 
@@ -125,14 +129,23 @@ def _decrease(reg, dreg, o: Options):
 
 
 def _iteration(problem: Problem, o: Options, st: _State) -> _State:
-    lqg, gains, S, _, pd = _backward(problem, st.xs, st.us, st.reg, o.method)
+    """One pass of the loop: a backward pass at the nominal, then (while running) a line search.
+
+    When the solve has just stopped with the nominal moved, the loop runs once more for the
+    backward pass only, so that the returned policy belongs to the returned nominal. The loop
+    body is the only place the backward pass is traced, which keeps compilation short.
+    """
+    lqg, gains, S, expected_cost, pd = _backward(problem, st.xs, st.us, st.reg, o.method)
+    running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
     _, merit_now = merit(problem, st.xs, st.us, S)
     # NaN gains from a failed factorisation must not reach the rollout: use zero gains instead
     safe = jax.tree_util.tree_map(lambda g: jnp.where(pd, g, 0.0), gains)
-    ls = line_search(problem, lqg, safe, S, st.xs, st.us, merit_now, o.alphas, o.z_min)
-    accept = pd & ~converged & ls.accepted
+    search = running & ~converged
+    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, safe, S, st.xs, st.us, merit_now, o.alphas, o.z_min),
+                      lambda: no_step(st.xs, st.us, st.cost, merit_now))
+    accept = search & pd & ls.accepted
     reg_up, dreg_up = _increase(st.reg, st.dreg, o)
     reg_down, dreg_down = _decrease(st.reg, st.dreg, o)
     reg = jnp.where(accept, reg_down, jnp.where(converged, st.reg, reg_up))
@@ -143,19 +156,22 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
         [converged, small, ~accept & (reg > o.reg_max) & ls.all_non_finite & pd,
          ~accept & (reg > o.reg_max), it >= o.max_iterations],
         [Status.CONVERGED_GRADIENT, Status.CONVERGED_COST, Status.NON_FINITE_ROLLOUT,
-         Status.REGULARIZATION_LIMIT, Status.MAX_ITERATIONS], _RUNNING)
-    us = jnp.where(accept, ls.us, st.us)
-    xs = jnp.where(accept, ls.xs, st.xs)
-    cost = jnp.where(accept, ls.cost, st.cost)
+         Status.REGULARIZATION_LIMIT, Status.MAX_ITERATIONS], _RUNNING).astype(jnp.int32)
+    keep = lambda new, old: jnp.where(accept, new, old)    # a failed step leaves the nominal as it was
     t = st.trace
     trace = Trace(
-        cost=t.cost.at[it].set(cost),
-        merit=t.merit.at[it].set(jnp.where(accept, ls.merit, merit_now)),
+        cost=t.cost.at[it].set(keep(ls.cost, st.cost)),
+        merit=t.merit.at[it].set(keep(ls.merit, merit_now)),
         expected_reduction=t.expected_reduction.at[it].set(jnp.where(converged, 0.0, ls.expected)),
         step_size=t.step_size.at[it].set(jnp.where(accept, ls.alpha, 0.0)),
         reg=t.reg.at[it].set(st.reg),
         grad_norm=t.grad_norm.at[it].set(gnorm))
-    return _State(us, xs, cost, reg, dreg, it, status.astype(jnp.int32), trace)
+    # one more pass when the stop moved the nominal, or left gains from a failed factorisation
+    final_pass = (status != _RUNNING) & (accept | ~pd)
+    iterated = _State(keep(ls.us, st.us), keep(ls.xs, st.xs), keep(ls.cost, st.cost), reg, dreg, it, status,
+                      final_pass, gains, expected_cost, trace)
+    finished = st._replace(final_pass=jnp.asarray(False), gains=gains, expected_cost=expected_cost)
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), iterated, finished)
 
 
 @partial(jax.jit, static_argnames=("options",))
@@ -166,14 +182,16 @@ def _solve(problem: Problem, u_init, options: Options) -> Solution:
     nan = jnp.full(options.max_iterations + 1, jnp.nan)
     trace = Trace(cost=nan.at[0].set(cost), merit=nan.at[0].set(cost), expected_reduction=nan,
                   step_size=nan, reg=nan, grad_norm=nan)
+    K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
+    no_gains = Gains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx)), jnp.zeros((K, l, nd, nd)))
+    # a non-finite start stops at once, with one backward pass for the policy it reports
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
-                  jnp.asarray(0, jnp.int32),
-                  jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32), trace)
-    st = jax.lax.while_loop(lambda s: s.status == _RUNNING, partial(_iteration, problem, options), init)
-    # the policy and J(0) at the returned nominal
-    _, gains, _, expected_cost, _ = _backward(problem, st.xs, st.us, st.reg, options.method)
-    policy = Policy(st.xs, st.us, *gains)
-    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=expected_cost, status=st.status,
+                  jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
+                  ~ok, no_gains, jnp.asarray(jnp.nan), trace)
+    st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
+                            init)
+    policy = Policy(st.xs, st.us, *st.gains)
+    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
