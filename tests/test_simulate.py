@@ -93,7 +93,9 @@ def test_zero_noise_reproduces_the_nominal_rollout(arm_solution):
     np.testing.assert_allclose(np.asarray(runs.cost), float(sol.cost), rtol=1e-10)
     summary = runs.summary()
     assert summary.std_cost < 1e-12 * float(sol.cost)
-    np.testing.assert_allclose(summary.final_state_mean, np.asarray(sol.x[-1]), rtol=1e-12)
+    # same absolute floor as the per-trial check: final velocities are ~1e-6, where averaging
+    # identical trials rounds at ~1e-16
+    np.testing.assert_allclose(summary.final_state_mean, np.asarray(sol.x[-1]), rtol=1e-12, atol=1e-13)
 
 
 def test_substeps_refine_the_integration_at_first_order(arm_solution):

@@ -18,29 +18,42 @@ from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, Gains, merged_if_undelayed
 from .problem import Problem
 
-__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
+__all__ = ["in_slots", "closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
+
+
+def in_slots(delay_feedback):
+    """M_k^i [K, l, d, d] rearranged for a circular buffer of pending commands (du_j in slot j mod l).
+
+    At step k, M_k^i multiplies du_{k+i-l}, which sits in slot (k+i) mod l; the result's [k, s]
+    is the gain of slot s, so a rollout updates one slot per step instead of shifting the buffer.
+    """
+    K, l = delay_feedback.shape[:2]
+    i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l          # [K, l]
+    return jnp.take_along_axis(delay_feedback, i_of_slot[:, :, None, None], axis=1)
 
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
     """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
     l, nd = problem.delay_steps, problem.n_controls
     uds_bar = delayed_commands(problem, us_bar)
+    I, L, M = gains
 
     def step(carry, data):
-        x, pending = carry                                  # pending[i] = u_{k+i-l} - u_bar_{k+i-l}
-        x_bar, u_bar, ud_bar, I, L, M = data
-        du = alpha * I + L @ (x - x_bar) + jnp.einsum("ide,ie->d", M, pending)
+        x, buffer = carry                                   # buffer[j mod l] = u_j - u_bar_j, pending
+        k, x_bar, u_bar, ud_bar, I, L, M = data
+        du = alpha * I + L @ (x - x_bar) + jnp.einsum("sde,se->d", M, buffer)
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         if l > 0:
-            ud = ud_bar + pending[0]
-            pending = jnp.concatenate([pending[1:], (u - u_bar)[None]])
+            ud = ud_bar + buffer[k % l]
+            buffer = buffer.at[k % l].set(u - u_bar)
         else:
             ud = u
         x_new = x + problem.dt * problem.dynamics(x, u, ud)
-        return (x_new, pending), (x_new, u)
+        return (x_new, buffer), (x_new, u)
 
     init = (problem.x0, jnp.zeros((l, nd), us_bar.dtype))
-    _, (xs, us) = jax.lax.scan(step, init, (xs_bar[:-1], us_bar, uds_bar, *gains))
+    data = (jnp.arange(us_bar.shape[0]), xs_bar[:-1], us_bar, uds_bar, I, L, in_slots(M))
+    _, (xs, us) = jax.lax.scan(step, init, data)
     return jnp.concatenate([problem.x0[None], xs]), us
 
 
@@ -73,22 +86,28 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     lqg = merged_if_undelayed(lqg)
 
-    def step(carry, data):
-        xi, pending = carry
-        A, B0, B1, c, C0, C1, I, L, M, Sn, dv, D, e, E, N = data
-        eta = I + L @ xi + jnp.einsum("ide,ie->d", M, pending)
-        eta_d = pending[0] if l > 0 else jnp.zeros(nd, xi.dtype)
-        dc = C0 @ eta + (C1 @ eta_d if l > 0 else 0.0)              # [p, n] change of noise columns
-        a = 2 * (xi @ dv + eta @ e) + 2 * jnp.einsum("pn,nm,pm->", c, Sn, dc)
-        b = xi @ D @ xi + eta @ E @ eta + 2 * eta @ N @ xi + jnp.einsum("pn,nm,pm->", dc, Sn, dc)
-        xi_new = A @ xi + B0 @ eta + (B1 @ eta_d if l > 0 else 0.0)
+    def step(carry, data):                      # the linear closed loop only; costs come after
+        xi, buffer = carry                      # circular, as in closed_loop_rollout
+        k, A, B0, B1, I, L, M = data
+        eta = I + L @ xi + jnp.einsum("sde,se->d", M, buffer)
         if l > 0:
-            pending = jnp.concatenate([pending[1:], eta[None]])
-        return (xi_new, pending), (a, b)
+            eta_d = buffer[k % l]
+            buffer = buffer.at[k % l].set(eta)
+            xi_new = A @ xi + B0 @ eta + B1 @ eta_d
+        else:
+            eta_d = jnp.zeros(nd, xi.dtype)
+            xi_new = A @ xi + B0 @ eta
+        return (xi_new, buffer), (xi, eta, eta_d)
 
-    data = (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, *gains, S[1:], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
-    (xiK, _), (a, b) = jax.lax.scan(step, (jnp.zeros(nx), jnp.zeros((l, nd))), data)
-    return jnp.sum(a) + 2 * xiK @ lqg.d[-1], jnp.sum(b) + xiK @ lqg.D[-1] @ xiK
+    I, L, M = gains
+    data = (jnp.arange(lqg.horizon), lqg.A, lqg.B0, lqg.B1, I, L, in_slots(M))
+    (xiK, _), (xi, eta, eta_d) = jax.lax.scan(step, (jnp.zeros(nx), jnp.zeros((l, nd))), data)
+    dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
+    Sn = S[1:]
+    a = 2 * (jnp.sum(xi * lqg.d[:-1]) + jnp.sum(eta * lqg.e)) + 2 * jnp.einsum("kpn,knm,kpm->", lqg.c, Sn, dc)
+    b = (jnp.einsum("kn,knm,km->", xi, lqg.D[:-1], xi) + jnp.einsum("kd,kde,ke->", eta, lqg.E, eta)
+         + 2 * jnp.einsum("kd,kdn,kn->", eta, lqg.N, xi) + jnp.einsum("kpn,knm,kpm->", dc, Sn, dc))
+    return a + 2 * xiK @ lqg.d[-1], b + xiK @ lqg.D[-1] @ xiK
 
 
 class LineSearch(NamedTuple):

@@ -219,18 +219,40 @@ def _stage_data(lqg: DelayedLQG, bounds=None):
             lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
-def _solve_gains(H, reg, rhs_list):
-    """Cholesky of H + reg I and -(H + reg I)^{-1} rhs for each rhs; flags a failed factorisation."""
+# Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
+# LAPACK call per time step costs more than the arithmetic for the d of motor-control problems.
+_UNROLLED_CHOLESKY_MAX = 8
+
+
+def cholesky_solve(H, rhs):
+    """(ok, H^{-1} rhs) for symmetric H [d, d] and rhs [d, m] by Cholesky; ok is False (and the
+    result non-finite) when H is not numerically positive definite."""
     nd = H.shape[0]
-    chol = jnp.linalg.cholesky(H + reg * jnp.eye(nd, dtype=H.dtype))
-    ok = jnp.all(jnp.isfinite(chol))
-    return ok, [-cho_solve((chol, True), rhs) for rhs in rhs_list]
+    if nd > _UNROLLED_CHOLESKY_MAX:
+        chol = jnp.linalg.cholesky(H)
+        return jnp.all(jnp.isfinite(chol)), cho_solve((chol, True), rhs)
+    low = [[None] * nd for _ in range(nd)]
+    for j in range(nd):
+        pivot = H[j, j] - sum(low[j][i] ** 2 for i in range(j))
+        ok_j = pivot > 0.0
+        low[j][j] = jnp.sqrt(jnp.where(ok_j, pivot, jnp.nan))
+        ok = ok_j if j == 0 else ok & ok_j
+        for i in range(j + 1, nd):
+            low[i][j] = (H[i, j] - sum(low[i][m] * low[j][m] for m in range(j))) / low[j][j]
+    y = []
+    for i in range(nd):                                  # L y = rhs
+        y.append((rhs[i] - sum(low[i][m] * y[m] for m in range(i))) / low[i][i])
+    x = [None] * nd
+    for i in reversed(range(nd)):                        # L' x = y
+        x[i] = (y[i] - sum(low[m][i] * x[m] for m in range(i + 1, nd))) / low[i][i]
+    return ok, jnp.stack(x)
 
 
 def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
     """Minimiser of du'H du + 2 du'(g + G y) with H replaced by H + reg I: (ok, I, K = [d, m])."""
-    ok, (I, K) = _solve_gains(H, reg, [g, G])
-    return ok, I, K
+    nd = H.shape[0]
+    ok, sol = cholesky_solve(H + reg * jnp.eye(nd, dtype=H.dtype), jnp.concatenate([g[:, None], G], axis=1))
+    return ok, -sol[:, 0], -sol[:, 1:]
 
 
 def boxed_gains(H, reg, g, G, bounds, warm):
@@ -280,25 +302,36 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     s_tilde, s, S, r, Rt, R, R_s, ok, warm = carry
     k, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
     nx, nd = B0.shape
-    SB0, SB1 = S @ B0, S @ B1
-    Sc = c @ S                                              # [p, n], rows S c_j (S symmetric)
-    SC0 = jnp.einsum("mn,pnd->pmd", S, C0)
+    # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
+    # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
+    a_, b0, b1 = slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd)
+    Z = jnp.concatenate([A, B0, B1], axis=1)                     # [n, n + 2d]
+    ZSZ = Z.T @ S @ Z
+    Zs = Z.T @ s
+    noise_cost = jnp.einsum("pn,nm,pm->", c, S, c)
+    if c.shape[0] > 0:                                             # control-dependent noise, both commands
+        C = jnp.concatenate([C0, C1], axis=2)                      # [p, n, 2d]
+        CSC = jnp.einsum("pnd,nm,pme->de", C, S, C)
+        CSc = jnp.einsum("pnd,nm,pm->d", C, S, c)
+    else:
+        CSC, CSc = jnp.zeros((2 * nd, 2 * nd), A.dtype), jnp.zeros(2 * nd, A.dtype)
+    u0, u1 = slice(0, nd), slice(nd, 2 * nd)
 
     # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
-    H = E + B0.T @ SB0 + jnp.einsum("pnd,pne->de", C0, SC0)
-    g = e + B0.T @ s + jnp.einsum("pnd,pn->d", C0, Sc)
-    Gx = SB0.T @ A + Nxu
+    H = E + ZSZ[b0, b0] + CSC[u0, u0]
+    g = e + Zs[b0] + CSc[u0]
+    Gx = ZSZ[b0, a_] + Nxu
     if l > 0:
         j0 = (k % l) * nd                                   # slot sigma in the flattened pending axis
-        SC1 = jnp.einsum("mn,pnd->pmd", S, C1)
-        Rt_s = jax.lax.dynamic_slice_in_dim(Rt, j0, nd, axis=1)      # [n, d]  Rt^sigma
+        ZRt = Z.T @ Rt                                               # [n + 2d, l d]
+        ZRt_s = jax.lax.dynamic_slice_in_dim(ZRt, j0, nd, axis=1)    # Z' Rt^sigma
         R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
-        H = H + R_ss + B0.T @ Rt_s + Rt_s.T @ B0
+        H = H + R_ss + ZRt_s[b0] + ZRt_s[b0].T
         g = g + jax.lax.dynamic_slice_in_dim(r, j0, nd)
-        Gx = Gx + Rt_s.T @ A
+        Gx = Gx + ZRt_s[a_].T
         # du_k against the other pending commands; in slot sigma, against du_{k-l} (via B1_k)
-        G_new = B0.T @ SB1 + jnp.einsum("pnd,pne->de", C0, SC1) + Rt_s.T @ B1
-        Gw = jax.lax.dynamic_update_slice(B0.T @ Rt + R_s, G_new, (0, j0))
+        G_new = ZSZ[b0, b1] + CSC[u0, u1] + ZRt_s[b1].T
+        Gw = jax.lax.dynamic_update_slice(ZRt[b0] + R_s, G_new, (0, j0))
         G = jnp.concatenate([Gx, Gw], axis=1)
     else:
         G = Gx
@@ -308,18 +341,18 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     W = 0.5 * H @ K + G                                             # [d, n + l d]
     Wx = W[:, :nx]
     HIg = H @ I + g
-    s_tilde_new = d_tilde + s_tilde + jnp.sum(c * Sc) + I @ (H @ I + 2.0 * g)
-    s_new = dv + A.T @ s + L.T @ HIg + Gx.T @ I
-    S_new = _sym(D + A.T @ S @ A + L.T @ Wx + Wx.T @ L)
+    LW = jnp.concatenate([L, Wx])                                   # [2d, n]
+    s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (H @ I + 2.0 * g)
+    s_new = dv + Zs[a_] + L.T @ HIg + Gx.T @ I
+    S_new = _sym(D + ZSZ[a_, a_] + LW.T @ jnp.concatenate([Wx, L]))
     if l > 0:
         Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
         # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
-        r_pre = jax.lax.dynamic_update_slice(r, B1.T @ s + jnp.einsum("pnd,pn->d", C1, Sc), (j0,))
-        Rt_pre = jax.lax.dynamic_update_slice(A.T @ Rt, A.T @ SB1, (0, j0))
-        row = jax.lax.dynamic_update_slice(
-            B1.T @ Rt, B1.T @ SB1 + jnp.einsum("pnd,pne->de", C1, SC1), (0, j0))    # [d, l d]
-        r_new = r_pre + Mw.T @ HIg + Gw.T @ I
-        Rt_new = Rt_pre + L.T @ Ww + Wx.T @ Mw
+        r_pre = jax.lax.dynamic_update_slice(r, Zs[b1] + CSc[u1], (j0,))
+        Rt_pre = jax.lax.dynamic_update_slice(ZRt[a_], ZSZ[a_, b1], (0, j0))
+        row = jax.lax.dynamic_update_slice(ZRt[b1], ZSZ[b1, b1] + CSC[u1, u1], (0, j0))   # [d, l d]
+        r_new = r_pre + jnp.concatenate([Mw, Gw]).T @ jnp.concatenate([HIg, I])
+        Rt_new = Rt_pre + LW.T @ jnp.concatenate([Ww, Mw])
         R_new = _r_update(R, R_s, row, Mw, Ww, j0)
         R_s = jax.lax.dynamic_slice_in_dim(R_new, ((k - 1) % l) * nd, nd, axis=0)   # for step k-1
         order = _pending_order(k, l, nd)
