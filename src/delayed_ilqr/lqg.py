@@ -264,9 +264,13 @@ def boxed_gains(H, reg, g, G, bounds, warm):
 
     lower, upper = bounds
     H_reg = H + reg * jnp.eye(H.shape[0], dtype=H.dtype)
-    qp = box_qp(H_reg, g, lower, upper, warm)
-    # The QP's stopping tests are absolute (|grad| < 1e-8), too loose when H ~ dt Q ~ 1e-6: once
-    # the active set is known, the free part is one exact Newton solve.
+    # The QP's stopping tests are absolute (|grad| < 1e-8): scaled as given (H ~ dt Q ~ 1e-6 in
+    # motor tasks) it stops far from the optimum, with a wrong active set. The same QP divided by
+    # the largest diagonal entry has the same minimiser and tests that are relative.
+    scale = jnp.max(jnp.abs(jnp.diag(H_reg)))
+    scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
+    qp = box_qp(H_reg / scale, g / scale, lower, upper, warm)
+    # once the active set is known, the free part is one exact Newton solve
     clamped = jnp.where(qp.free, 0.0, qp.x)
     I = jnp.clip(clamped + free_solve(H_reg, qp.free, g + H_reg @ clamped), lower, upper)
     K = free_solve(H_reg, qp.free, G)

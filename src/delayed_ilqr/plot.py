@@ -354,3 +354,82 @@ def plot_convergence(solutions, title: Optional[str] = None):
     ax.legend(fontsize=8)
     ax.set_title(title or "iLQG convergence (open markers: rejected steps)")
     return fig
+
+
+def plot_center_out(results: Sequence, n_paths: int = 5):
+    """Center-out reaches of the six-muscle arm: hand paths and endpoint ellipses, one panel per delay.
+
+    Args:
+        results: :class:`~delayed_ilqr.center_out.DelayResult` objects.
+        n_paths: Monte Carlo hand paths drawn per target.
+
+    Returns:
+        A Figure: per delay, each target's nominal hand path (thick), ``n_paths`` noisy trials
+        (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final hand
+        positions; the start hand position is the black dot.
+    """
+    from .center_out import _hand
+    results = list(results)
+    if not results:
+        raise ValueError("results must hold at least one DelayResult; got none")
+    fig = _figure(figsize=(5.0 * len(results), 5.2), layout="constrained")
+    axes = fig.subplots(1, len(results), squeeze=False)[0]
+    from matplotlib import colormaps
+    cmap = [colormaps["tab10"](j % 10) for j in range(len(results[0].targets))]
+    for ax, r in zip(axes, results):
+        nominal = _hand(r.solutions.x)                                      # [targets, K+1, 2]
+        for j, t in enumerate(r.targets):
+            color = cmap[j]
+            trials = _hand(r.runs[j].x[:n_paths])
+            for path in trials:
+                ax.plot(path[:, 0], path[:, 1], color=color, lw=0.5, alpha=0.5)
+            ax.plot(nominal[j, :, 0], nominal[j, :, 1], color=color, lw=2.0)
+            ax.scatter([t.target[0]], [t.target[1]], marker="*", s=120, color=color, edgecolor="k", zorder=6)
+            _ellipse(ax, t.endpoints[np.all(np.isfinite(t.endpoints), axis=1)], color)
+        start = nominal[0, 0]
+        ax.scatter([start[0]], [start[1]], marker="o", s=50, color="k", zorder=7, label="start")
+        radius = float(np.max(np.linalg.norm(np.stack([t.target for t in r.targets]) - start, axis=1)))
+        half = 1.8 * radius
+        ax.set_xlim(start[0] - half, start[0] + half)
+        ax.set_ylim(start[1] - half, start[1] + half)
+        ax.set_aspect("equal")
+        ax.set_xlabel("hand x [m]")
+        ax.set_ylabel("hand y [m]")
+        converged = sum(t.converged for t in r.targets)
+        ax.set_title(f"delay {1e3 * r.delay:g} ms ({converged}/{len(r.targets)} converged)")
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"six-muscle arm, center-out: nominal paths, {n_paths} noisy trials per target, "
+                 f"2-sigma endpoint ellipses (N = {results[0].runs[0].x.shape[0]})")
+    return fig
+
+
+def plot_excitations(result):
+    """Nominal muscle excitations u_k of every target at one delay (one panel per target).
+
+    Args:
+        result: a :class:`~delayed_ilqr.center_out.DelayResult`.
+
+    Returns:
+        A Figure with one panel per target (2 rows), the six excitations against time (the command
+        sent at t reaches the muscles at t + delay).
+    """
+    from .models.muscle import MUSCLES
+    n = len(result.targets)
+    cols = (n + 1) // 2
+    fig = _figure(figsize=(3.2 * cols, 5.6), layout="constrained")
+    axes = fig.subplots(2, cols, squeeze=False, sharex=True, sharey=True).ravel()
+    u = np.asarray(result.solutions.u)                                     # [targets, K, 6]
+    t_axis = result.dt * np.arange(u.shape[1])
+    for j, (ax, target) in enumerate(zip(axes, result.targets)):
+        for m, name in enumerate(MUSCLES):
+            ax.step(t_axis, u[j, :, m], where="post", lw=1.2, label=name)
+        ax.set_title(f"target {j + 1} ({1e3 * target.hand_error:.2f} mm)", fontsize=9)
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    axes[0].legend(fontsize=7, loc="upper right")
+    for ax in axes[-cols:]:
+        ax.set_xlabel("time sent [s]")
+    fig.suptitle(f"six-muscle arm: nominal excitations per target, delay {1e3 * result.delay:g} ms")
+    return fig
