@@ -14,12 +14,13 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/delayed-ilqr demo --out out
+	$(BIN)/delayed-ilqr center-out --out out/center_out
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_lqg.py
+	$(BIN)/python benchmarks/run.py
 	$(BIN)/python benchmarks/solve_p1_p2.py
 
 clean:

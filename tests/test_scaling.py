@@ -1,12 +1,17 @@
 """Keeps the structured recursion's operation count honest: at l = 200 (n = 4, d = 2, K = 100) one
 compiled backward pass must be at least 10x faster than the augmented Riccati pass on the same
-problem (measured ~50x on a 2-core machine; per step O(l^2 d^3 + l n^2 d) against O((n + l d)^3))."""
+problem (measured ~50x on a 2-core machine; per step O(l^2 d^3 + l n^2 d) against O((n + l d)^3)).
+And a second problem of the same shapes reuses the compiled solver (issue #5)."""
+import math
 import time
 
 import jax
 import numpy as np
 
+import delayed_ilqr as di
 from delayed_ilqr.lqg import DelayedLQG, augmented_scan, structured_scan
+from delayed_ilqr.models import arm2
+from delayed_ilqr.solver import _solve
 
 
 def _best_time(fn, repeats):
@@ -32,3 +37,13 @@ def test_structured_pass_beats_augmentation_at_long_delay():
     t_structured = _best_time(lambda: structured(lqg), 5)
     t_augmented = _best_time(lambda: augmented(lqg), 2)
     assert t_augmented >= 10 * t_structured, (t_structured, t_augmented)
+
+
+def test_second_problem_of_the_same_shapes_does_not_recompile():
+    options = di.Options(max_iterations=3)          # static: the same object for both solves
+    first = di.solve(arm2(delay=0.1), options=options)
+    compilations = _solve._cache_size()
+    other = arm2(delay=0.1, x_target=(math.pi / 2 + 0.2, math.pi / 3 - 0.1, 0.0, 0.0))
+    second = di.solve(other, options=options)
+    assert _solve._cache_size() == compilations
+    assert float(second.cost) != float(first.cost)  # the new target was used, not a cached result
