@@ -72,7 +72,11 @@ def test_zero_delay_is_ordinary_ilqg():
     b = di.solve(problem, options=di.Options(method="augmented"))
     n = int(a.iterations) + 1
     assert a.policy.delay_feedback.shape == (problem.horizon, 0, 2, 2)
-    np.testing.assert_allclose(np.asarray(a.trace.cost[:n]), np.asarray(b.trace.cost[:n]), rtol=1e-9)
+    # both compute the same Newton step with operations in a different order; the first step cuts
+    # the cost 1e4-fold (891 -> 0.098), so round-off of the initial cost's scale stays in iterate 1
+    cost0 = float(a.trace.cost[0])
+    np.testing.assert_allclose(np.asarray(a.trace.cost[:n]), np.asarray(b.trace.cost[:n]), rtol=1e-9,
+                               atol=1e-12 * cost0)
     np.testing.assert_allclose(np.asarray(a.policy.state_feedback), np.asarray(b.policy.state_feedback),
                                rtol=1e-7, atol=1e-9)
 
