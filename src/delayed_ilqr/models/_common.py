@@ -4,9 +4,11 @@ from __future__ import annotations
 import math
 import numbers
 
+import jax.numpy as jnp
 import numpy as np
 
 from .. import _validate
+from ..problem import QuadraticCost
 
 # A delay is accepted when tau / dt is within this relative distance of an integer: 0.03 / 0.01 is
 # 2.9999999999999996 in floating point and must give 3, while 0.025 / 0.01 = 2.5 must be refused.
@@ -53,6 +55,20 @@ def horizon_steps(horizon, final_time: float, dt: float) -> int:
     if horizon is None:
         return max(1, int(round(final_time / dt)))
     return _validate.positive_int(horizon, "horizon")
+
+
+def time_grid(dt, delay, horizon, final_time: float) -> tuple[float, int, int]:
+    """(dt, delay_steps, horizon) of a model factory, each checked: dt > 0, the delay a whole number
+    of steps (argument name "delay"), the horizon given or round(final_time / dt)."""
+    dt = positive(dt, "dt")
+    return dt, delay_to_steps(delay, dt, "delay"), horizon_steps(horizon, final_time, dt)
+
+
+def benchmark_cost(x_target):
+    """The cost P1 and P2 share (``benchmark_problems.md``): P = 0, Q = 1e-4 I_2,
+    P_f = diag(1e3, 1e3, 1e1, 1e1), and the final target [4]."""
+    return QuadraticCost(P=jnp.zeros((4, 4)), Q=1e-4 * jnp.eye(2),
+                         P_final=jnp.diag(jnp.array([1e3, 1e3, 1e1, 1e1])), x_target=jnp.array(x_target))
 
 
 def vector(value, name: str, size: int) -> tuple:

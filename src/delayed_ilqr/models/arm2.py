@@ -26,7 +26,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from ..problem import Problem, QuadraticCost
+from ..problem import Problem
 from . import _common
 
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
@@ -203,15 +203,11 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2"``.
     """
-    dt = _common.positive(dt, "dt")
-    delay_steps = _common.delay_to_steps(delay, dt, "delay")
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")
-    horizon = _common.horizon_steps(horizon, FINAL_TIME, dt)
     x0 = _common.vector(x0, "x0", 4)
-    x_target = _common.vector(x_target, "x_target", 4)
+    cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     params = _check_params(params)
-    cost = QuadraticCost(P=jnp.zeros((4, 4)), Q=1e-4 * jnp.eye(2),
-                         P_final=jnp.diag(jnp.array([1e3, 1e3, 1e1, 1e1])), x_target=jnp.array(x_target))
     return Problem(dynamics=Arm2Dynamics(params), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=Arm2Noise(params) if noise else None,
                    name="arm2")

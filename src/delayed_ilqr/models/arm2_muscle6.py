@@ -206,11 +206,9 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
         with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST).
     """
-    dt = _common.positive(dt, "dt")
-    delay_steps = _common.delay_to_steps(delay, dt, "delay")
-    noise = _common.flag(noise, "noise")
     final_time = _common.positive(final_time, "final_time")
-    horizon = _common.horizon_steps(horizon, final_time, dt)
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
+    noise = _common.flag(noise, "noise")
     geometry = _geometry(geometry)
     arm = _check_params(arm)
     x0 = default_x0() if x0 is None else _common.vector(x0, "x0", 10)

@@ -128,12 +128,10 @@ def cart_pole(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"cart_pole"``.
     """
-    dt = _common.positive(dt, "dt")
-    delay_steps = _common.delay_to_steps(delay, dt, "delay")
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")
     limits = _common.flag(limits, "limits")
     u_max = _common.positive(u_max, "u_max")
-    horizon = _common.horizon_steps(horizon, FINAL_TIME, dt)
     x0 = _common.vector(x0, "x0", 4)
     x_target = _common.vector(x_target, "x_target", 4)
     cost = QuadraticCost(P=jnp.zeros((4, 4)), Q=Q_U * jnp.eye(1), P_final=jnp.diag(jnp.array(P_FINAL)),

@@ -108,12 +108,10 @@ def pendulum(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=U
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"pendulum"``.
     """
-    dt = _common.positive(dt, "dt")
-    delay_steps = _common.delay_to_steps(delay, dt, "delay")
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")
     limits = _common.flag(limits, "limits")
     u_max = _common.positive(u_max, "u_max")
-    horizon = _common.horizon_steps(horizon, FINAL_TIME, dt)
     x0 = _common.vector(x0, "x0", 2)
     x_target = _common.vector(x_target, "x_target", 2)
     cost = QuadraticCost(P=jnp.zeros((2, 2)), Q=Q_U * jnp.eye(1), P_final=jnp.diag(jnp.array(P_FINAL)),

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
-from ..problem import Problem, QuadraticCost
+from ..problem import Problem
 from . import _common
 
 __all__ = ["point_mass", "PointMassDynamics", "PointMassNoise", "FINAL_TIME"]
@@ -73,14 +73,10 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"point_mass"``.
     """
-    dt = _common.positive(dt, "dt")
-    delay_steps = _common.delay_to_steps(delay, dt, "delay")
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")
-    horizon = _common.horizon_steps(horizon, FINAL_TIME, dt)
     x0 = _common.vector(x0, "x0", 4)
-    x_target = _common.vector(x_target, "x_target", 4)
-    cost = QuadraticCost(P=jnp.zeros((4, 4)), Q=1e-4 * jnp.eye(2),
-                         P_final=jnp.diag(jnp.array([1e3, 1e3, 1e1, 1e1])), x_target=jnp.array(x_target))
+    cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     return Problem(dynamics=PointMassDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=PointMassNoise() if noise else None,
                    name="point_mass")
