@@ -98,7 +98,12 @@ class DelayResult:
 
     def policy(self, j: int) -> Policy:
         """The delayed feedback policy of target j."""
-        return jax.tree_util.tree_map(lambda a: a[j], self.solutions.policy)
+        return _take(self.solutions.policy, j)
+
+
+def _take(tree, j: int):
+    """Entry j of a batched pytree (the leading axis of every leaf)."""
+    return jax.tree_util.tree_map(lambda a: a[j], tree)
 
 
 def _hand(x):
@@ -110,17 +115,21 @@ def _stack(problems):
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
 
 
+# Module level, so that a later study with the same shapes (delay, number of targets) reuses the
+# compilation instead of tracing a new function.
+_batched_solve = jax.jit(jax.vmap(solve, in_axes=(0, None, None)), static_argnums=2)
+
+
 def _solve_all(problems, options: Options):
     """One compiled, vmapped solve over problems that differ only in their targets; (solutions,
     seconds of the second call, seconds of the first)."""
     u_init = rest_commands(problems[0])
-    batched = jax.jit(jax.vmap(lambda p: solve(p, u_init, options)))
     stacked = _stack(problems)
     start = time.perf_counter()
-    jax.block_until_ready(batched(stacked))
+    jax.block_until_ready(_batched_solve(stacked, u_init, options))
     first = time.perf_counter() - start
     start = time.perf_counter()
-    sols = jax.block_until_ready(batched(stacked))
+    sols = jax.block_until_ready(_batched_solve(stacked, u_init, options))
     return sols, time.perf_counter() - start, first
 
 
@@ -150,8 +159,7 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
         for j, target in enumerate(targets):
             plant = arm2_muscle6(delay=delay, target=tuple(target), noise=True, geometry=geometry,
                                  sigma_u=sigma_u)
-            policy = jax.tree_util.tree_map(lambda a: a[j], sols.policy)
-            runs = simulate(plant, policy, n_trials, seed=seed + j)
+            runs = simulate(plant, _take(sols.policy, j), n_trials, seed=seed + j)
             ends = _hand(runs.x[:, -1])
             per_target.append(TargetResult(
                 target=np.asarray(target), status=Status(int(sols.status[j])).name,
