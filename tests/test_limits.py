@@ -58,14 +58,38 @@ def test_bounded_point_mass_matches_bounded_direct_method(delay):
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference
 
 
-@pytest.mark.parametrize("delay", [0.03, 0.1])
-def test_bounded_arm_matches_bounded_direct_method(delay):
-    problem = arm2(delay=delay).replace(u_min=[-1.5, -1.5], u_max=[1.5, 1.5])
-    sol = di.solve(problem)
+@pytest.mark.parametrize("limit, delay", [(1.5, 0.0), (2.0, 0.0), (2.0, 0.03), (1.5, 0.03), (1.5, 0.1)])
+def test_bounded_arm_matches_bounded_direct_method(limit, delay):
+    # +-1.5 N m with no delay is the slowest case (217 iterations: the active set settles late)
+    problem = arm2(delay=delay).replace(u_min=[-limit, -limit], u_max=[limit, limit])
+    sol = di.solve(problem, options=di.Options(max_iterations=400))
     assert sol.converged, sol.message
-    assert np.all(np.abs(np.asarray(sol.u)) <= 1.5)
+    assert np.all(np.abs(np.asarray(sol.u)) <= limit)
+    assert np.isclose(float(jnp.max(jnp.abs(sol.u))), limit)          # the limit binds
     reference = direct_optimum(problem)
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference
+
+
+def test_commands_at_or_near_a_bound_get_no_feedback():
+    # one step's quadratic; the gradient pulls command 0 inward (the QP frees it), command 1 is far
+    # inside. Command 0's nominal sits at, or 1e-7 inside, its upper bound (du <= upper_0).
+    H = jnp.array([[2.0, 0.5], [0.5, 1.0]])
+    g = jnp.array([0.3, -0.2])
+    G = jnp.array([[1.0, -2.0, 0.5], [0.3, 0.1, -1.0]])
+    full = -jnp.linalg.solve(H, G)
+    alone = -G[1] / H[1, 1]                                     # command 1's feedback with command 0 fixed
+    for upper_0, margin, feedback_0 in [(0.0, 0.0, False), (1e-7, 0.0, True), (1e-7, 1e-5, False),
+                                        (1.0, 1e-5, True)]:
+        bounds = (jnp.array([-2.0, -2.0]), jnp.array([upper_0, 2.0]))
+        ok, I, K = boxed_gains(H, 0.0, g, G, bounds, jnp.zeros(2), margin=margin)
+        assert bool(ok)
+        np.testing.assert_allclose(I, -jnp.linalg.solve(H, g), rtol=1e-12)   # interior optimum, moves inward
+        assert float(I[0]) < 0
+        if feedback_0:
+            np.testing.assert_allclose(K, full, rtol=1e-12)
+        else:
+            assert np.all(np.asarray(K[0]) == 0.0)
+            np.testing.assert_allclose(K[1], alone, rtol=1e-12)
 
 
 def test_limits_that_never_bind_change_nothing():

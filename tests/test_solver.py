@@ -224,6 +224,7 @@ def test_general_cost_needs_the_number_of_controls():
     (dict(tol_cost=-1.0), ValueError, r"tol_cost must be a positive finite number; got -1.0"),
     (dict(reg_init=-1.0), ValueError, r"reg_init must be a finite number >= 0; got -1.0"),
     (dict(reg_factor=1.0), ValueError, r"reg_factor must be greater than 1; got 1.0"),
+    (dict(limit_margin=0.5), ValueError, r"limit_margin must be a number in \[0, 0.5\); got 0.5"),
     (dict(alphas=(1.0, 2.0)), ValueError, r"alphas must be a non-empty sequence of step sizes in \(0, 1\]"),
 ])
 def test_options_validation(kwargs, error, message):

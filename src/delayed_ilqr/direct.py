@@ -16,11 +16,14 @@ from .problem import Problem
 __all__ = ["direct_optimum"]
 
 
-def direct_optimum(problem: Problem, restarts: int = 3) -> float:
+def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10) -> float:
     """The cost (2) of the best command sequence L-BFGS-B finds, within ``problem``'s limits.
 
     L-BFGS-B's ftol test has an absolute floor of 1, and motor-task costs are ~1e-4, so the
-    objective is rescaled to O(1) at the point found and the search restarted there.
+    objective is rescaled to O(1) at the point found and the search restarted there, until a
+    restart improves the cost by less than ``rtol`` (relative) or ``max_restarts`` are used. With
+    tight limits a single run stops early (its limited-memory Hessian is poor where the active
+    set changes): on the arm at +-2 N m and 30 ms, 3 runs end 1% above the optimum, 10 at it.
     """
     import scipy.optimize  # lazy: SciPy is a test dependency
 
@@ -34,10 +37,15 @@ def direct_optimum(problem: Problem, restarts: int = 3) -> float:
     lower, upper = (np.tile(np.asarray(b), K) for b in (problem.u_min, problem.u_max))
     bounds = list(zip(np.where(np.isfinite(lower), lower, None), np.where(np.isfinite(upper), upper, None)))
     u = np.clip(np.zeros(K * nd), lower, upper)
-    for _ in range(restarts):
-        scale = 1.0 / float(fun(jnp.asarray(u)))
+    best = float(fun(jnp.asarray(u)))
+    for _ in range(max_restarts):
+        scale = 1.0 / best
         u = scipy.optimize.minimize(lambda v: scale * float(fun(v)), u, jac=lambda v: scale * np.asarray(grad(v)),
                                     method="L-BFGS-B", bounds=bounds,
                                     options=dict(maxiter=50000, maxfun=100000, ftol=1e-16, gtol=1e-14,
                                                  maxcor=50)).x
-    return float(fun(jnp.asarray(u)))
+        cost = float(fun(jnp.asarray(u)))
+        if best - cost <= rtol * abs(cost):
+            return min(cost, best)
+        best = cost
+    return best

@@ -255,11 +255,20 @@ def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
     return ok, -sol[:, 0], -sol[:, 1:]
 
 
-def boxed_gains(H, reg, g, G, bounds, warm):
+def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     """Control-limited step (Tassa, Mansard & Todorov 2014): the feedforward solves the box QP
     min du'(H + reg I) du + 2 du'g over lower <= du <= upper (warm-started from the next step's),
     and the feedback acts only in the free directions: rows of L and of every M^i are zero for
-    clamped commands."""
+    clamped commands.
+
+    Commands whose nominal lies at a bound, or within ``margin * (upper - lower)`` of one (lower or
+    upper within that distance of du = 0), get no feedback either, even when the QP frees them to
+    move inward (an epsilon-active set, as in Bertsekas' projected Newton method). Their feedback would
+    push them outside as often as inside, the forward pass clips it, and the steps upstream, which
+    were planned on that feedback, then miss: the first-order prediction fails for every step
+    size and the solve crawls. The feedforward still moves them inward, and at the solution
+    (I = 0) the stationarity conditions do not depend on the gains (derivation §13).
+    """
     from .boxqp import box_qp, free_solve       # local import: the unconstrained path never needs it
 
     lower, upper = bounds
@@ -273,7 +282,8 @@ def boxed_gains(H, reg, g, G, bounds, warm):
     # once the active set is known, the free part is one exact Newton solve
     clamped = jnp.where(qp.free, 0.0, qp.x)
     I = jnp.clip(clamped + free_solve(H_reg, qp.free, g + H_reg @ clamped), lower, upper)
-    K = free_solve(H_reg, qp.free, G)
+    eps = margin * (upper - lower)
+    K = free_solve(H_reg, qp.free & (lower < -eps) & (upper > eps), G)
     ok = (qp.status != -1) & jnp.all(jnp.isfinite(K)) & jnp.all(jnp.isfinite(I))
     return ok, I, K
 

@@ -52,6 +52,8 @@ class Options:
         reg_min, reg_max, reg_factor: Tassa's schedule (lambda below reg_min is set to 0; the
             solve stops when lambda exceeds reg_max).
         z_min: minimal accepted ratio of actual to expected reduction.
+        limit_margin: with control limits, commands whose nominal lies at a bound or within
+            limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.boxed_gains``).
     """
 
     method: str = "structured"
@@ -64,11 +66,14 @@ class Options:
     reg_max: float = 1e10
     reg_factor: float = 1.6
     z_min: float = 0.0
+    limit_margin: float = 1e-5
 
     def __post_init__(self):
         if self.method not in ("structured", "augmented"):
             raise ValueError(f"method must be 'structured' or 'augmented'; got {self.method!r}")
         _validate.positive_int(self.max_iterations, "max_iterations")
+        if not (np.isfinite(self.limit_margin) and 0 <= self.limit_margin < 0.5):
+            raise ValueError(f"limit_margin must be a number in [0, 0.5); got {self.limit_margin!r}")
         for name in ("tol_cost", "tol_grad", "reg_min", "reg_max"):
             _validate.positive_float(getattr(self, name), name)
         if not (np.isfinite(self.reg_init) and self.reg_init >= 0):
@@ -95,7 +100,7 @@ class _State(NamedTuple):
     trace: Trace
 
 
-def _backward(problem: Problem, xs, us, reg, method: str):
+def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
     """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite).
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
@@ -104,7 +109,7 @@ def _backward(problem: Problem, xs, us, reg, method: str):
     lqg = linearize(problem, xs, us)
     kw = {}
     if problem.has_limits:
-        kw = dict(gains_fn=boxed_gains, bounds=(problem.u_min - us, problem.u_max - us))
+        kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))
     if method == "augmented":
         gains, value = augmented_scan(lqg, reg, **kw)
         return lqg, gains, value.S, value.s_tilde[0], value.positive_definite
@@ -135,7 +140,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     backward pass only, so that the returned policy belongs to the returned nominal. The loop
     body is the only place the backward pass is traced, which keeps compilation short.
     """
-    lqg, gains, S, expected_cost, pd = _backward(problem, st.xs, st.us, st.reg, o.method)
+    lqg, gains, S, expected_cost, pd = _backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
     running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
