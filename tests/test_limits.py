@@ -1,12 +1,15 @@
 """Control limits: the box-QP backward pass (Tassa, Mansard & Todorov 2014) inside the delayed
 recursion, checked at the LQG level (exactness under clamped gains, structured == augmented) and
 on the nonlinear problems against a bounded direct method (L-BFGS-B over all commands)."""
+from functools import partial
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.lqg import DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan
+from delayed_ilqr.lqg import (DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan, unconstrained_gains,
+                              unregularized_feedback)
 from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
 
@@ -45,6 +48,31 @@ def test_clamped_recursion_is_exact_and_matches_augmentation(l):
     np.testing.assert_allclose(float(s_tilde[0]), float(value_aug.s_tilde[0]), rtol=1e-10)
     for a, b in zip(gains, gains_aug):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-11)
+
+
+@pytest.mark.parametrize("limited", [False, True])
+@pytest.mark.parametrize("l", [0, 4])
+def test_unregularized_feedback_keeps_the_value_hessians_of_lambda_zero(l, limited):
+    # with noise the merit is cost + sum c'S c, so S must not move with lambda (solver with noise)
+    K = 10
+    lqg = _random_lqg(K, 3, 2, 2, l, seed=7 + l)
+    gains_fn, kw = unconstrained_gains, {}
+    if limited:
+        half = 0.5 * float(jnp.max(jnp.abs(structured_scan(lqg, store_value=False)[0].feedforward)))
+        gains_fn = partial(boxed_gains, margin=1e-5)
+        kw = dict(bounds=(jnp.full((K, 2), -half), jnp.full((K, 2), half)))
+    exact, (_, _, S_exact), _ = structured_scan(lqg, 0.0, store_value=False, gains_fn=gains_fn, **kw)
+    plain, (_, _, S_plain), _ = structured_scan(lqg, 3.0, store_value=False, gains_fn=gains_fn, **kw)
+    gains, (s_tilde, _, S), ok = structured_scan(lqg, 3.0, store_value=False, gains_fn=unregularized_feedback(gains_fn),
+                                                 **kw)
+    assert bool(ok)
+    assert float(jnp.max(jnp.abs(S_plain - S_exact))) > 1e-3 * float(jnp.max(jnp.abs(S_exact)))   # lambda matters
+    np.testing.assert_allclose(S, S_exact, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(gains.state_feedback, exact.state_feedback, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(gains.delay_feedback, exact.delay_feedback, rtol=1e-10, atol=1e-12)
+    # lambda still shortens the feedforward, and the value is the exact cost of the mixed policy
+    assert float(jnp.linalg.norm(gains.feedforward)) < float(jnp.linalg.norm(exact.feedforward))
+    np.testing.assert_allclose(float(s_tilde[0]), float(policy_cost(lqg, gains)), rtol=1e-10)
 
 
 @pytest.mark.parametrize("delay", [0.0, 0.03, 0.1])

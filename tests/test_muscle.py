@@ -352,3 +352,18 @@ def test_reaches_a_target_10cm_away(delay, k):
     if p.delay_steps:
         np.testing.assert_allclose(sol.x[: p.delay_steps + 1], rollout(
             p, jnp.zeros_like(sol.u))[: p.delay_steps + 1], atol=1e-12)
+
+
+@pytest.mark.parametrize("k", [1, 5])
+def test_noise_aware_reach_converges_with_delay(k):
+    # signal-dependent noise enters the backward pass; with lambda on the feedforward only the
+    # merit (cost + sum c'S c) is one function of the nominal, and the iteration settles
+    target = models.center_out_targets()[k]
+    p = models.arm2_muscle6(delay=0.05, target=target, noise=True)
+    sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
+    assert delayed_ilqr.Status(int(sol.status)).converged, delayed_ilqr.Status(int(sol.status)).message
+    n = int(sol.iterations)
+    assert float(sol.trace.merit[n]) > 2 * float(sol.cost)          # the noise cost is the larger part
+    err = float(jnp.linalg.norm(models.hand_position(sol.x[-1, :2]) - target))
+    assert err < 0.01, err
+    assert float(jnp.min(sol.u)) >= 0.0 and float(jnp.max(sol.u)) <= 1.0

@@ -63,17 +63,25 @@ def noise_cost(problem: Problem, xs, us, S):
     return jnp.einsum("kpn,knm,kpm->", c, S[1:], c)
 
 
-def merit(problem: Problem, xs, us, S):
-    """The quantity the line search minimises: eq. (2) on the nominal plus the noise cost.
+def merit(problem: Problem, xs, us, S, xs_bar):
+    """The quantity the line search minimises: eq. (2) on (xs, us) plus the noise cost.
 
     With the value Hessians S of the last backward pass fixed, this is the LQG's expected cost of
     the nominal under zero feedforward (s_tilde recursion with I = 0), so its stationary points are
     those of the noise-aware iteration (I = 0). Without noise it is the plain cost (2).
+
+    The noise columns F(x, u, ud) are evaluated at the states ``xs_bar`` of the nominal the LQG was
+    built on, not at ``xs``: the model (3) freezes F's dependence on x (it has no state-dependent
+    noise term), so its feedforward descends this merit, and the first-order prediction of
+    :func:`predicted_change` is exact for it. Evaluated at the candidate's own states the merit has
+    a gradient term (through dF/dx) that no step of the model accounts for; on the noisy arm the
+    line search then rejected every step near the solution and the regularisation ran away
+    (derivation §12).
     """
     cost = trajectory_cost(problem, xs, us)
     if problem.noise is None:
         return cost, cost
-    return cost, cost + noise_cost(problem, xs, us, S)
+    return cost, cost + noise_cost(problem, xs_bar, us, S)
 
 
 def predicted_change(lqg: DelayedLQG, gains: Gains, S):
@@ -134,7 +142,7 @@ def line_search(problem: Problem, lqg: DelayedLQG, gains: Gains, S, xs, us, meri
     """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min."""
     alphas = jnp.asarray(alphas)
     cand_xs, cand_us = jax.vmap(lambda a: closed_loop_rollout(problem, xs, us, gains, a))(alphas)
-    cand_cost, cand_merit = jax.vmap(lambda x, u: merit(problem, x, u, S))(cand_xs, cand_us)
+    cand_cost, cand_merit = jax.vmap(lambda x, u: merit(problem, x, u, S, xs))(cand_xs, cand_us)
     finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(1, 2))
     cand_merit = jnp.where(finite, cand_merit, jnp.inf)
     best = jnp.argmin(cand_merit)

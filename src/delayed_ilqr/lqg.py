@@ -288,6 +288,24 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     return ok, I, K
 
 
+def unregularized_feedback(gains_fn):
+    """``gains_fn`` with the feedback of its unregularised step (reg = 0) wherever that step exists.
+
+    The feedforward keeps ``reg``: lambda only shortens the step. With control-dependent noise the
+    value Hessians S depend on the feedback (the noise cost c'S c is part of the recursion), so
+    regularised feedback would make the merit of one nominal (cost + sum c'S c, derivation §12)
+    change with lambda, and the acceptance test would compare different objectives from one
+    iteration to the next: on the six-muscle arm the iteration cycled and none of 16 reaches
+    converged. Where H is not positive definite the regularised feedback is kept.
+    """
+    def gains(H, reg, g, G, bounds=None, warm=None):
+        ok, I, K = gains_fn(H, reg, g, G, bounds, warm)
+        ok_0, _, K_0 = gains_fn(H, 0.0, g, G, bounds, warm)
+        return ok, I, jnp.where(ok_0, K_0, K)
+
+    return gains
+
+
 def _pending_order(k, l: int, nd: int):
     """Positions in the slot-ordered pending axis of du_{k-l}, ..., du_{k-1} (eq. 6's order i = 0..l-1).
 

@@ -27,7 +27,7 @@ import numpy as np
 from . import _validate
 from .forward import line_search, merit, no_step
 from .linearize import linearize, rollout, trajectory_cost
-from .lqg import Gains, augmented_scan, boxed_gains, structured_scan
+from .lqg import Gains, augmented_scan, boxed_gains, structured_scan, unconstrained_gains, unregularized_feedback
 from .problem import Problem
 from .solution import Policy, Solution, Status, Trace
 
@@ -104,12 +104,15 @@ def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
     """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite).
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
-    (u_min - u_k, u_max - u_k), and clamped commands get no feedback.
+    (u_min - u_k, u_max - u_k), and clamped commands get no feedback. With noise, lambda
+    regularises the feedforward only (see ``lqg.unregularized_feedback``).
     """
     lqg = linearize(problem, xs, us)
-    kw = {}
+    kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:
         kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))
+    if problem.noise is not None:
+        kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
     if method == "augmented":
         gains, value = augmented_scan(lqg, reg, **kw)
         return lqg, gains, value.S, value.s_tilde[0], value.positive_definite
@@ -144,7 +147,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
-    _, merit_now = merit(problem, st.xs, st.us, S)
+    _, merit_now = merit(problem, st.xs, st.us, S, st.xs)
     # NaN gains from a failed factorisation must not reach the rollout: use zero gains instead
     safe = jax.tree_util.tree_map(lambda g: jnp.where(pd, g, 0.0), gains)
     search = running & ~converged

@@ -171,9 +171,7 @@ def design_problem(problem: Problem, controller: str) -> tuple[Problem, Options]
     """The problem and options a controller is designed with (the plant stays ``problem``)."""
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {sorted(CONTROLLERS)}; got {controller!r}")
-    # Tassa's lambda_0 = 1: with signal-dependent noise the merit's weighting S moves with lambda,
-    # and from lambda_0 = 0 the noisy arm at l = 0 cycles without converging (known solver issue).
-    design = Options(reg_init=1.0)
+    design = Options()
     if controller == "ignorant":
         return problem.replace(delay_steps=0), design
     if controller == "augmented":
