@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(BIN)/delayed-ilqr demo --out out
-	$(BIN)/delayed-ilqr center-out --out out/center_out
+	$(BIN)/delayed-ilqr center-out --allow-unconverged --out out/center_out
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests

@@ -6,6 +6,7 @@ arguments (unknown model, a delay that is not a whole number of steps, a non-pos
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -418,14 +419,24 @@ def demo_command(out, trials, seed):
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the noise.")
 @click.option("--sigma-u", type=click.FloatRange(min=0.0), default=center_out.SIGMA_U, show_default=True,
               help="Excitation noise of the plant the policies run on.")
+@click.option("--design", "designs", type=click.Choice(center_out.DESIGNS), multiple=True,
+              default=center_out.DESIGNS, show_default=True,
+              help="Controller design, repeatable: noise-aware (iLQG, made for the noisy plant) or "
+                   "deterministic (iLQR, made for the noise-free arm).")
+@click.option("--max-iterations", type=click.IntRange(min=1), default=center_out.DEFAULT_OPTIONS.max_iterations,
+              show_default=True, help="Iteration limit of each reach's solve.")
+@click.option("--allow-unconverged", is_flag=True,
+              help="Exit 0 even when some reaches did not converge (they are flagged in the table and on stderr).")
 @click.option("--out", type=_OUT_TYPE, default=None, help="Folder for center_out.md/.json and the figures.")
-def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, out):
+def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs, max_iterations, allow_unconverged,
+                       out):
     """Center-out reaching with the six-muscle arm (arm2_muscle6) at several input delays.
 
-    Per delay: one vectorised solve of the reaches to all targets (noise-free design, excitations
-    limited to [0, 1]), then --trials noisy trials per target. Prints iterations, solve time, the
-    nominal's final hand error and the Monte Carlo endpoint spread; writes hand paths with
-    endpoint ellipses and the excitation patterns per target.
+    Per delay and design: one vectorised solve of the reaches to all targets (excitations limited
+    to [0, 1]), then --trials noisy trials per target. Prints iterations, solve time, the
+    nominal's final hand error, predicted and Monte Carlo costs and the endpoint spread; writes
+    hand paths with endpoint ellipses and the excitation patterns per target. Exits 1 when a
+    reach did not converge, unless --allow-unconverged.
     """
     try:
         for d in delays:
@@ -433,7 +444,9 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, out):
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--delays'") from exc
     start = time.perf_counter()
-    results = center_out.center_out(delays, n_targets, radius, trials, seed, sigma_u=sigma_u)
+    options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
+    results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
+                                    designs=designs)
     elapsed = time.perf_counter() - start
     table = center_out.format_table(results)
     click.echo(table)
@@ -443,22 +456,23 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, out):
         _save_figure(plot.plot_center_out(results), out / "center_out_hand_paths.png")
         figures = ["center_out_hand_paths.png"]
         for r in results:
-            name = f"center_out_excitations_{1e3 * r.delay:g}ms.png"
+            name = f"center_out_excitations_{r.design}_{1e3 * r.delay:g}ms.png"
             _save_figure(plot.plot_excitations(r), out / name)
             figures.append(name)
         settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
-                        sigma_u=sigma_u, elapsed_seconds=elapsed)
+                        sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
+                        elapsed_seconds=elapsed)
         _write_json(out / "center_out.json", dict(settings=settings, results=center_out.to_records(results)))
         lines = ["# Center-out reaching, six-muscle arm, delayed excitations", "",
                  f"{n_targets} targets at {1e3 * radius:g} mm, {trials} noisy trials per target (sigma_u "
-                 f"{sigma_u:g}, seed {seed}); controllers designed noise-free. Study time {elapsed:.1f} s.", "",
+                 f"{sigma_u:g}, seed {seed}); designs: {', '.join(designs)}. Study time {elapsed:.1f} s.", "",
                  table, ""] + [f"![{f}]({f})" for f in figures] + [""]
         (out / "center_out.md").write_text("\n".join(lines))
         click.echo(f"wrote center_out.md, center_out.json, {', '.join(figures)} to {out} ({elapsed:.1f} s)")
-    failed = [(r.delay, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
-    for delay, j in failed:
-        click.echo(f"warning: the reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
-    if failed:
+    failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
+    for delay, design, j in failed:
+        click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
+    if failed and not allow_unconverged:
         sys.exit(1)
 
 

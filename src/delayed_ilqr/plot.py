@@ -357,23 +357,27 @@ def plot_convergence(solutions, title: Optional[str] = None):
 
 
 def plot_center_out(results: Sequence, n_paths: int = 5):
-    """Center-out reaches of the six-muscle arm: hand paths and endpoint ellipses, one panel per delay.
+    """Center-out reaches of the six-muscle arm: hand paths and endpoint ellipses, one panel per
+    delay (columns) and design (rows).
 
     Args:
         results: :class:`~delayed_ilqr.center_out.DelayResult` objects.
         n_paths: Monte Carlo hand paths drawn per target.
 
     Returns:
-        A Figure: per delay, each target's nominal hand path (thick), ``n_paths`` noisy trials
-        (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final hand
-        positions; the start hand position is the black dot.
+        A Figure: per delay and design, each target's nominal hand path (thick), ``n_paths`` noisy
+        trials (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final
+        hand positions; the start hand position is the black dot.
     """
     from .center_out import _hand
     results = list(results)
     if not results:
         raise ValueError("results must hold at least one DelayResult; got none")
-    fig = _figure(figsize=(5.0 * len(results), 5.2), layout="constrained")
-    axes = fig.subplots(1, len(results), squeeze=False)[0]
+    designs = list(dict.fromkeys(r.design for r in results))
+    delays = list(dict.fromkeys(r.delay for r in results))
+    fig = _figure(figsize=(4.6 * len(delays), 4.8 * len(designs)), layout="constrained")
+    grid = fig.subplots(len(designs), len(delays), squeeze=False)
+    axes = [grid[designs.index(r.design), delays.index(r.delay)] for r in results]
     from matplotlib import colormaps
     cmap = [colormaps["tab10"](j % 10) for j in range(len(results[0].targets))]
     for ax, r in zip(axes, results):
@@ -396,7 +400,7 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
         ax.set_xlabel("hand x [m]")
         ax.set_ylabel("hand y [m]")
         converged = sum(t.converged for t in r.targets)
-        ax.set_title(f"delay {1e3 * r.delay:g} ms ({converged}/{len(r.targets)} converged)")
+        ax.set_title(f"{r.design}, delay {1e3 * r.delay:g} ms ({converged}/{len(r.targets)} converged)")
         ax.grid(alpha=0.3)
     fig.suptitle(f"six-muscle arm, center-out: nominal paths, {n_paths} noisy trials per target, "
                  f"2-sigma endpoint ellipses (N = {results[0].runs[0].x.shape[0]})")
@@ -404,7 +408,7 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
 
 
 def plot_excitations(result):
-    """Nominal muscle excitations u_k of every target at one delay (one panel per target).
+    """Nominal muscle excitations u_k of every target at one delay and design (one panel per target).
 
     Args:
         result: a :class:`~delayed_ilqr.center_out.DelayResult`.
@@ -431,5 +435,6 @@ def plot_excitations(result):
     axes[0].legend(fontsize=7, loc="upper right")
     for ax in axes[-cols:]:
         ax.set_xlabel("time sent [s]")
-    fig.suptitle(f"six-muscle arm: nominal excitations per target, delay {1e3 * result.delay:g} ms")
+    fig.suptitle(f"six-muscle arm: nominal excitations per target, {result.design} design, "
+                 f"delay {1e3 * result.delay:g} ms")
     return fig
