@@ -10,12 +10,14 @@ from __future__ import annotations
 import re
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from delayed_ilqr import lqg as _lqg
+from delayed_ilqr.forward import predicted_change
 from delayed_ilqr.lqg import DelayedLQG, Gains, policy_cost, simulate_lqg
 
 RTOL = 1e-9
@@ -288,6 +290,33 @@ def test_value_is_exact_cost_to_go_of_any_gains():
     gains, out, ok = jax.jit(lambda q: _lqg.structured_scan(q, 0.0, store_value=True, gains_fn=detuned))(lqg)
     assert bool(ok)
     assert rel_err(out[0][0], policy_cost(lqg, gains)) <= RTOL
+
+
+def _detuned(H, reg, g, G, bounds=None, warm=None):
+    ok, I, K = _lqg.unconstrained_gains(H, reg, g, G)
+    return ok, 0.6 * I + 0.05, 0.5 * K
+
+
+@pytest.mark.parametrize("shape", [SHAPES[i] for i in (2, 4, 5, 8)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))
+@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.0), (_lqg.unconstrained_gains, 0.5),
+                                           (_detuned, 0.0)], ids=["optimal", "regularised", "detuned"])
+def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gains_fn, reg):
+    """The line search's model (forward.predicted_change: J(0; alpha) - J(0; 0) = alpha a + alpha^2 b,
+    from a linear rollout) against the exact expected cost (second moments) of the policy with
+    feedforward alpha I and the same feedback, at alpha = 1/2 and 1 (two equations fix a and b)."""
+    lqg = random_lqg(43, *shape, mult_noise=0.5)
+    gains, out, _ = jax.jit(lambda q: _lqg.structured_scan(q, reg, store_value=False, gains_fn=gains_fn))(lqg)
+    S = jnp.concatenate([out[2], lqg.D[-1:]])
+    got_a, got_b = predicted_change(lqg, gains, S)
+    cost = lambda alpha: float(policy_cost(lqg, gains._replace(feedforward=alpha * gains.feedforward)))
+    full, half = cost(1.0) - cost(0.0), cost(0.5) - cost(0.0)
+    b = 2 * full - 4 * half
+    a = full - b
+    scale = abs(cost(0.0))
+    assert abs(float(got_a) - a) <= RTOL * scale, (float(got_a), a)
+    assert abs(float(got_b) - b) <= RTOL * scale, (float(got_b), b)
+    if gains_fn is not _detuned:
+        assert a < 0                                        # the LQG's own step is a descent direction
 
 
 def test_negative_definite_E_is_flagged_not_raised():
