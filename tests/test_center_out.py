@@ -1,9 +1,11 @@
-"""The center-out study of the six-muscle arm: convergence to every target at every delay, the delay
-gains doing their job in noise, and the ``center-out`` command's files."""
+"""The center-out study of the six-muscle arm: convergence to every target at every delay, the
+noise-aware design against the deterministic one in the noise, the delay gains doing their job,
+and the ``center-out`` command's files and exit status."""
 import json
 
 import jax
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 import delayed_ilqr as di
@@ -81,6 +83,12 @@ def test_center_out_command_exit_status_follows_convergence():
     assert strict.exit_code == 1 and lenient.exit_code == 0
     assert "the deterministic reach to target 1 at delay 0 s did not converge" in strict.output
     assert "| deterministic | 0/1 |" in lenient.output
+
+
+def test_center_out_refuses_unknown_designs():
+    with pytest.raises(ValueError, match=r"designs must be a non-empty selection of \('noise-aware', "
+                                         r"'deterministic'\); got \('ilqr',\)"):
+        co.center_out(designs=("ilqr",))
 
 
 def test_center_out_command_refuses_a_delay_off_the_grid():

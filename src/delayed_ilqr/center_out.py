@@ -29,7 +29,7 @@ import numpy as np
 
 from .models.arm2 import ARM2_PARAMS, hand_position
 from .models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets, rest_commands
-from .simulate import Runs, simulate
+from .simulate import simulate
 from .solution import Policy, Solution, Status
 from .solver import Options, solve
 
