@@ -14,6 +14,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, Gains, merged_if_undelayed
 from .problem import Problem
@@ -22,14 +23,22 @@ __all__ = ["in_slots", "closed_loop_rollout", "merit", "predicted_change", "Line
 
 
 def in_slots(delay_feedback):
-    """M_k^i [K, l, d, d] rearranged for a circular buffer of pending commands (du_j in slot j mod l).
+    """M_k^i [K, l, d, d] rearranged for a circular buffer of pending commands: [K, d, l d].
 
-    At step k, M_k^i multiplies du_{k+i-l}, which sits in slot (k+i) mod l; the result's [k, s]
-    is the gain of slot s, so a rollout updates one slot per step instead of shifting the buffer.
+    The buffer is a flat [l d] vector with du_j in slot j mod l (components j mod l * d ... + d).
+    At step k, M_k^i multiplies du_{k+i-l}, which sits in slot (k+i) mod l; the result's
+    [k, :, s d:(s+1) d] is the gain of slot s, so that the law's delay term is one product with
+    the buffer and a rollout updates one slot per step instead of shifting the buffer.
     """
-    K, l = delay_feedback.shape[:2]
+    K, l, nd = delay_feedback.shape[:3]
     i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l          # [K, l]
-    return jnp.take_along_axis(delay_feedback, i_of_slot[:, :, None, None], axis=1)
+    by_slot = jnp.take_along_axis(delay_feedback, i_of_slot[:, :, None, None], axis=1)
+    return jnp.swapaxes(by_slot, 1, 2).reshape(K, nd, l * nd)
+
+
+def _slot_offsets(K: int, l: int, nd: int):
+    """(k mod l) d for k = 0..K-1: where du_k goes in the flat circular buffer (0 when l = 0)."""
+    return (jnp.arange(K) % max(l, 1)) * nd
 
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
@@ -39,21 +48,22 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
     I, L, M = gains
 
     def step(carry, data):
-        x, buffer = carry                                   # buffer[j mod l] = u_j - u_bar_j, pending
-        k, x_bar, u_bar, ud_bar, I, L, M = data
-        du = alpha * I + L @ (x - x_bar) + jnp.einsum("sde,se->d", M, buffer)
+        x, buffer = carry                                   # buffer[slot of j] = u_j - u_bar_j, pending
+        j, x_bar, u_bar, ud_bar, I, L, M = data
+        du = alpha * I + L @ (x - x_bar) + M @ buffer
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         if l > 0:
-            ud = ud_bar + buffer[k % l]
-            buffer = buffer.at[k % l].set(u - u_bar)
+            ud = ud_bar + jax.lax.dynamic_slice_in_dim(buffer, j, nd)
+            buffer = jax.lax.dynamic_update_slice_in_dim(buffer, u - u_bar, j, 0)
         else:
             ud = u
         x_new = x + problem.dt * problem.dynamics(x, u, ud)
         return (x_new, buffer), (x_new, u)
 
-    init = (problem.x0, jnp.zeros((l, nd), us_bar.dtype))
-    data = (jnp.arange(us_bar.shape[0]), xs_bar[:-1], us_bar, uds_bar, I, L, in_slots(M))
-    _, (xs, us) = jax.lax.scan(step, init, data)
+    K = us_bar.shape[0]
+    init = (problem.x0, jnp.zeros(l * nd, us_bar.dtype))
+    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, uds_bar, I, L, in_slots(M))
+    _, (xs, us) = packed_scan(step, init, data)
     return jnp.concatenate([problem.x0[None], xs]), us
 
 
@@ -96,11 +106,11 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
 
     def step(carry, data):                      # the linear closed loop only; costs come after
         xi, buffer = carry                      # circular, as in closed_loop_rollout
-        k, A, B0, B1, I, L, M = data
-        eta = I + L @ xi + jnp.einsum("sde,se->d", M, buffer)
+        j, A, B0, B1, I, L, M = data
+        eta = I + L @ xi + M @ buffer
         if l > 0:
-            eta_d = buffer[k % l]
-            buffer = buffer.at[k % l].set(eta)
+            eta_d = jax.lax.dynamic_slice_in_dim(buffer, j, nd)
+            buffer = jax.lax.dynamic_update_slice_in_dim(buffer, eta, j, 0)
             xi_new = A @ xi + B0 @ eta + B1 @ eta_d
         else:
             eta_d = jnp.zeros(nd, xi.dtype)
@@ -108,8 +118,9 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
         return (xi_new, buffer), (xi, eta, eta_d)
 
     I, L, M = gains
-    data = (jnp.arange(lqg.horizon), lqg.A, lqg.B0, lqg.B1, I, L, in_slots(M))
-    (xiK, _), (xi, eta, eta_d) = jax.lax.scan(step, (jnp.zeros(nx), jnp.zeros((l, nd))), data)
+    K = lqg.horizon
+    data = (_slot_offsets(K, l, nd), lqg.A, lqg.B0, lqg.B1, I, L, in_slots(M))
+    (xiK, _), (xi, eta, eta_d) = packed_scan(step, (jnp.zeros(nx), jnp.zeros(l * nd)), data)
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]
     a = 2 * (jnp.sum(xi * lqg.d[:-1]) + jnp.sum(eta * lqg.e)) + 2 * jnp.einsum("kpn,knm,kpm->", lqg.c, Sn, dc)

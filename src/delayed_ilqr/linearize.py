@@ -14,6 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ._scan import packed_scan
 from .lqg import DelayedLQG
 from .problem import Problem
 
@@ -37,7 +38,7 @@ def rollout(problem: Problem, us):
         x_new = x + problem.dt * problem.dynamics(x, u, ud)
         return x_new, x_new
 
-    _, xs = jax.lax.scan(step, problem.x0, (us, uds))
+    _, xs = packed_scan(step, problem.x0, (us, uds))
     return jnp.concatenate([problem.x0[None], xs])
 
 

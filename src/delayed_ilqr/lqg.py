@@ -34,6 +34,7 @@ import numpy as np
 from jax.scipy.linalg import cho_solve
 
 from . import _validate
+from ._scan import packed_scan
 
 __all__ = [
     "DelayedLQG",
@@ -214,8 +215,12 @@ def merged_if_undelayed(lqg: DelayedLQG):
 
 
 def _stage_data(lqg: DelayedLQG, bounds=None):
-    """Per-step inputs of the backward recursion, time-major, k = 0..K-1."""
-    return (jnp.arange(lqg.horizon), lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
+    """Per-step inputs of the backward recursion, time-major, k = 0..K-1: the step k, the offsets
+    (k mod l) d and ((k - 1) mod l) d of its slot and of the next step's in the flattened pending
+    axis (computed here, once, rather than in every step), then the model."""
+    k = jnp.arange(lqg.horizon)
+    l, nd = max(lqg.delay_steps, 1), lqg.n_controls
+    return (k, (k % l) * nd, ((k - 1) % l) * nd, lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
             lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
@@ -335,7 +340,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
     """
     s_tilde, s, S, r, Rt, R, R_s, ok, warm = carry
-    k, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
+    k, j0, j_next, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
     nx, nd = B0.shape
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
@@ -356,8 +361,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     H = E + ZSZ[b0, b0] + CSC[u0, u0]
     g = e + Zs[b0] + CSc[u0]
     Gx = ZSZ[b0, a_] + Nxu
-    if l > 0:
-        j0 = (k % l) * nd                                   # slot sigma in the flattened pending axis
+    if l > 0:                                               # j0: slot sigma in the flattened pending axis
         ZRt = Z.T @ Rt                                               # [n + 2d, l d]
         ZRt_s = jax.lax.dynamic_slice_in_dim(ZRt, j0, nd, axis=1)    # Z' Rt^sigma
         R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
@@ -388,39 +392,62 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
         row = jax.lax.dynamic_update_slice(ZRt[b1], ZSZ[b1, b1] + CSC[u1, u1], (0, j0))   # [d, l d]
         r_new = r_pre + jnp.concatenate([Mw, Gw]).T @ jnp.concatenate([HIg, I])
         Rt_new = Rt_pre + LW.T @ jnp.concatenate([Ww, Mw])
-        R_new = _r_update(R, R_s, row, Mw, Ww, j0)
-        R_s = jax.lax.dynamic_slice_in_dim(R_new, ((k - 1) % l) * nd, nd, axis=0)   # for step k-1
-        order = _pending_order(k, l, nd)
-        M = jnp.moveaxis(Mw[:, order].reshape(nd, l, nd), 1, 0)       # [l, d, d], eq. 6's order
+        R_new = _r_update(R, row, Mw, Ww, j0)
+        R_s = jax.lax.dynamic_slice_in_dim(R_new, j_next, nd, axis=1).T   # for step k-1: see _r_update
     else:
-        M = jnp.zeros((0, nd, nd), A.dtype)
+        Mw = jnp.zeros((nd, 0), A.dtype)
         r_new, Rt_new, R_new = r, Rt, R
     carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I)
-    out = (I, L, M, s_tilde_new, s_new, S_new)
+    out = (I, L, Mw, s_tilde_new, s_new, S_new)         # Mw in slot order: see _from_slots
     if store_value:
-        out = out + _value_blocks(r_new, Rt_new, R_new, k, l, nd)
+        out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, k, l, nd) if l > 0 else R_new, k, l, nd)
     return carry, out
 
 
-def _r_update(R, R_s, row, Mw, Ww, j0):
+def _r_update(R, row, Mw, Ww, j0):
     """R at k from R at k+1 (the hot spot: [l d, l d] per step, everything else is O(l d^2)).
 
-    Slot sigma's rows R_s [d, l d] are replaced by ``row`` (du_{k-l} against the pending commands)
-    and the columns by row', then M'W + W'M is added. The replacement is itself a rank-2d update:
-    with Delta = row - R_s, its sigma-sigma block halved, R + P Delta + Delta'P' (P selects slot
-    sigma). So R_new = R + sum_a (u_a v_a' + v_a u_a') over 2d pairs, written as broadcast
-    products (no matrix product, no slice updates) so that XLA fuses it into one loop that reads
-    and writes R once, in place; the rows the next step needs are sliced from the result.
+    Exactly, slot sigma's rows become ``row`` (du_{k-l} against the pending commands), its
+    columns row', and M'W + W'M is added. Only the rows are written: R is stored with each slot's
+    row block exact as of the step that last replaced it, and its column block stale. Slots are
+    replaced in cyclic order, so the slot read next (k - 1 mod l) is the one replaced longest ago,
+    and its exact values are in its *columns*, which every newer row wrote (see
+    :func:`_exact_r`). The columns are never written: M'W + W'M is one loop over R that XLA fuses
+    and runs in place, at 2d multiply-adds per entry instead of 4d with the column replacement
+    folded in, and the row write is a [d, l d] update of contiguous memory.
     """
     nd, ld = row.shape
-    in_slot = (jnp.arange(ld) >= j0) & (jnp.arange(ld) < j0 + nd)
-    delta = (row - R_s) * jnp.where(in_slot, 0.5, 1.0)
-    onehot = (jnp.arange(ld)[None, :] == (j0 + jnp.arange(nd))[:, None]).astype(R.dtype)  # P'
     # the factors are materialised first: fused into the loop they would be recomputed per element
-    U, V = jax.lax.optimization_barrier((jnp.concatenate([onehot, Mw]), jnp.concatenate([delta, Ww])))
-    for a in range(2 * nd):
-        R = R + U[a][:, None] * V[a][None, :] + V[a][:, None] * U[a][None, :]
-    return R
+    Mw, Ww = jax.lax.optimization_barrier((Mw, Ww))
+    for a in range(nd):
+        R = R + Mw[a][:, None] * Ww[a][None, :] + Ww[a][:, None] * Mw[a][None, :]
+    Ms, Ws = (jax.lax.dynamic_slice_in_dim(F, j0, nd, axis=1) for F in (Mw, Ww))
+    return jax.lax.dynamic_update_slice(R, row + Ms.T @ Ww + Ws.T @ Mw, (j0, 0))
+
+
+def _exact_r(R, k, l: int, nd: int):
+    """The exact (symmetric) R from its stored form (see :func:`_r_update`), after step k.
+
+    The pass runs down in k, so slot s was last replaced at step k + ((s - k) mod l), that many
+    steps ago; entry (i, j) is exact in the row of whichever of the two slots was replaced more
+    recently (for slots never replaced, both copies hold the same sum of updates).
+    """
+    age = (jnp.arange(l) - k) % l                           # steps since slot s was replaced
+    age = jnp.repeat(age, nd)
+    return jnp.where(age[:, None] <= age[None, :], R, R.T)
+
+
+def _from_slots(Mw, l: int):
+    """The delay feedback of every step from slot order [K, d, l d] to eq. 6's order [K, l, d, d].
+
+    M_k^i multiplies du_{k+i-l}, which the recursion keeps in slot (k + i) mod l; one gather over
+    all steps after the scan instead of one per step inside it."""
+    K, nd = Mw.shape[:2]
+    if l == 0:
+        return jnp.zeros((K, 0, nd, nd), Mw.dtype)
+    slot_of_i = (jnp.arange(K)[:, None] + jnp.arange(l)[None, :]) % l          # [K, l]
+    by_slot = Mw.reshape(K, nd, l, nd)
+    return jnp.moveaxis(jnp.take_along_axis(by_slot, slot_of_i[:, None, :, None], axis=2), 2, 1)
 
 
 def _value_blocks(r, Rt, R, k, l: int, nd: int):
@@ -456,8 +483,9 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
     """
     lqg = merged_if_undelayed(lqg)
     step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value, gains_fn=gains_fn)
-    carry, out = jax.lax.scan(step, _terminal(lqg), _stage_data(lqg, bounds), reverse=True)
-    return Gains(*out[:3]), out[3:], carry[-2]
+    carry, out = packed_scan(step, _terminal(lqg), _stage_data(lqg, bounds), reverse=True)
+    I, L, Mw = out[:3]
+    return Gains(I, L, _from_slots(Mw, lqg.delay_steps)), out[3:], carry[-2]
 
 
 def _append_terminal(per_step, terminal):

@@ -1,0 +1,66 @@
+"""``packed_scan``: ``lax.scan`` with its per-step inputs and outputs packed into one array per dtype.
+
+Why: on CPU, XLA runs every operation of a loop body as a separate thunk, at roughly 0.1 to 0.2 us
+each, and the steps of motor-control problems are small (n = 4, d = 2), so the count of operations
+per step, not the arithmetic, sets the time. A scan slices each input array once per step and
+writes each output array once per step: a backward pass with 13 inputs and 6 outputs spends 19
+thunks a step on bookkeeping alone. Packed, that is one slice per dtype in and one update per
+dtype out; the static slices that unpack a row fuse into the operations that consume them.
+Measured on the predicted-change scan of P3 (K = 250, l = 50): 0.96 ms -> 0.43 ms.
+"""
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["packed_scan"]
+
+
+def _layout(shapes_dtypes):
+    """Per leaf: (group, offset, shape) within the packed vector of its dtype; and the dtypes,
+    in group order."""
+    offsets, layout = {}, []
+    for shape, dtype in shapes_dtypes:
+        dtype = jnp.dtype(dtype)
+        start = offsets.setdefault(dtype, 0)
+        layout.append((list(offsets).index(dtype), start, tuple(shape)))
+        offsets[dtype] = start + math.prod(shape)
+    return layout, tuple(offsets)
+
+
+def _pack(leaves, dtypes, lead=()):
+    """Leaves with leading axes ``lead`` -> one [*lead, total size] array per dtype (a tuple)."""
+    flat = {dt: [] for dt in dtypes}
+    for leaf in leaves:
+        flat[jnp.dtype(leaf.dtype)].append(jnp.reshape(leaf, lead + (-1,)))
+    return tuple(jnp.concatenate(flat[dt], axis=-1) for dt in dtypes)
+
+
+def _unpack(packed, layout, lead=()):
+    return [jax.lax.slice_in_dim(packed[group], start, start + math.prod(shape), axis=len(lead)).reshape(lead + shape)
+            for group, start, shape in layout]
+
+
+def packed_scan(f, init, xs, reverse: bool = False):
+    """Same result as ``jax.lax.scan(f, init, xs, reverse=reverse)``; ``xs`` must be non-empty.
+
+    Only the per-step inputs and outputs are packed; the carry is passed as it is (its large
+    members, such as the value matrix of the backward pass, are updated in place).
+    """
+    leaves, in_tree = jax.tree_util.tree_flatten(xs)
+    K = leaves[0].shape[0]
+    in_layout, in_dtypes = _layout([(x.shape[1:], x.dtype) for x in leaves])
+    out_spec = []
+
+    def body(carry, rows):
+        carry, ys = f(carry, jax.tree_util.tree_unflatten(in_tree, _unpack(rows, in_layout)))
+        y_leaves, out_tree = jax.tree_util.tree_flatten(ys)
+        layout, dtypes = _layout([(y.shape, y.dtype) for y in y_leaves])
+        out_spec[:] = [out_tree, layout]
+        return carry, _pack(y_leaves, dtypes)
+
+    carry, packed = jax.lax.scan(body, init, _pack(leaves, in_dtypes, (K,)), reverse=reverse)
+    out_tree, out_layout = out_spec
+    return carry, jax.tree_util.tree_unflatten(out_tree, _unpack(packed, out_layout, (K,)))
