@@ -158,9 +158,30 @@ def test_structured_matches_augmentation(shape, case):
         assert not np.any(R[k, dead]) and not np.any(R[k, :, dead])
 
 
-@pytest.mark.parametrize("K, l", [(50, 200), (100, 60)])
+@pytest.mark.parametrize("K, l", [(50, 300), (100, 60)])
 def test_long_delay_matches_augmentation(K, l):
+    """l >= K and l < K with long delays; l d = 300 runs the default blocked pass (block 16)."""
     structured_vs_augmented(random_lqg(7, K, 2, 1, 1, l), label=f"K={K}, l={l}")
+
+
+@pytest.mark.parametrize("shape", [SHAPES[i] for i in (2, 4, 8, 9)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))
+@pytest.mark.parametrize("block", [2, 7])
+@settings(max_examples=3)
+@given(case=options())
+def test_blocked_pass_matches_augmentation(shape, block, case):
+    """The pass with the O((l d)^2) update deferred to one product per block of q steps
+    (``structured_scan(block=q)``, the default for l d >= 300) equals augmentation, including
+    horizons that are not a multiple of q (padded) and l >= K."""
+    seed, opts, reg = case
+    lqg = random_lqg(seed, *shape, **opts)
+    scan = jax.jit(lambda q, reg: _lqg.structured_scan(q, reg, store_value=True, block=block))
+    gains, out, ok = scan(lqg, float(reg))
+    ga, va = augmented_backward_pass(lqg, reg)
+    assert bool(ok)
+    for got, want in zip(gains, ga):
+        assert rel_err(got, want) <= RTOL
+    for got, want in zip(out, (va.s_tilde, va.s, va.S, va.r, va.Rt, va.R)):
+        assert rel_err(got, want[:-1]) <= RTOL
 
 
 def test_undelayed_equals_merged_inputs():

@@ -43,11 +43,16 @@ def _unpack(packed, layout, lead=()):
             for group, start, shape in layout]
 
 
-def packed_scan(f, init, xs, reverse: bool = False):
+def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None):
     """Same result as ``jax.lax.scan(f, init, xs, reverse=reverse)``; ``xs`` must be non-empty.
 
     Only the per-step inputs and outputs are packed; the carry is passed as it is (its large
     members, such as the value matrix of the backward pass, are updated in place).
+
+    With ``block`` > 1 the steps run in blocks of that many (the length must be a multiple of it),
+    as a scan over blocks of a scan over steps, and ``flush(carry)`` is applied after each block:
+    work deferred by the steps is done once per block, without a ``lax.cond`` (which ``vmap``
+    would turn into doing it at every step).
     """
     leaves, in_tree = jax.tree_util.tree_flatten(xs)
     K = leaves[0].shape[0]
@@ -61,6 +66,19 @@ def packed_scan(f, init, xs, reverse: bool = False):
         out_spec[:] = [out_tree, layout]
         return carry, _pack(y_leaves, dtypes)
 
-    carry, packed = jax.lax.scan(body, init, _pack(leaves, in_dtypes, (K,)), reverse=reverse)
+    packed_xs = _pack(leaves, in_dtypes, (K,))
+    if block == 1:
+        carry, packed = jax.lax.scan(body, init, packed_xs, reverse=reverse)
+    else:
+        if K % block:
+            raise ValueError(f"the scan length ({K}) must be a multiple of block ({block})")
+
+        def block_body(carry, rows):
+            carry, ys = jax.lax.scan(body, carry, rows, reverse=reverse)
+            return flush(carry), ys
+
+        blocks = tuple(x.reshape((K // block, block) + x.shape[1:]) for x in packed_xs)
+        carry, packed = jax.lax.scan(block_body, init, blocks, reverse=reverse)
+        packed = tuple(y.reshape((K,) + y.shape[2:]) for y in packed)
     out_tree, out_layout = out_spec
     return carry, jax.tree_util.tree_unflatten(out_tree, _unpack(packed, out_layout, (K,)))

@@ -214,14 +214,39 @@ def merged_if_undelayed(lqg: DelayedLQG):
                        C0=lqg.C0 + lqg.C1, C1=jnp.zeros_like(lqg.C1))
 
 
-def _stage_data(lqg: DelayedLQG, bounds=None):
+def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1: the step k, the offsets
     (k mod l) d and ((k - 1) mod l) d of its slot and of the next step's in the flattened pending
-    axis (computed here, once, rather than in every step), then the model."""
+    axis, and 2 (k mod block) d, its rows in the deferred factors of :func:`_r_update` (computed
+    here, once, rather than in every step), then the model, with Z = [A, B0, B1] and Z' (so that no product in the step has a transposed small
+    operand: XLA's CPU dots are several times slower for those)."""
     k = jnp.arange(lqg.horizon)
     l, nd = max(lqg.delay_steps, 1), lqg.n_controls
-    return (k, (k % l) * nd, ((k - 1) % l) * nd, lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1,
-            lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
+    Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)                 # [K, n, n + 2d]
+    return (k, (k % l) * nd, ((k - 1) % l) * nd, (k % block) * 2 * nd, Z, jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0,
+            lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
+
+
+def _padded(lqg: DelayedLQG, bounds, steps: int):
+    """``lqg`` with ``steps`` steps appended after the horizon that leave every value exactly as it
+    is (A = I, E = I, everything else zero, bounds +-1) and the terminal cost after them: the
+    backward pass crosses them with J unchanged and gains zero, so that blocked passes can run on
+    a horizon that is a multiple of their block."""
+    if steps == 0:
+        return lqg, bounds
+    K, nx, nd = lqg.horizon, lqg.n_states, lqg.n_controls
+
+    def grow(x, fill=None, terminal=False):
+        pad = jnp.zeros((steps,) + x.shape[1:], x.dtype) if fill is None else jnp.broadcast_to(fill, (steps,) + x.shape[1:])
+        return jnp.concatenate([x[:K], pad, x[K:]]) if terminal else jnp.concatenate([x, pad])
+
+    eye = lambda m: jnp.eye(m, dtype=lqg.A.dtype)
+    lqg = lqg.replace(A=grow(lqg.A, eye(nx)), B0=grow(lqg.B0), B1=grow(lqg.B1), c=grow(lqg.c), C0=grow(lqg.C0),
+                      C1=grow(lqg.C1), d_tilde=grow(lqg.d_tilde, terminal=True), d=grow(lqg.d, terminal=True),
+                      D=grow(lqg.D, terminal=True), e=grow(lqg.e), E=grow(lqg.E, eye(nd)), N=grow(lqg.N))
+    if bounds is not None:
+        bounds = (grow(bounds[0], -1.0), grow(bounds[1], 1.0))
+    return lqg, bounds
 
 
 # Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
@@ -339,22 +364,21 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     Q_yy + K'W + W'K with W = H K / 2 + G, q_y + K'(H I + g) + G'I and q0 + I'H I + 2 I'g
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
     """
-    s_tilde, s, S, r, Rt, R, R_s, ok, warm = carry
-    k, j0, j_next, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
-    nx, nd = B0.shape
+    s_tilde, s, S, r, Rt, R, R_s, ok, warm, F = carry
+    k, j0, j_next, jq, Z, Zt, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
+    nx, nd = Z.shape[0], e.shape[0]
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
     a_, b0, b1 = slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd)
-    Z = jnp.concatenate([A, B0, B1], axis=1)                     # [n, n + 2d]
-    ZSZ = Z.T @ S @ Z
-    Zs = Z.T @ s
+    ZSZ = Zt @ S @ Z
+    Zs = Zt @ s
     noise_cost = jnp.einsum("pn,nm,pm->", c, S, c)
     if c.shape[0] > 0:                                             # control-dependent noise, both commands
         C = jnp.concatenate([C0, C1], axis=2)                      # [p, n, 2d]
         CSC = jnp.einsum("pnd,nm,pme->de", C, S, C)
         CSc = jnp.einsum("pnd,nm,pm->d", C, S, c)
     else:
-        CSC, CSc = jnp.zeros((2 * nd, 2 * nd), A.dtype), jnp.zeros(2 * nd, A.dtype)
+        CSC, CSc = jnp.zeros((2 * nd, 2 * nd), Z.dtype), jnp.zeros(2 * nd, Z.dtype)
     u0, u1 = slice(0, nd), slice(nd, 2 * nd)
 
     # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
@@ -362,7 +386,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     g = e + Zs[b0] + CSc[u0]
     Gx = ZSZ[b0, a_] + Nxu
     if l > 0:                                               # j0: slot sigma in the flattened pending axis
-        ZRt = Z.T @ Rt                                               # [n + 2d, l d]
+        ZRt = Zt @ Rt                                                # [n + 2d, l d]
         ZRt_s = jax.lax.dynamic_slice_in_dim(ZRt, j0, nd, axis=1)    # Z' Rt^sigma
         R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
         H = H + R_ss + ZRt_s[b0] + ZRt_s[b0].T
@@ -380,58 +404,102 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     W = 0.5 * H @ K + G                                             # [d, n + l d]
     Wx = W[:, :nx]
     HIg = H @ I + g
-    LW = jnp.concatenate([L, Wx])                                   # [2d, n]
+    # L'W + Wx'K: the update of S (first n columns) and of Rt (the rest)
+    update = _transposed(jnp.concatenate([L, Wx])) @ jnp.concatenate([W, K])   # [n, n + l d]
     s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (H @ I + 2.0 * g)
-    s_new = dv + Zs[a_] + L.T @ HIg + Gx.T @ I
-    S_new = _sym(D + ZSZ[a_, a_] + LW.T @ jnp.concatenate([Wx, L]))
+    s_new = dv + Zs[a_] + HIg @ L + I @ Gx
+    S_new = _sym(D + ZSZ[a_, a_] + update[:, :nx])
     if l > 0:
         Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
         # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
         r_pre = jax.lax.dynamic_update_slice(r, Zs[b1] + CSc[u1], (j0,))
         Rt_pre = jax.lax.dynamic_update_slice(ZRt[a_], ZSZ[a_, b1], (0, j0))
         row = jax.lax.dynamic_update_slice(ZRt[b1], ZSZ[b1, b1] + CSC[u1, u1], (0, j0))   # [d, l d]
-        r_new = r_pre + jnp.concatenate([Mw, Gw]).T @ jnp.concatenate([HIg, I])
-        Rt_new = Rt_pre + LW.T @ jnp.concatenate([Ww, Mw])
-        R_new = _r_update(R, row, Mw, Ww, j0)
-        R_s = jax.lax.dynamic_slice_in_dim(R_new, j_next, nd, axis=1).T   # for step k-1: see _r_update
+        r_new = r_pre + jnp.concatenate([HIg, I]) @ jnp.concatenate([Mw, Gw])
+        Rt_new = Rt_pre + update[:, nx:]
+        R_new, F, R_s = _r_update(R, F, row, Mw, Ww, j0, j_next, jq)     # R_s: for step k-1
     else:
-        Mw = jnp.zeros((nd, 0), A.dtype)
+        Mw = jnp.zeros((nd, 0), Z.dtype)
         r_new, Rt_new, R_new = r, Rt, R
-    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I)
+    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F)
     out = (I, L, Mw, s_tilde_new, s_new, S_new)         # Mw in slot order: see _from_slots
     if store_value:
-        out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, k, l, nd) if l > 0 else R_new, k, l, nd)
+        out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, F, k, l, nd) if l > 0 else R_new, k, l, nd)
     return carry, out
 
 
-def _r_update(R, row, Mw, Ww, j0):
+def _r_update(R, F, row, Mw, Ww, j0, j_next, jq):
     """R at k from R at k+1 (the hot spot: [l d, l d] per step, everything else is O(l d^2)).
+
+    Returns (R, F, R_s): the stored R and deferred factors at k, and the exact rows [d, l d] of
+    the slot that step k-1 eliminates.
 
     Exactly, slot sigma's rows become ``row`` (du_{k-l} against the pending commands), its
     columns row', and M'W + W'M is added. Only the rows are written: R is stored with each slot's
     row block exact as of the step that last replaced it, and its column block stale. Slots are
     replaced in cyclic order, so the slot read next (k - 1 mod l) is the one replaced longest ago,
-    and its exact values are in its *columns*, which every newer row wrote (see
-    :func:`_exact_r`). The columns are never written: M'W + W'M is one loop over R that XLA fuses
-    and runs in place, at 2d multiply-adds per entry instead of 4d with the column replacement
-    folded in, and the row write is a [d, l d] update of contiguous memory.
+    and its exact values are in its *columns*, which every newer row wrote (see :func:`_exact_r`).
+
+    ``F = ()``: M'W + W'M is added at once, one loop over R that XLA fuses and runs in place (per
+    step it reads and writes R: memory-bound for large l d). ``F = (F,)``, [2 q d, l d]: the
+    factors M_p, W_p of the steps p of the block so far are kept instead, the exact R being
+    R + sum_p M_p'W_p + W_p'M_p, and :func:`_flush` adds them with one matrix product per block.
+    A step then only corrects the rows it writes and the rows it reads by products with the
+    factors, O(q d^2 l d) instead of O((l d)^2).
     """
     nd, ld = row.shape
-    # the factors are materialised first: fused into the loop they would be recomputed per element
-    Mw, Ww = jax.lax.optimization_barrier((Mw, Ww))
-    for a in range(nd):
-        R = R + Mw[a][:, None] * Ww[a][None, :] + Ww[a][:, None] * Mw[a][None, :]
-    Ms, Ws = (jax.lax.dynamic_slice_in_dim(F, j0, nd, axis=1) for F in (Mw, Ww))
-    return jax.lax.dynamic_update_slice(R, row + Ms.T @ Ww + Ws.T @ Mw, (j0, 0))
+    if not F:
+        # the factors are materialised first: fused into the loop they would be recomputed per element
+        Mw, Ww = jax.lax.optimization_barrier((Mw, Ww))
+        for a in range(nd):
+            R = R + Mw[a][:, None] * Ww[a][None, :] + Ww[a][:, None] * Mw[a][None, :]
+        MWs = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, j0, nd, axis=1) for X in (Mw, Ww)])
+        R = jax.lax.dynamic_update_slice(R, row + _transposed(MWs) @ jnp.concatenate([Ww, Mw]), (j0, 0))
+        return R, F, jax.lax.dynamic_slice_in_dim(R, j_next, nd, axis=1).T
+    (F,) = F                                 # [2 q d, l d]: step p of the block at rows 2 p d: M_p, W_p
+    # X'F with X = F, its M and W rows swapped, at some columns is (sum_p M_p'W_p + W_p'M_p) at
+    # those rows: one product gives the factors' part of slot sigma's rows (written now) and of
+    # the next slot's (read next).
+    cols = jnp.concatenate([jax.lax.dynamic_slice_in_dim(F, j, nd, axis=1) for j in (j0, j_next)], axis=1)
+    part = _transposed(_swap_factors(cols, nd)) @ F                                # [2d, l d]
+    # stored rows = exact rows - the factors' part (this step's own part cancels: added to both)
+    R = jax.lax.dynamic_update_slice(R, row - part[:nd], (j0, 0))
+    F = jax.lax.dynamic_update_slice_in_dim(F, jnp.concatenate([Mw, Ww]), jq, axis=0)
+    own = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, j_next, nd, axis=1) for X in (Ww, Mw)])
+    R_s = jax.lax.dynamic_slice_in_dim(R, j_next, nd, axis=1).T + part[nd:] + _transposed(own) @ jnp.concatenate([Mw, Ww])
+    return R, (F,), R_s
 
 
-def _exact_r(R, k, l: int, nd: int):
+def _transposed(X):
+    """X' written to memory: the barrier keeps XLA from folding the transpose into the product
+    that consumes it, whose transposed-operand form is several times slower on CPU for the small
+    matrices of a step."""
+    return jax.lax.optimization_barrier(X.T)
+
+
+def _swap_factors(F, nd: int):
+    """[2 q d, m] factors with M_p, W_p at rows 2 p d: the same with W_p, M_p."""
+    return F.reshape(-1, 2, nd, F.shape[1])[:, ::-1].reshape(F.shape)
+
+
+def _flush(carry):
+    """End of a block of the blocked pass: R += sum_p M_p'W_p + W_p'M_p, factors reset (see
+    :func:`_r_update`)."""
+    *head, R, R_s, ok, warm, (F,) = carry
+    R = R + F.T @ _swap_factors(F, R_s.shape[0])
+    return (*head, R, R_s, ok, warm, (jnp.zeros_like(F),))
+
+
+def _exact_r(R, F, k, l: int, nd: int):
     """The exact (symmetric) R from its stored form (see :func:`_r_update`), after step k.
 
     The pass runs down in k, so slot s was last replaced at step k + ((s - k) mod l), that many
     steps ago; entry (i, j) is exact in the row of whichever of the two slots was replaced more
     recently (for slots never replaced, both copies hold the same sum of updates).
     """
+    if F:
+        (F,) = F
+        R = R + F.T @ _swap_factors(F, nd)
     age = (jnp.arange(l) - k) % l                           # steps since slot s was replaced
     age = jnp.repeat(age, nd)
     return jnp.where(age[:, None] <= age[None, :], R, R.T)
@@ -462,15 +530,27 @@ def _value_blocks(r, Rt, R, k, l: int, nd: int):
             jnp.moveaxis(R[order][:, order].reshape(l, nd, l, nd), 2, 1))
 
 
-def _terminal(lqg: DelayedLQG):
+def _terminal(lqg: DelayedLQG, block: int = 1):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     dt = lqg.A.dtype
+    F = (jnp.zeros((2 * block * nd, l * nd), dt),) if block > 1 else ()
     return (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1], jnp.zeros(l * nd, dt), jnp.zeros((nx, l * nd), dt),
-            jnp.zeros((l * nd, l * nd), dt), jnp.zeros((nd, l * nd), dt), jnp.asarray(True), jnp.zeros(nd, dt))
+            jnp.zeros((l * nd, l * nd), dt), jnp.zeros((nd, l * nd), dt), jnp.asarray(True), jnp.zeros(nd, dt), F)
+
+
+# Deferring the R update pays once the per-step loop over R is bound by memory: on the 2-core CI
+# machine, P4's pass (K = 600, d = 2) with q = 16 against none took 15.4 / 12.8 ms at l d = 200,
+# 25.0 / 27.7 ms at 300, 35.8 / 53.7 ms at 400 and 60.6 / 89.7 ms at 600 (q = 8 was slower).
+_DEFER_MIN_LD = 300
+_DEFER_BLOCK = 16
+
+
+def _default_block(lqg: DelayedLQG) -> int:
+    return _DEFER_BLOCK if lqg.delay_steps * lqg.n_controls >= _DEFER_MIN_LD else 1
 
 
 def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
-                    bounds=None):
+                    bounds=None, block: int | None = None):
     """Runs Theorem 1 backwards with ``lax.scan``; returns (Gains, outputs, positive_definite).
 
     Args:
@@ -480,12 +560,21 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
             quadratic in du (default: unconstrained, Cholesky of H + reg I). The control-limited
             solver passes a box-QP version; ``warm`` is the feedforward of the step after.
         bounds: per-step data for ``gains_fn``, time-major (e.g. [K, 2, d] limits on du_k).
+        block: q > 1 defers the O((l d)^2) part of each step to one matrix product per block of q
+            steps (see :func:`_r_update`); the horizon is padded to a multiple of q with steps
+            that change nothing. Default: 16 when l d >= 300, else 1 (no deferral).
     """
     lqg = merged_if_undelayed(lqg)
-    step = partial(_structured_step, l=lqg.delay_steps, reg=reg, store_value=store_value, gains_fn=gains_fn)
-    carry, out = packed_scan(step, _terminal(lqg), _stage_data(lqg, bounds), reverse=True)
+    K, l = lqg.horizon, lqg.delay_steps
+    block = _default_block(lqg) if block is None else _validate.positive_int(block, "block")
+    block = block if l > 0 else 1
+    padded, bounds = _padded(lqg, bounds, -K % block)
+    step = partial(_structured_step, l=l, reg=reg, store_value=store_value, gains_fn=gains_fn)
+    carry, out = packed_scan(step, _terminal(padded, block), _stage_data(padded, bounds, block), reverse=True,
+                             block=block, flush=_flush)
+    out = tuple(o[:K] for o in out)
     I, L, Mw = out[:3]
-    return Gains(I, L, _from_slots(Mw, lqg.delay_steps)), out[3:], carry[-2]
+    return Gains(I, L, _from_slots(Mw, l)), out[3:], carry[7]
 
 
 def _append_terminal(per_step, terminal):

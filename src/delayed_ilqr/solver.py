@@ -184,6 +184,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
 
 @partial(jax.jit, static_argnames=("options",))
 def _solve(problem: Problem, u_init, options: Options) -> Solution:
+    u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
     xs = rollout(problem, u_init)
     cost = trajectory_cost(problem, xs, u_init)
     ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(xs))
@@ -222,12 +223,13 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     if not isinstance(options, Options):
         raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
     shape = (problem.horizon, problem.n_controls)
+    # set-up outside the compiled solver is numpy only: each eager JAX operation costs tens of
+    # microseconds, as much as a whole small solve's backward pass
     if u_init is None:
-        u_init = jnp.zeros(shape)
+        u_init = np.zeros(shape)
     elif isinstance(u_init, jax.core.Tracer):
         if u_init.shape != shape:
             raise ValueError(f"u_init must have shape {shape}; got shape {u_init.shape}")
     else:
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
-    u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
     return _solve(problem, u_init, options)
