@@ -370,8 +370,9 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
     a_, b0, b1 = slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd)
-    ZSZ = Zt @ S @ Z
-    Zs = Zt @ s
+    ZX = Zt @ jnp.concatenate([S, s[:, None], Rt], axis=1)          # Z'[S, s, Rt]: [n + 2d, n + 1 + l d]
+    ZSZ = ZX[:, :nx] @ Z
+    Zs = ZX[:, nx]
     noise_cost = jnp.einsum("pn,nm,pm->", c, S, c)
     if c.shape[0] > 0:                                             # control-dependent noise, both commands
         C = jnp.concatenate([C0, C1], axis=2)                      # [p, n, 2d]
@@ -386,7 +387,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     g = e + Zs[b0] + CSc[u0]
     Gx = ZSZ[b0, a_] + Nxu
     if l > 0:                                               # j0: slot sigma in the flattened pending axis
-        ZRt = Zt @ Rt                                                # [n + 2d, l d]
+        ZRt = ZX[:, nx + 1:]                                         # [n + 2d, l d]
         ZRt_s = jax.lax.dynamic_slice_in_dim(ZRt, j0, nd, axis=1)    # Z' Rt^sigma
         R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
         H = H + R_ss + ZRt_s[b0] + ZRt_s[b0].T
@@ -401,22 +402,27 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     H = _sym(H)
     step_ok, I, K = gains_fn(H, reg, g, G, bounds, warm)
     L = K[:, :nx]
-    W = 0.5 * H @ K + G                                             # [d, n + l d]
+    HIK = H @ jnp.concatenate([I[:, None], K], axis=1)
+    W = 0.5 * HIK[:, 1:] + G                                        # [d, n + l d]
     Wx = W[:, :nx]
-    HIg = H @ I + g
-    # L'W + Wx'K: the update of S (first n columns) and of Rt (the rest)
-    update = _transposed(jnp.concatenate([L, Wx])) @ jnp.concatenate([W, K])   # [n, n + l d]
-    s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (H @ I + 2.0 * g)
-    s_new = dv + Zs[a_] + HIg @ L + I @ Gx
-    S_new = _sym(D + ZSZ[a_, a_] + update[:, :nx])
+    HIg = HIK[:, 0] + g
+    # One product for the whole update of S, Rt (rows :n: L'W + Wx'K) and of s, r (row n:
+    # K'(H I + g) + G'I; through G rather than W = H K / 2 + G, whose terms would cancel)
+    zeros = jnp.zeros((nd, nx), Z.dtype)
+    coef = jnp.concatenate([jnp.concatenate([L, Wx, zeros]), jnp.concatenate([jnp.zeros_like(I), HIg, I])[:, None]],
+                           axis=1)                                  # [3d, n + 1]
+    update = _transposed(coef) @ jnp.concatenate([W, K, G])         # [n + 1, n + l d]
+    s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (HIg + g)
+    s_new = dv + Zs[a_] + update[nx, :nx]
+    S_new = _sym(D + ZSZ[a_, a_] + update[:nx, :nx])
     if l > 0:
         Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
         # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
         r_pre = jax.lax.dynamic_update_slice(r, Zs[b1] + CSc[u1], (j0,))
         Rt_pre = jax.lax.dynamic_update_slice(ZRt[a_], ZSZ[a_, b1], (0, j0))
         row = jax.lax.dynamic_update_slice(ZRt[b1], ZSZ[b1, b1] + CSC[u1, u1], (0, j0))   # [d, l d]
-        r_new = r_pre + jnp.concatenate([HIg, I]) @ jnp.concatenate([Mw, Gw])
-        Rt_new = Rt_pre + update[:, nx:]
+        r_new = r_pre + update[nx, nx:]
+        Rt_new = Rt_pre + update[:nx, nx:]
         R_new, F, R_s = _r_update(R, F, row, Mw, Ww, j0, j_next, jq)     # R_s: for step k-1
     else:
         Mw = jnp.zeros((nd, 0), Z.dtype)
