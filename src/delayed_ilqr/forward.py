@@ -104,23 +104,24 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     lqg = merged_if_undelayed(lqg)
 
-    def step(carry, data):                      # the linear closed loop only; costs come after
-        xi, buffer = carry                      # circular, as in closed_loop_rollout
-        j, A, B0, B1, I, L, M = data
-        eta = I + L @ xi + M @ buffer
+    # The linear closed loop only (costs come after), on y = [xi, pending] with the pending
+    # commands circular as in closed_loop_rollout: one product for eta, one for xi_{k+1}.
+    def step(y, data):
+        j, Z, I, LM = data
+        eta = I + LM @ y
+        eta_d = jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else jnp.zeros_like(eta)
+        xi_new = Z @ jnp.concatenate([y[:nx], eta, eta_d])
+        y_new = jnp.concatenate([xi_new, y[nx:]])
         if l > 0:
-            eta_d = jax.lax.dynamic_slice_in_dim(buffer, j, nd)
-            buffer = jax.lax.dynamic_update_slice_in_dim(buffer, eta, j, 0)
-            xi_new = A @ xi + B0 @ eta + B1 @ eta_d
-        else:
-            eta_d = jnp.zeros(nd, xi.dtype)
-            xi_new = A @ xi + B0 @ eta
-        return (xi_new, buffer), (xi, eta, eta_d)
+            y_new = jax.lax.dynamic_update_slice_in_dim(y_new, eta, nx + j, 0)
+        return y_new, (y[:nx], eta, eta_d)
 
     I, L, M = gains
     K = lqg.horizon
-    data = (_slot_offsets(K, l, nd), lqg.A, lqg.B0, lqg.B1, I, L, in_slots(M))
-    (xiK, _), (xi, eta, eta_d) = packed_scan(step, (jnp.zeros(nx), jnp.zeros(l * nd)), data)
+    Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)
+    LM = jnp.concatenate([L, in_slots(M)], axis=2)                                   # [K, d, n + l d]
+    y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (_slot_offsets(K, l, nd), Z, I, LM))
+    xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]
     a = 2 * (jnp.sum(xi * lqg.d[:-1]) + jnp.sum(eta * lqg.e)) + 2 * jnp.einsum("kpn,knm,kpm->", lqg.c, Sn, dc)
