@@ -43,27 +43,26 @@ def _slot_offsets(K: int, l: int, nd: int):
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
     """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
-    l, nd = problem.delay_steps, problem.n_controls
-    uds_bar = delayed_commands(problem, us_bar)
+    l, nd, nx = problem.delay_steps, problem.n_controls, problem.n_states
     I, L, M = gains
 
-    def step(carry, data):
-        x, buffer = carry                                   # buffer[slot of j] = u_j - u_bar_j, pending
-        j, x_bar, u_bar, ud_bar, I, L, M = data
-        du = alpha * I + L @ (x - x_bar) + M @ buffer
+    # on y = [x, pending] (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending]
+    def step(y, data):
+        j, x_bar, u_bar, ud_bar, I, LM = data
+        x = y[:nx]
+        du = alpha * I + LM @ jnp.concatenate([x - x_bar, y[nx:]])
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-        if l > 0:
-            ud = ud_bar + jax.lax.dynamic_slice_in_dim(buffer, j, nd)
-            buffer = jax.lax.dynamic_update_slice_in_dim(buffer, u - u_bar, j, 0)
-        else:
-            ud = u
+        ud = ud_bar + jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else u
         x_new = x + problem.dt * problem.dynamics(x, u, ud)
-        return (x_new, buffer), (x_new, u)
+        y_new = jnp.concatenate([x_new, y[nx:]])
+        if l > 0:
+            y_new = jax.lax.dynamic_update_slice_in_dim(y_new, u - u_bar, nx + j, 0)
+        return y_new, (x_new, u)
 
     K = us_bar.shape[0]
-    init = (problem.x0, jnp.zeros(l * nd, us_bar.dtype))
-    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, uds_bar, I, L, in_slots(M))
-    _, (xs, us) = packed_scan(step, init, data)
+    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I,
+            jnp.concatenate([L, in_slots(M)], axis=2))
+    _, (xs, us) = packed_scan(step, jnp.concatenate([problem.x0, jnp.zeros(l * nd, us_bar.dtype)]), data)
     return jnp.concatenate([problem.x0[None], xs]), us
 
 
