@@ -150,7 +150,8 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
-    _, merit_now = merit(problem, st.xs, st.us, S, st.xs)
+    # without noise the merit is the cost, already known; with noise S changes it every iteration
+    merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, S, st.xs)[1]
     # NaN gains from a failed factorisation must not reach the rollout: use zero gains instead
     safe = jax.tree_util.tree_map(lambda g: jnp.where(pd, g, 0.0), gains)
     search = running & ~converged
