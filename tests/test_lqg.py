@@ -328,7 +328,7 @@ def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gai
     lqg = random_lqg(43, *shape, mult_noise=0.5)
     gains, out, _ = jax.jit(lambda q: _lqg.structured_scan(q, reg, store_value=False, gains_fn=gains_fn))(lqg)
     S = jnp.concatenate([out[2], lqg.D[-1:]])
-    got_a, got_b = predicted_change(lqg, gains, S)
+    got_a, got_b = predicted_change(lqg, _lqg.to_slots(gains), S)
     cost = lambda alpha: float(policy_cost(lqg, gains._replace(feedforward=alpha * gains.feedforward)))
     full, half = cost(1.0) - cost(0.0), cost(0.5) - cost(0.0)
     b = 2 * full - 4 * half
@@ -536,3 +536,21 @@ def test_bad_n_trials(small_problem, n_trials, shown):
     lqg, gains = small_problem
     with pytest.raises(ValueError, match=re.escape(f"n_trials must be a positive integer; got {shown}")):
         simulate_lqg(lqg, gains, n_trials)
+
+
+@pytest.mark.parametrize("K, l", [(5, 0), (5, 1), (4, 3), (3, 7)])
+def test_slot_gains_round_trip(K, l):
+    """to_slots and from_slots are inverse, and the slot form is the recursion's own: at step k,
+    M_k^i multiplies du_{k+i-l}, stored in slot (k+i) mod l."""
+    rng = np.random.default_rng(K * 10 + l)
+    n, d = 3, 2
+    gains = Gains(jnp.asarray(rng.normal(size=(K, d))), jnp.asarray(rng.normal(size=(K, d, n))),
+                  jnp.asarray(rng.normal(size=(K, l, d, d))))
+    slots = _lqg.to_slots(gains)
+    assert slots.feedback.shape == (K, d, n + l * d)
+    for k in range(K):
+        for i in range(l):
+            s = (k + i) % l
+            np.testing.assert_array_equal(slots.feedback[k, :, n + s * d:n + (s + 1) * d], gains.delay_feedback[k, i])
+    for got, want in zip(_lqg.from_slots(slots, n), gains):
+        np.testing.assert_array_equal(got, want)

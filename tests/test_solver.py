@@ -121,6 +121,21 @@ def test_noisy_point_mass_expected_cost_matches_the_independent_value():
     assert round(float(sol.expected_cost), 2) == 11.61
 
 
+@pytest.mark.parametrize("delay_steps", [0, 3])
+def test_indefinite_hessian_raises_lambda_then_converges(delay_steps):
+    """The running cost (u^2 - 1)^2 is concave in u for |u| < 3^-1/2, so the first backward pass
+    from u = 0.3 meets an H that is not positive definite: no line search is run with its gains,
+    lambda is raised until H + lambda I is, and the solve then converges to the minimum u = 1."""
+    cost = di.GeneralCost(lambda x, u, p: 10.0 * (u[0] ** 2 - 1.0) ** 2, lambda x, p: 0.0)
+    problem = di.Problem(lambda x, u, ud: jnp.array([ud[0]]), x0=[0.0], dt=0.05, horizon=20,
+                         delay_steps=delay_steps, cost=cost, n_controls=1)
+    sol = di.solve(problem, u_init=np.full((20, 1), 0.3))
+    assert sol.converged, sol.message
+    assert float(sol.trace.step_size[1]) == 0.0 and float(sol.trace.reg[2]) > 0.0   # rejected, lambda up
+    assert np.all(np.isfinite(np.asarray(sol.policy.state_feedback)))
+    np.testing.assert_allclose(np.asarray(sol.u), 1.0, atol=1e-6)
+
+
 def test_overflowing_initial_guess_reports_a_status():
     problem = arm2(delay=0.03)
     sol = di.solve(problem, u_init=np.full((problem.horizon, 2), 1e200))

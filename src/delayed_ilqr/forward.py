@@ -16,24 +16,10 @@ import jax.numpy as jnp
 
 from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, Gains, merged_if_undelayed
+from .lqg import DelayedLQG, SlotGains, merged_if_undelayed
 from .problem import Problem
 
-__all__ = ["in_slots", "closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
-
-
-def in_slots(delay_feedback):
-    """M_k^i [K, l, d, d] rearranged for a circular buffer of pending commands: [K, d, l d].
-
-    The buffer is a flat [l d] vector with du_j in slot j mod l (components j mod l * d ... + d).
-    At step k, M_k^i multiplies du_{k+i-l}, which sits in slot (k+i) mod l; the result's
-    [k, :, s d:(s+1) d] is the gain of slot s, so that the law's delay term is one product with
-    the buffer and a rollout updates one slot per step instead of shifting the buffer.
-    """
-    K, l, nd = delay_feedback.shape[:3]
-    i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l          # [K, l]
-    by_slot = jnp.take_along_axis(delay_feedback, i_of_slot[:, :, None, None], axis=1)
-    return jnp.swapaxes(by_slot, 1, 2).reshape(K, nd, l * nd)
+__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
 
 
 def _slot_offsets(K: int, l: int, nd: int):
@@ -41,10 +27,10 @@ def _slot_offsets(K: int, l: int, nd: int):
     return (jnp.arange(K) % max(l, 1)) * nd
 
 
-def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
+def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
     """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
     l, nd, nx = problem.delay_steps, problem.n_controls, problem.n_states
-    I, L, M = gains
+    I, LM = gains
 
     # on y = [x, pending] (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending]
     def step(y, data):
@@ -60,8 +46,7 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: Gains, alpha):
         return y_new, (x_new, u)
 
     K = us_bar.shape[0]
-    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I,
-            jnp.concatenate([L, in_slots(M)], axis=2))
+    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I, LM)
     _, (xs, us) = packed_scan(step, jnp.concatenate([problem.x0, jnp.zeros(l * nd, us_bar.dtype)]), data)
     return jnp.concatenate([problem.x0[None], xs]), us
 
@@ -93,7 +78,7 @@ def merit(problem: Problem, xs, us, S, xs_bar):
     return cost, cost + noise_cost(problem, xs_bar, us, S)
 
 
-def predicted_change(lqg: DelayedLQG, gains: Gains, S):
+def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     """(a, b) with merit(alpha) - merit(0) = alpha a + alpha^2 b under the LQG model.
 
     The linear model with du_k = alpha I_k + L_k dx_k + sum_i M_k^i du_{k+i-l} and dx_0 = 0 is
@@ -115,10 +100,9 @@ def predicted_change(lqg: DelayedLQG, gains: Gains, S):
             y_new = jax.lax.dynamic_update_slice_in_dim(y_new, eta, nx + j, 0)
         return y_new, (y[:nx], eta, eta_d)
 
-    I, L, M = gains
+    I, LM = gains
     K = lqg.horizon
     Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)
-    LM = jnp.concatenate([L, in_slots(M)], axis=2)                                   # [K, d, n + l d]
     y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (_slot_offsets(K, l, nd), Z, I, LM))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
@@ -149,7 +133,7 @@ def no_step(xs, us, cost, merit_now) -> LineSearch:
     return LineSearch(jnp.asarray(False), xs, us, cost, merit_now, zero, zero, zero, jnp.asarray(False))
 
 
-def line_search(problem: Problem, lqg: DelayedLQG, gains: Gains, S, xs, us, merit_now, alphas, z_min):
+def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, merit_now, alphas, z_min):
     """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min."""
     alphas = jnp.asarray(alphas)
     cand_xs, cand_us = jax.vmap(lambda a: closed_loop_rollout(problem, xs, us, gains, a))(alphas)

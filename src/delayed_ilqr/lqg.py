@@ -39,6 +39,9 @@ from ._scan import packed_scan
 __all__ = [
     "DelayedLQG",
     "Gains",
+    "SlotGains",
+    "to_slots",
+    "from_slots",
     "Value",
     "LQGRuns",
     "backward_pass",
@@ -169,6 +172,44 @@ class Gains(NamedTuple):
     feedforward: jax.Array
     state_feedback: jax.Array
     delay_feedback: jax.Array
+
+
+class SlotGains(NamedTuple):
+    """The law (6) in the backward recursion's circular frame, as the solver's loop uses it.
+
+    du_k = I_k + F_k [dx_k; pending_k], where pending_k is the flat [l d] vector with du_j in slot
+    j mod l (components (j mod l) d ... + d), so a rollout writes one slot per step instead of
+    shifting a buffer. :func:`to_slots` and :func:`from_slots` convert to and from :class:`Gains`.
+
+    Attributes:
+        feedforward: [K, d] I_k.
+        feedback: [K, d, n + l d] F_k = [L_k, M_k by slot].
+    """
+
+    feedforward: jax.Array
+    feedback: jax.Array
+
+
+def to_slots(gains: Gains) -> SlotGains:
+    """:class:`Gains` -> :class:`SlotGains`: M_k^i multiplies du_{k+i-l}, which is in slot (k+i) mod l."""
+    I, L, M = gains
+    K, l, nd = M.shape[:3]
+    i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l           # [K, l]
+    by_slot = jnp.take_along_axis(M, i_of_slot[:, :, None, None], axis=1)       # [K, slot, d, d]
+    return SlotGains(I, jnp.concatenate([L, jnp.swapaxes(by_slot, 1, 2).reshape(K, nd, l * nd)], axis=2))
+
+
+def from_slots(gains: SlotGains, n_states: int) -> Gains:
+    """:class:`SlotGains` -> :class:`Gains` (one gather over all steps)."""
+    I, F = gains
+    K, nd = I.shape
+    l = (F.shape[2] - n_states) // nd
+    if l == 0:
+        return Gains(I, F[:, :, :n_states], jnp.zeros((K, 0, nd, nd), F.dtype))
+    slot_of_i = (jnp.arange(K)[:, None] + jnp.arange(l)[None, :]) % l          # [K, l]
+    by_slot = F[:, :, n_states:].reshape(K, nd, l, nd)
+    M = jnp.moveaxis(jnp.take_along_axis(by_slot, slot_of_i[:, None, :, None], axis=2), 2, 1)
+    return Gains(I, F[:, :, :n_states], M)
 
 
 class Value(NamedTuple):
@@ -425,10 +466,9 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
         Rt_new = Rt_pre + update[:nx, nx:]
         R_new, F, R_s = _r_update(R, F, row, Mw, Ww, j0, j_next, jq)     # R_s: for step k-1
     else:
-        Mw = jnp.zeros((nd, 0), Z.dtype)
         r_new, Rt_new, R_new = r, Rt, R
     carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F)
-    out = (I, L, Mw, s_tilde_new, s_new, S_new)         # Mw in slot order: see _from_slots
+    out = (I, K, s_tilde_new, s_new, S_new)             # K = [L, M by slot]: see SlotGains
     if store_value:
         out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, F, k, l, nd) if l > 0 else R_new, k, l, nd)
     return carry, out
@@ -511,19 +551,6 @@ def _exact_r(R, F, k, l: int, nd: int):
     return jnp.where(age[:, None] <= age[None, :], R, R.T)
 
 
-def _from_slots(Mw, l: int):
-    """The delay feedback of every step from slot order [K, d, l d] to eq. 6's order [K, l, d, d].
-
-    M_k^i multiplies du_{k+i-l}, which the recursion keeps in slot (k + i) mod l; one gather over
-    all steps after the scan instead of one per step inside it."""
-    K, nd = Mw.shape[:2]
-    if l == 0:
-        return jnp.zeros((K, 0, nd, nd), Mw.dtype)
-    slot_of_i = (jnp.arange(K)[:, None] + jnp.arange(l)[None, :]) % l          # [K, l]
-    by_slot = Mw.reshape(K, nd, l, nd)
-    return jnp.moveaxis(jnp.take_along_axis(by_slot, slot_of_i[:, None, :, None], axis=2), 2, 1)
-
-
 def _value_blocks(r, Rt, R, k, l: int, nd: int):
     """J(k)'s pending blocks from slot order to eq. 7's order: r [l, d], Rt [l, n, d], R [l, l, d, d]."""
     if l == 0:
@@ -559,6 +586,8 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
                     bounds=None, block: int | None = None):
     """Runs Theorem 1 backwards with ``lax.scan``; returns (Gains, outputs, positive_definite).
 
+    ``outputs`` are s_tilde [K], s [K, n], S [K, n, n] (and, with ``store_value``, r, Rt, R).
+
     Args:
         store_value: False keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
             O(K l^2 d^2)); the solver uses it for long delays.
@@ -570,6 +599,13 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
             steps (see :func:`_r_update`); the horizon is padded to a multiple of q with steps
             that change nothing. Default: 16 when l d >= 300, else 1 (no deferral).
     """
+    gains, out, ok = structured_slot_scan(lqg, reg, store_value, gains_fn, bounds, block)
+    return from_slots(gains, lqg.n_states), out, ok
+
+
+def structured_slot_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
+                         bounds=None, block: int | None = None):
+    """:func:`structured_scan` with the gains as :class:`SlotGains`, as the recursion makes them."""
     lqg = merged_if_undelayed(lqg)
     K, l = lqg.horizon, lqg.delay_steps
     block = _default_block(lqg) if block is None else _validate.positive_int(block, "block")
@@ -579,8 +615,7 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
     carry, out = packed_scan(step, _terminal(padded, block), _stage_data(padded, bounds, block), reverse=True,
                              block=block, flush=_flush)
     out = tuple(o[:K] for o in out)
-    I, L, Mw = out[:3]
-    return Gains(I, L, _from_slots(Mw, l)), out[3:], carry[7]
+    return SlotGains(*out[:2]), out[2:], carry[7]
 
 
 def _append_terminal(per_step, terminal):

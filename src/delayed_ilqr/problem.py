@@ -66,10 +66,10 @@ class GeneralCost:
         self.params = jax.tree_util.tree_map(jnp.asarray, params)
 
     def running(self, x, u):
-        return self.running_fn(x, u, self.params)
+        return jnp.asarray(self.running_fn(x, u, self.params), x.dtype)     # a constant may be a float
 
     def final(self, x):
-        return self.final_fn(x, self.params)
+        return jnp.asarray(self.final_fn(x, self.params), x.dtype)
 
     def __repr__(self):
         return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r})"

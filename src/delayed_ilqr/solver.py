@@ -28,7 +28,8 @@ import numpy as np
 from . import _validate
 from .forward import line_search, merit, no_step
 from .linearize import linearize, rollout, trajectory_cost
-from .lqg import Gains, augmented_scan, boxed_gains, structured_scan, unconstrained_gains, unregularized_feedback
+from .lqg import (SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan, to_slots,
+                  unconstrained_gains, unregularized_feedback)
 from .problem import Problem
 from .solution import Policy, Solution, Status, Trace
 
@@ -98,7 +99,7 @@ class _State(NamedTuple):
     iteration: jax.Array
     status: jax.Array
     final_pass: jax.Array        # bool: the nominal moved after the last backward pass
-    gains: Gains                 # from the last backward pass
+    gains: SlotGains             # from the last backward pass
     expected_cost: jax.Array     # its J(0)
     trace: Trace
 
@@ -118,13 +119,13 @@ def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
         kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
     if method == "augmented":
         gains, value = augmented_scan(lqg, reg, **kw)
-        return lqg, gains, value.S, value.s_tilde[0], value.positive_definite
-    gains, (s_tilde, _, S), ok = structured_scan(lqg, reg, store_value=False, **kw)
+        return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite
+    gains, (s_tilde, _, S), ok = structured_slot_scan(lqg, reg, store_value=False, **kw)
     S = jnp.concatenate([S, lqg.D[-1:]])
     return lqg, gains, S, s_tilde[0], ok
 
 
-def _grad_norm(gains: Gains, us):
+def _grad_norm(gains: SlotGains, us):
     return jnp.mean(jnp.max(jnp.abs(gains.feedforward) / (jnp.abs(us) + 1.0), axis=1))
 
 
@@ -152,12 +153,11 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, S, st.xs)[1]
-    # NaN gains from a failed factorisation must not reach the rollout: use zero gains instead
-    safe = jax.tree_util.tree_map(lambda g: jnp.where(pd, g, 0.0), gains)
-    search = running & ~converged
-    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, safe, S, st.xs, st.us, merit_now, o.alphas, o.z_min),
+    # no line search with the NaN gains of a failed factorisation: lambda is raised instead
+    search = running & ~converged & pd
+    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
-    accept = search & pd & ls.accepted
+    accept = search & ls.accepted
     reg_up, dreg_up = _increase(st.reg, st.dreg, o)
     reg_down, dreg_down = _decrease(st.reg, st.dreg, o)
     reg = jnp.where(accept, reg_down, jnp.where(converged, st.reg, reg_up))
@@ -202,14 +202,14 @@ def _solve(problem: Problem, u_init, options: Options) -> Solution:
     trace = Trace(cost=nan.at[0].set(cost), merit=nan.at[0].set(cost), expected_reduction=nan,
                   step_size=nan, reg=nan, grad_norm=nan)
     K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
-    no_gains = Gains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx)), jnp.zeros((K, l, nd, nd)))
+    no_gains = SlotGains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx + l * nd)))
     # a non-finite start stops at once, with one backward pass for the policy it reports
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
                   jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
                   ~ok, no_gains, jnp.asarray(jnp.nan), trace)
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
-    policy = Policy(st.xs, st.us, *st.gains)
+    policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
     return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
