@@ -6,6 +6,9 @@ The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear
 
 where u_{k+i-l} are the commands this rollout actually sent (the pending buffer), so the law feeds
 back commands that are already on their way but not yet acting. All alphas run at once (``vmap``).
+The gains come as the backward recursion makes them (:class:`~delayed_ilqr.lqg.SlotGains`):
+[L_k, M_k] multiplies [x_k - x_bar_k, pending], with u_j - u_bar_j pending in slot j mod l, so a
+rollout writes one slot per step and never shifts a buffer.
 """
 from __future__ import annotations
 
