@@ -490,7 +490,7 @@ def _r_update(R, F, row, Mw, Ww, j0, j_next, jq):
     step it reads and writes R: memory-bound for large l d). ``F = (F,)``, [2 q d, l d]: the
     factors M_p, W_p of the steps p of the block so far are kept instead, the exact R being
     R + sum_p M_p'W_p + W_p'M_p, and :func:`_flush` adds them with one matrix product per block.
-    A step then only corrects the rows it writes and the rows it reads by products with the
+    A step then only corrects the rows it writes and the column block it reads by products with the
     factors, O(q d^2 l d) instead of O((l d)^2).
     """
     nd, ld = row.shape
