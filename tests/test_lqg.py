@@ -554,3 +554,15 @@ def test_slot_gains_round_trip(K, l):
             np.testing.assert_array_equal(slots.feedback[k, :, n + s * d:n + (s + 1) * d], gains.delay_feedback[k, i])
     for got, want in zip(_lqg.from_slots(slots, n), gains):
         np.testing.assert_array_equal(got, want)
+
+
+def test_blocked_pass_under_vmap_matches_separate_passes():
+    """The blocked pass is a scan over blocks of a scan over steps (no lax.cond), so it batches."""
+    lqgs = [random_lqg(seed, 10, 3, 2, 1, 4) for seed in (31, 32)]
+    scan = lambda q: _lqg.structured_scan(q, 0.0, store_value=False, block=3)
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *lqgs)
+    batched = jax.jit(jax.vmap(scan))(stacked)
+    for i, lqg in enumerate(lqgs):
+        separate = jax.jit(scan)(lqg)
+        for got, want in zip(jax.tree_util.tree_leaves(batched), jax.tree_util.tree_leaves(separate)):
+            np.testing.assert_allclose(np.asarray(got)[i], np.asarray(want), rtol=1e-12, atol=1e-14)
