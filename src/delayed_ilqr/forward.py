@@ -19,15 +19,10 @@ import jax.numpy as jnp
 
 from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, SlotGains, merged_if_undelayed
+from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets
 from .problem import Problem
 
 __all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
-
-
-def _slot_offsets(K: int, l: int, nd: int):
-    """(k mod l) d for k = 0..K-1: where du_k goes in the flat circular buffer (0 when l = 0)."""
-    return (jnp.arange(K) % max(l, 1)) * nd
 
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
@@ -49,7 +44,7 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alph
         return y_new, (x_new, u)
 
     K = us_bar.shape[0]
-    data = (_slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I, LM)
+    data = (slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I, LM)
     _, (xs, us) = packed_scan(step, jnp.concatenate([problem.x0, jnp.zeros(l * nd, us_bar.dtype)]), data)
     return jnp.concatenate([problem.x0[None], xs]), us
 
@@ -106,7 +101,7 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     I, LM = gains
     K = lqg.horizon
     Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)
-    y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (_slot_offsets(K, l, nd), Z, I, LM))
+    y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), Z, I, LM))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]

@@ -190,6 +190,11 @@ class SlotGains(NamedTuple):
     feedback: jax.Array
 
 
+def slot_offsets(K: int, l: int, nd: int):
+    """(k mod l) d for k = 0..K-1: where du_k sits in the flat pending vector (0 when l = 0)."""
+    return (jnp.arange(K) % max(l, 1)) * nd
+
+
 def to_slots(gains: Gains) -> SlotGains:
     """:class:`Gains` -> :class:`SlotGains`: M_k^i multiplies du_{k+i-l}, which is in slot (k+i) mod l."""
     I, L, M = gains
@@ -264,8 +269,8 @@ def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     k = jnp.arange(lqg.horizon)
     l, nd = max(lqg.delay_steps, 1), lqg.n_controls
     Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)                 # [K, n, n + 2d]
-    return (k, (k % l) * nd, ((k - 1) % l) * nd, (k % block) * 2 * nd, Z, jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0,
-            lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
+    return (k, slot_offsets(lqg.horizon, lqg.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, Z,
+            jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
 def _padded(lqg: DelayedLQG, bounds, steps: int):
