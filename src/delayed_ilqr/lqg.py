@@ -270,7 +270,8 @@ def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     l, nd = max(lqg.delay_steps, 1), lqg.n_controls
     Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)                 # [K, n, n + 2d]
     return (k, slot_offsets(lqg.horizon, lqg.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, Z,
-            jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
+            jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E,
+            lqg.N, bounds)
 
 
 def _padded(lqg: DelayedLQG, bounds, steps: int):
