@@ -17,6 +17,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ._products import matmul
 from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets
@@ -34,7 +35,7 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alph
     def step(y, data):
         j, x_bar, u_bar, ud_bar, I, LM = data
         x = y[:nx]
-        du = alpha * I + LM @ jnp.concatenate([x - x_bar, y[nx:]])
+        du = alpha * I + matmul(LM, jnp.concatenate([x - x_bar, y[nx:]]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         ud = ud_bar + jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else u
         x_new = x + problem.dt * problem.dynamics(x, u, ud)
@@ -90,9 +91,9 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     # commands circular as in closed_loop_rollout: one product for eta, one for xi_{k+1}.
     def step(y, data):
         j, Z, I, LM = data
-        eta = I + LM @ y
+        eta = I + matmul(LM, y)
         eta_d = jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else jnp.zeros_like(eta)
-        xi_new = Z @ jnp.concatenate([y[:nx], eta, eta_d])
+        xi_new = matmul(Z, jnp.concatenate([y[:nx], eta, eta_d]))
         y_new = jnp.concatenate([xi_new, y[nx:]])
         if l > 0:
             y_new = jax.lax.dynamic_update_slice_in_dim(y_new, eta, nx + j, 0)

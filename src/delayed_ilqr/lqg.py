@@ -34,6 +34,7 @@ import numpy as np
 from jax.scipy.linalg import cho_solve
 
 from . import _validate
+from ._products import matmul, matmul_t
 from ._scan import packed_scan
 
 __all__ = [
@@ -264,14 +265,12 @@ def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1: the step k, the offsets
     (k mod l) d and ((k - 1) mod l) d of its slot and of the next step's in the flattened pending
     axis, and 2 (k mod block) d, its rows in the deferred factors of :func:`_r_update` (computed
-    here, once, rather than in every step), then the model, with Z = [A, B0, B1] and Z' (so that no product in the step has a transposed small
-    operand: XLA's CPU dots are several times slower for those)."""
+    here, once, rather than in every step), then the model, with Z = [A, B0, B1]."""
     k = jnp.arange(lqg.horizon)
     l, nd = max(lqg.delay_steps, 1), lqg.n_controls
     Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)                 # [K, n, n + 2d]
     return (k, slot_offsets(lqg.horizon, lqg.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, Z,
-            jnp.swapaxes(Z, 1, 2), lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E,
-            lqg.N, bounds)
+            lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
 
 def _padded(lqg: DelayedLQG, bounds, steps: int):
@@ -412,21 +411,25 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
     """
     s_tilde, s, S, r, Rt, R, R_s, ok, warm, F = carry
-    k, j0, j_next, jq, Z, Zt, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
+    k, j0, j_next, jq, Z, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
     nx, nd = Z.shape[0], e.shape[0]
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
     a_, b0, b1 = slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd)
-    ZX = Zt @ jnp.concatenate([S, s[:, None], Rt], axis=1)          # Z'[S, s, Rt]: [n + 2d, n + 1 + l d]
-    ZSZ = ZX[:, :nx] @ Z
+    ZX = matmul_t(Z, jnp.concatenate([S, s[:, None], Rt], axis=1))        # Z'[S, s, Rt]: [n + 2d, n + 1 + l d]
+    ZSZ = matmul(ZX[:, :nx], Z)
     Zs = ZX[:, nx]
-    noise_cost = jnp.einsum("pn,nm,pm->", c, S, c)
-    if c.shape[0] > 0:                                             # control-dependent noise, both commands
-        C = jnp.concatenate([C0, C1], axis=2)                      # [p, n, 2d]
-        CSC = jnp.einsum("pnd,nm,pme->de", C, S, C)
-        CSc = jnp.einsum("pnd,nm,pm->d", C, S, c)
+    if c.shape[0] > 0:
+        # The noise terms, sum_j of [C0, C1, c]_j' S [C0, C1, c]_j, in two products: X = [C0, C1, c]
+        # with its p noise columns side by side, then (S X)'X summed over the columns
+        p = c.shape[0]
+        X = jnp.concatenate([C0, C1, c[:, :, None]], axis=2)        # [p, n, 2d + 1]
+        SX = matmul(S, jnp.moveaxis(X, 1, 0).reshape(nx, -1)).reshape(nx, p, -1)
+        XSX = matmul_t(X.reshape(p * nx, -1), jnp.moveaxis(SX, 1, 0).reshape(p * nx, -1))
+        CSC, CSc, noise_cost = XSX[:-1, :-1], XSX[:-1, -1], XSX[-1, -1]
     else:
         CSC, CSc = jnp.zeros((2 * nd, 2 * nd), Z.dtype), jnp.zeros(2 * nd, Z.dtype)
+        noise_cost = jnp.zeros((), Z.dtype)
     u0, u1 = slice(0, nd), slice(nd, 2 * nd)
 
     # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
@@ -449,7 +452,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     H = _sym(H)
     step_ok, I, K = gains_fn(H, reg, g, G, bounds, warm)
     L = K[:, :nx]
-    HIK = H @ jnp.concatenate([I[:, None], K], axis=1)
+    HIK = matmul(H, jnp.concatenate([I[:, None], K], axis=1))
     W = 0.5 * HIK[:, 1:] + G                                        # [d, n + l d]
     Wx = W[:, :nx]
     HIg = HIK[:, 0] + g
@@ -458,7 +461,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     zeros = jnp.zeros((nd, nx), Z.dtype)
     coef = jnp.concatenate([jnp.concatenate([L, Wx, zeros]), jnp.concatenate([jnp.zeros_like(I), HIg, I])[:, None]],
                            axis=1)                                  # [3d, n + 1]
-    update = _transposed(coef) @ jnp.concatenate([W, K, G])         # [n + 1, n + l d]
+    update = matmul_t(coef, jnp.concatenate([W, K, G]))         # [n + 1, n + l d]
     s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (HIg + g)
     s_new = dv + Zs[a_] + update[nx, :nx]
     S_new = _sym(D + ZSZ[a_, a_] + update[:nx, :nx])
@@ -506,27 +509,20 @@ def _r_update(R, F, row, Mw, Ww, j0, j_next, jq):
         for a in range(nd):
             R = R + Mw[a][:, None] * Ww[a][None, :] + Ww[a][:, None] * Mw[a][None, :]
         MWs = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, j0, nd, axis=1) for X in (Mw, Ww)])
-        R = jax.lax.dynamic_update_slice(R, row + _transposed(MWs) @ jnp.concatenate([Ww, Mw]), (j0, 0))
+        R = jax.lax.dynamic_update_slice(R, row + matmul_t(MWs, jnp.concatenate([Ww, Mw])), (j0, 0))
         return R, F, jax.lax.dynamic_slice_in_dim(R, j_next, nd, axis=1).T
     (F,) = F                                 # [2 q d, l d]: step p of the block at rows 2 p d: M_p, W_p
     # X'F with X = F, its M and W rows swapped, at some columns is (sum_p M_p'W_p + W_p'M_p) at
     # those rows: one product gives the factors' part of slot sigma's rows (written now) and of
     # the next slot's (read next).
     cols = jnp.concatenate([jax.lax.dynamic_slice_in_dim(F, j, nd, axis=1) for j in (j0, j_next)], axis=1)
-    part = _transposed(_swap_factors(cols, nd)) @ F                                # [2d, l d]
+    part = matmul_t(_swap_factors(cols, nd), F)                               # [2d, l d]
     # stored rows = exact rows - the factors' part (this step's own part cancels: added to both)
     R = jax.lax.dynamic_update_slice(R, row - part[:nd], (j0, 0))
     F = jax.lax.dynamic_update_slice_in_dim(F, jnp.concatenate([Mw, Ww]), jq, axis=0)
     own = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, j_next, nd, axis=1) for X in (Ww, Mw)])
-    R_s = jax.lax.dynamic_slice_in_dim(R, j_next, nd, axis=1).T + part[nd:] + _transposed(own) @ jnp.concatenate([Mw, Ww])
+    R_s = jax.lax.dynamic_slice_in_dim(R, j_next, nd, axis=1).T + part[nd:] + matmul_t(own, jnp.concatenate([Mw, Ww]))
     return R, (F,), R_s
-
-
-def _transposed(X):
-    """X' written to memory: the barrier keeps XLA from folding the transpose into the product
-    that consumes it, whose transposed-operand form is several times slower on CPU for the small
-    matrices of a step."""
-    return jax.lax.optimization_barrier(X.T)
 
 
 def _swap_factors(F, nd: int):

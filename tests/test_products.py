@@ -1,0 +1,38 @@
+"""``_products.matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
+broadcast-and-sum for small products, a library dot for large ones), against NumPy's product."""
+import jax
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from delayed_ilqr._products import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, matmul, matmul_t
+
+dims = st.integers(min_value=1, max_value=40)
+
+
+@settings(max_examples=40, deadline=None)
+@given(m=dims, k=dims, n=st.one_of(st.integers(1, 40), st.integers(100, 300)), vector=st.booleans(),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_products_match_numpy(m, k, n, vector, seed):
+    rng = np.random.default_rng(seed)
+    a, at = rng.normal(size=(m, k)), rng.normal(size=(k, m))
+    b = rng.normal(size=(k,)) if vector else rng.normal(size=(k, n))
+    tol = dict(rtol=1e-13, atol=1e-13 * np.sqrt(k))
+    np.testing.assert_allclose(jax.jit(matmul)(a, b), a @ b, **tol)
+    if not vector:
+        np.testing.assert_allclose(jax.jit(matmul_t)(at, b), at.T @ b, **tol)
+
+
+def test_both_paths_are_taken():
+    """The threshold splits the shapes the tests above draw: some are fused, some are dots."""
+    assert _fused(8, 4, 25) and _fused(2, 24, 1)
+    assert not _fused(8, 8, 105)                          # too many multiply-adds
+    assert not _fused(1, 1, FUSED_MAX_COLUMNS + 1)        # too many columns
+    assert _fused(1, FUSED_MAX // 100, 100) and not _fused(2, FUSED_MAX // 100, 100)
+
+
+def test_fused_products_are_fused():
+    """A small product compiles to no dot (so that XLA fuses it), a large one to a dot."""
+    small = jax.jit(matmul).lower(np.ones((8, 4)), np.ones((4, 25))).compile().as_text()
+    large = jax.jit(matmul).lower(np.ones((40, 40)), np.ones((40, 40))).compile().as_text()
+    assert " dot(" not in small and "dot(" in large
