@@ -17,7 +17,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._products import matmul
+from ._dense import matmul
 from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets

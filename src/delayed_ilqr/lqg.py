@@ -31,10 +31,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.linalg import cho_solve
 
 from . import _validate
-from ._products import matmul, matmul_t
+from ._dense import cholesky_solve, matmul, matmul_t
 from ._scan import packed_scan
 
 __all__ = [
@@ -293,35 +292,6 @@ def _padded(lqg: DelayedLQG, bounds, steps: int):
     if bounds is not None:
         bounds = (grow(bounds[0], -1.0), grow(bounds[1], 1.0))
     return lqg, bounds
-
-
-# Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
-# LAPACK call per time step costs more than the arithmetic for the d of motor-control problems.
-_UNROLLED_CHOLESKY_MAX = 8
-
-
-def cholesky_solve(H, rhs):
-    """(ok, H^{-1} rhs) for symmetric H [d, d] and rhs [d, m] by Cholesky; ok is False (and the
-    result non-finite) when H is not numerically positive definite."""
-    nd = H.shape[0]
-    if nd > _UNROLLED_CHOLESKY_MAX:
-        chol = jnp.linalg.cholesky(H)
-        return jnp.all(jnp.isfinite(chol)), cho_solve((chol, True), rhs)
-    low = [[None] * nd for _ in range(nd)]
-    for j in range(nd):
-        pivot = H[j, j] - sum(low[j][i] ** 2 for i in range(j))
-        ok_j = pivot > 0.0
-        low[j][j] = jnp.sqrt(jnp.where(ok_j, pivot, jnp.nan))
-        ok = ok_j if j == 0 else ok & ok_j
-        for i in range(j + 1, nd):
-            low[i][j] = (H[i, j] - sum(low[i][m] * low[j][m] for m in range(j))) / low[j][j]
-    y = []
-    for i in range(nd):                                  # L y = rhs
-        y.append((rhs[i] - sum(low[i][m] * y[m] for m in range(i))) / low[i][i])
-    x = [None] * nd
-    for i in reversed(range(nd)):                        # L' x = y
-        x[i] = (y[i] - sum(low[m][i] * x[m] for m in range(i + 1, nd))) / low[i][i]
-    return ok, jnp.stack(x)
 
 
 def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):

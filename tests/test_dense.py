@@ -1,11 +1,12 @@
-"""``_products.matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
-broadcast-and-sum for small products, a library dot for large ones), against NumPy's product."""
+"""``_dense``: ``matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
+broadcast-and-sum for small products, a library dot for large ones), and ``cholesky_solve`` the
+solution of the system on both of its paths (unrolled, LAPACK): against NumPy."""
 import jax
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from delayed_ilqr._products import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, matmul, matmul_t
+from delayed_ilqr._dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_solve, matmul, matmul_t
 
 dims = st.integers(min_value=1, max_value=40)
 
@@ -36,3 +37,25 @@ def test_fused_products_are_fused():
     small = jax.jit(matmul).lower(np.ones((8, 4)), np.ones((4, 25))).compile().as_text()
     large = jax.jit(matmul).lower(np.ones((40, 40)), np.ones((40, 40))).compile().as_text()
     assert " dot(" not in small and "dot(" in large
+
+
+@settings(max_examples=40, deadline=None)
+@given(d=st.integers(1, 10), m=st.integers(0, 5), vector=st.booleans(), definite=st.booleans(),
+       seed=st.integers(0, 2 ** 32 - 1))
+def test_cholesky_solve_matches_numpy(d, m, vector, definite, seed):
+    """Unrolled (d <= 8) and LAPACK (d > 8) paths: the solution for a positive definite H, and
+    ok = False with a non-finite result for an indefinite one."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(d, d))
+    H = X @ X.T + 0.1 * np.eye(d)
+    if not definite:
+        H = H - (np.linalg.eigvalsh(H)[0] + 1.0) * np.eye(d)        # smallest eigenvalue -1
+    rhs = rng.normal(size=(d,)) if vector else rng.normal(size=(d, m))
+    ok, sol = jax.jit(cholesky_solve)(H, rhs)
+    if definite:
+        assert bool(ok)
+        want = np.linalg.solve(H, rhs)
+        np.testing.assert_allclose(sol, want, rtol=1e-9, atol=1e-9 * np.abs(want).max(initial=1.0))
+    else:
+        assert not bool(ok)
+        assert sol.size == 0 or not np.all(np.isfinite(sol))

@@ -1,0 +1,83 @@
+"""Small dense linear algebra written for XLA on CPU: products (``matmul``, ``matmul_t``) and the
+Cholesky solve (``cholesky_solve``) of the d x d systems of one time step.
+
+Products. On CPU, XLA runs a ``dot`` as a call into its matrix library, one thunk per product and per
+step of a loop, which costs about 0.3 us even for a [2, 2] x [2, 25] product. The same product as a
+broadcast multiply and a sum is plain elementwise work that XLA fuses with the operations around
+it. Measured in a 600-step ``lax.scan`` on the 2-core CI machine (us per step, dot / fused):
+[8, 4] x [4, 25] 0.43 / 0.16, [5, 6] x [6, 104] 0.46 / 0.12, [8, 4] x [4, 105] 0.54 / 0.32,
+but [8, 8] x [8, 105] 0.75 / 3.2 and [5, 6] x [6, 404] 0.90 / 5.8: past a few thousand
+multiply-adds the library wins, so larger products stay dots.
+
+Cholesky. For d <= 8 the factorisation and the two triangular solves are unrolled into elementwise
+operations that XLA fuses, instead of a LAPACK call per time step (and per iteration of the box QP).
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.linalg import cho_solve
+
+__all__ = ["cholesky_solve", "matmul", "matmul_t"]
+
+# Products with at most this many multiply-adds and columns are fused (see the measurements
+# above). The column limit: a fused product is recomputed inside each fusion that consumes it, and
+# at l d = 200 fusing H [I, K] ([2, 2] x [2, 205], whose result the value update and the R update
+# both read) made the backward pass 3-5 % slower.
+FUSED_MAX = 4096
+FUSED_MAX_COLUMNS = 128
+
+
+def _fused(m: int, k: int, n: int) -> bool:
+    return m * k * n <= FUSED_MAX and n <= FUSED_MAX_COLUMNS
+
+
+def matmul(a, b):
+    """a @ b for a [m, k] and b [k, n] or [k]."""
+    m, k = a.shape
+    n = b.shape[1] if b.ndim == 2 else 1
+    if not _fused(m, k, n):
+        return a @ b
+    if b.ndim == 1:
+        return jnp.sum(a * b[None, :], axis=1)
+    return jnp.sum(a[:, :, None] * b[None, :, :], axis=1)
+
+
+def matmul_t(a, b):
+    """a' @ b for a [k, m] and b [k, n]. As a dot, a' is written to memory first: the barrier keeps
+    XLA from folding the transpose into the product, whose transposed-operand form is several
+    times slower on CPU for the small matrices of a step. Fused, the transpose is only indexing."""
+    k, m = a.shape
+    if not _fused(m, k, b.shape[1]):
+        return jax.lax.optimization_barrier(a.T) @ b
+    return jnp.sum(a[:, :, None] * b[:, None, :], axis=0)
+
+
+# Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
+# LAPACK call per time step costs more than the arithmetic for the d of motor-control problems.
+_UNROLLED_CHOLESKY_MAX = 8
+
+
+def cholesky_solve(H, rhs, unrolled_max: int = _UNROLLED_CHOLESKY_MAX):
+    """(ok, H^{-1} rhs) for symmetric H [d, d] and rhs [d] or [d, m] by Cholesky; ok is False (and
+    the result non-finite) when H is not numerically positive definite. Unrolled for d <=
+    ``unrolled_max``."""
+    nd = H.shape[0]
+    if nd > unrolled_max:
+        chol = jnp.linalg.cholesky(H)
+        return jnp.all(jnp.isfinite(chol)), cho_solve((chol, True), rhs)
+    low = [[None] * nd for _ in range(nd)]
+    for j in range(nd):
+        pivot = H[j, j] - sum(low[j][i] ** 2 for i in range(j))
+        ok_j = pivot > 0.0
+        low[j][j] = jnp.sqrt(jnp.where(ok_j, pivot, jnp.nan))
+        ok = ok_j if j == 0 else ok & ok_j
+        for i in range(j + 1, nd):
+            low[i][j] = (H[i, j] - sum(low[i][m] * low[j][m] for m in range(j))) / low[j][j]
+    y = []
+    for i in range(nd):                                  # L y = rhs
+        y.append((rhs[i] - sum(low[i][m] * y[m] for m in range(i))) / low[i][i])
+    x = [None] * nd
+    for i in reversed(range(nd)):                        # L' x = y
+        x[i] = (y[i] - sum(low[m][i] * x[m] for m in range(i + 1, nd))) / low[i][i]
+    return ok, jnp.stack(x)
