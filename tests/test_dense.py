@@ -3,6 +3,7 @@ broadcast-and-sum for small products, a library dot for large ones), and ``chole
 solution of the system on both of its paths (unrolled, LAPACK): against NumPy."""
 import jax
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -61,16 +62,17 @@ def test_cholesky_solve_matches_numpy(d, m, vector, definite, seed):
         assert sol.size == 0 or not np.all(np.isfinite(sol))
 
 
-def test_products_under_vmap():
-    """Batched (the vmap rules: batched dots), each operand batched or not, against NumPy."""
+@pytest.mark.parametrize("batch", [5, 200])
+def test_products_under_vmap(batch):
+    """Batched, each operand batched or not, against NumPy: a small batch keeps the fused form, a
+    large one (200 x 72 multiply-adds > FUSED_MAX) goes to batched dots."""
     rng = np.random.default_rng(1)
-    a, b, v = rng.normal(size=(5, 3, 4)), rng.normal(size=(5, 4, 6)), rng.normal(size=(5, 4))
-    at = rng.normal(size=(5, 4, 3))
+    a, b, v = rng.normal(size=(batch, 3, 4)), rng.normal(size=(batch, 4, 6)), rng.normal(size=(batch, 4))
+    at = rng.normal(size=(batch, 4, 3))
     for a_axis, b_axis in ((0, 0), (0, None), (None, 0)):
-        pick = lambda x, axis, i: x[i] if axis == 0 else x[0]
         for fn, x, y in ((matmul, a, b), (matmul, a, v), (matmul_t, at, b)):
             got = jax.jit(jax.vmap(fn, in_axes=(a_axis, b_axis)))(x if a_axis == 0 else x[0], y if b_axis == 0 else y[0])
-            for i in range(5):
-                xi, yi = pick(x, a_axis, i), pick(y, b_axis, i)
+            for i in range(batch):
+                xi, yi = x[i if a_axis == 0 else 0], y[i if b_axis == 0 else 0]
                 want = (xi.T if fn is matmul_t else xi) @ yi
                 np.testing.assert_allclose(got[i], want, rtol=1e-13, atol=1e-13)
