@@ -117,9 +117,11 @@ def coriolis(q, dq, params: Arm2Params = ARM2_PARAMS):
 
 def joint_acceleration(q, dq, tau, params: Arm2Params = ARM2_PARAMS):
     """ddq = M(q)^{-1} (tau - C(q, dq) - B dq) [..., 2] for joint torques tau [..., 2]."""
-    friction = jnp.einsum("ij,...j->...i", params.B, dq)
+    # 2 x 2 products as elementwise sums, which XLA fuses (a dot per product and step costs more
+    # than the arithmetic; see delayed_ilqr._dense)
+    friction = jnp.sum(jnp.asarray(params.B) * dq[..., None, :], axis=-1)
     rhs = tau - coriolis(q, dq, params) - friction
-    return jnp.einsum("...ij,...j->...i", mass_matrix_inverse(q, params), rhs)
+    return jnp.sum(mass_matrix_inverse(q, params) * rhs[..., None, :], axis=-1)
 
 
 def hand_position(q, params: Arm2Params = ARM2_PARAMS):
@@ -139,7 +141,7 @@ def hand_jacobian(q, params: Arm2Params = ARM2_PARAMS):
 
 def hand_velocity(q, dq, params: Arm2Params = ARM2_PARAMS):
     """Hand velocity de/dt = J(q) dq [..., 2] in m/s."""
-    return jnp.einsum("...ij,...j->...i", hand_jacobian(q, params), dq)
+    return jnp.sum(hand_jacobian(q, params) * dq[..., None, :], axis=-1)
 
 
 @dataclass(frozen=True)

@@ -257,11 +257,11 @@ class ConstantGeometry:
     def lengths(self, q):
         """l_i = 1 - sum_j D_ji (q_j - q_ref_j) / L0_i [..., 6]."""
         dq = q - jnp.asarray(self.q_ref)
-        return 1.0 - jnp.einsum("ji,...j->...i", jnp.asarray(self.D), dq) / jnp.asarray(self.L0)
+        return 1.0 - jnp.sum(jnp.asarray(self.D) * dq[..., :, None], axis=-2) / jnp.asarray(self.L0)
 
     def velocities(self, q, dq):
         """v_i = -sum_j D_ji dq_j / L0_i [..., 6] in L0 / s."""
-        return -jnp.einsum("ji,...j->...i", jnp.asarray(self.D), dq) / jnp.asarray(self.L0)
+        return -jnp.sum(jnp.asarray(self.D) * dq[..., :, None], axis=-2) / jnp.asarray(self.L0)
 
 
 ANGLE_DEPENDENT = AngleDependentGeometry()
@@ -272,4 +272,5 @@ def joint_torques(q, dq, a, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
     """tau = d(q) (F_max * T(a, l(q), v(q, dq))) [..., 2] in N m, for q, dq [..., 2] and a [..., 6]."""
     T = tension(a, geometry.lengths(q), geometry.velocities(q, dq))
     force = jnp.asarray(f_max) * T
-    return jnp.einsum("...ji,...i->...j", geometry.moment_arms(q), force)
+    # small products as elementwise sums, which XLA fuses (see delayed_ilqr._dense)
+    return jnp.sum(geometry.moment_arms(q) * force[..., None, :], axis=-1)
