@@ -14,7 +14,7 @@ from delayed_ilqr.solver import _backward
 def _slope_ratios(problem, us, alphas, noise_at_candidate=False):
     """(merit(alpha) - merit(0)) / (alpha a + alpha^2 b) for rollouts of the backward pass's gains."""
     xs = rollout(problem, us)
-    lqg, gains, S, _, ok = _backward(problem, xs, us, 0.0, "structured", 1e-5)
+    lqg, gains, S, _, ok, _ = _backward(problem, xs, us, 0.0, "structured", 1e-5)
     assert bool(ok)
     a, b = predicted_change(lqg, gains, S)
     assert float(a) < 0                                       # a descent direction of the model

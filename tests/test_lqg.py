@@ -340,6 +340,22 @@ def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gai
         assert a < 0                                        # the LQG's own step is a descent direction
 
 
+@pytest.mark.parametrize("block", [1, 3])
+@pytest.mark.parametrize("shape", [SHAPES[i] for i in (0, 2, 4, 5, 8)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))
+@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.0), (_lqg.unconstrained_gains, 0.5),
+                                           (_detuned, 0.0)], ids=["optimal", "regularised", "detuned"])
+def test_backward_pass_predicts_what_the_forward_pass_predicts(shape, gains_fn, reg, block):
+    """(a, b) accumulated by the structured pass (``predict=True``, derivation §12) == the forward
+    pass ``predicted_change``, which the test above checks against exact expected costs."""
+    lqg = random_lqg(44, *shape, mult_noise=0.5)
+    gains, out, _, (a, b) = jax.jit(lambda q: _lqg.structured_slot_scan(
+        q, reg, store_value=False, gains_fn=gains_fn, block=block, predict=True))(lqg)
+    want_a, want_b = predicted_change(lqg, gains, jnp.concatenate([out[2], lqg.D[-1:]]))
+    scale = abs(float(out[0][0])) + abs(float(want_a)) + abs(float(want_b))
+    assert abs(float(a) - float(want_a)) <= RTOL * scale, (float(a), float(want_a))
+    assert abs(float(b) - float(want_b)) <= RTOL * scale, (float(b), float(want_b))
+
+
 def test_negative_definite_E_is_flagged_not_raised():
     a = random_arrays(51, 5, 4, 4, 3, 2)
     a["E"] = np.broadcast_to(-10.0 * np.eye(4), a["E"].shape).copy()

@@ -132,15 +132,20 @@ def no_step(xs, us, cost, merit_now) -> LineSearch:
     return LineSearch(jnp.asarray(False), xs, us, cost, merit_now, zero, zero, zero, jnp.asarray(False))
 
 
-def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, merit_now, alphas, z_min):
-    """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min."""
+def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, merit_now, alphas, z_min,
+                predicted=None):
+    """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min.
+
+    ``predicted``: the model's (a, b) when the backward pass computed them (``lqg.structured_slot_scan``
+    with ``predict=True``); otherwise :func:`predicted_change` computes them here.
+    """
     alphas = jnp.asarray(alphas)
     cand_xs, cand_us = jax.vmap(lambda a: closed_loop_rollout(problem, xs, us, gains, a))(alphas)
     cand_cost, cand_merit = jax.vmap(lambda x, u: merit(problem, x, u, S, xs))(cand_xs, cand_us)
     finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(1, 2))
     cand_merit = jnp.where(finite, cand_merit, jnp.inf)
     best = jnp.argmin(cand_merit)
-    a, b = predicted_change(lqg, gains, S)
+    a, b = predicted_change(lqg, gains, S) if predicted is None else predicted
     alpha = alphas[best]
     expected = -(alpha * a + alpha ** 2 * b)
     actual = merit_now - cand_merit[best]

@@ -379,16 +379,23 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     q0 + 2 y'q_y + y'Q_yy y + 2 du'(g + G y) + du'H du and du = I + K y it is
     Q_yy + K'W + W'K with W = H K / 2 + G, q_y + K'(H I + g) + G'I and q0 + I'H I + 2 I'g
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
+
+    ``carry = (value, model)``. ``model`` is () or (s0, r0, a, b), which predicts the change of the
+    model's cost when the feedforward is scaled by alpha, alpha a + alpha^2 b (derivation §12):
+    (s0, r0) are s, r of the policy without feedforward (I = 0, same K), g0 the g they give, and
+    a = sum_k 2 I'g0, b = sum_k I'H I + 2 I'(g - g0).
     """
-    s_tilde, s, S, r, Rt, R, R_s, ok, warm, F = carry
+    (s_tilde, s, S, r, Rt, R, R_s, ok, warm, F), model = carry
     k, j0, j_next, jq, Z, c, C0, C1, d_tilde, dv, D, e, E, Nxu, bounds = data
     nx, nd = Z.shape[0], e.shape[0]
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
     a_, b0, b1 = slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd)
-    ZX = matmul_t(Z, jnp.concatenate([S, s[:, None], Rt], axis=1))        # Z'[S, s, Rt]: [n + 2d, n + 1 + l d]
+    s0_col = [model[0][:, None]] if model else []
+    ZX = matmul_t(Z, jnp.concatenate([S, s[:, None]] + s0_col + [Rt], axis=1))   # Z'[S, s, (s0,) Rt]
     ZSZ = matmul(ZX[:, :nx], Z)
     Zs = ZX[:, nx]
+    w0 = nx + 1 + len(s0_col)                                      # where Z'Rt starts
     if c.shape[0] > 0:
         # The noise terms, sum_j of [C0, C1, c]_j' S [C0, C1, c]_j, in two products: X = [C0, C1, c]
         # with its p noise columns side by side, then (S X)'X summed over the columns
@@ -405,13 +412,16 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
     H = E + ZSZ[b0, b0] + CSC[u0, u0]
     g = e + Zs[b0] + CSc[u0]
+    g0 = e + ZX[nx:nx + nd, nx + 1] + CSc[u0] if model else None
     Gx = ZSZ[b0, a_] + Nxu
     if l > 0:                                               # j0: slot sigma in the flattened pending axis
-        ZRt = ZX[:, nx + 1:]                                         # [n + 2d, l d]
+        ZRt = ZX[:, w0:]                                             # [n + 2d, l d]
         ZRt_s = jax.lax.dynamic_slice_in_dim(ZRt, j0, nd, axis=1)    # Z' Rt^sigma
         R_ss = jax.lax.dynamic_slice_in_dim(R_s, j0, nd, axis=1)
         H = H + R_ss + ZRt_s[b0] + ZRt_s[b0].T
         g = g + jax.lax.dynamic_slice_in_dim(r, j0, nd)
+        if model:
+            g0 = g0 + jax.lax.dynamic_slice_in_dim(model[1], j0, nd)
         Gx = Gx + ZRt_s[a_].T
         # du_k against the other pending commands; in slot sigma, against du_{k-l} (via B1_k)
         G_new = ZSZ[b0, b1] + CSC[u0, u1] + ZRt_s[b1].T
@@ -428,10 +438,13 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     HIg = HIK[:, 0] + g
     # One product for the whole update of S, Rt (rows :n: L'W + Wx'K) and of s, r (row n:
     # K'(H I + g) + G'I; through G rather than W = H K / 2 + G, whose terms would cancel)
+    # (and of s0, r0, row n + 1: K'g0)
     zeros = jnp.zeros((nd, nx), Z.dtype)
-    coef = jnp.concatenate([jnp.concatenate([L, Wx, zeros]), jnp.concatenate([jnp.zeros_like(I), HIg, I])[:, None]],
-                           axis=1)                                  # [3d, n + 1]
-    update = matmul_t(coef, jnp.concatenate([W, K, G]))         # [n + 1, n + l d]
+    columns = [jnp.concatenate([L, Wx, zeros]), jnp.concatenate([jnp.zeros_like(I), HIg, I])[:, None]]
+    if model:
+        columns.append(jnp.concatenate([jnp.zeros_like(I), g0, jnp.zeros_like(I)])[:, None])
+    coef = jnp.concatenate(columns, axis=1)                        # [3d, n + 1 (+ 1)]
+    update = matmul_t(coef, jnp.concatenate([W, K, G]))            # [n + 1 (+ 1), n + l d]
     s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (HIg + g)
     s_new = dv + Zs[a_] + update[nx, :nx]
     S_new = _sym(D + ZSZ[a_, a_] + update[:nx, :nx])
@@ -446,7 +459,15 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
         R_new, F, R_s = _r_update(R, F, row, Mw, Ww, j0, j_next, jq)     # R_s: for step k-1
     else:
         r_new, Rt_new, R_new = r, Rt, R
-    carry = (s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F)
+    if model:
+        s0, r0, a, b = model
+        s0_new = dv + ZX[a_, nx + 1] + update[nx + 1, :nx]
+        r0_new = r0
+        if l > 0:
+            r0_new = jax.lax.dynamic_update_slice(r0, ZX[b1, nx + 1] + CSc[u1], (j0,)) + update[nx + 1, nx:]
+        IH = HIK[:, 0]                                              # H I
+        model = (s0_new, r0_new, a + 2 * I @ g0, b + I @ IH + 2 * I @ (g - g0))
+    carry = ((s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F), model)
     out = (I, K, s_tilde_new, s_new, S_new)             # K = [L, M by slot]: see SlotGains
     if store_value:
         out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, F, k, l, nd) if l > 0 else R_new, k, l, nd)
@@ -576,17 +597,28 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
 
 
 def structured_slot_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
-                         bounds=None, block: int | None = None):
-    """:func:`structured_scan` with the gains as :class:`SlotGains`, as the recursion makes them."""
+                         bounds=None, block: int | None = None, predict: bool = False):
+    """:func:`structured_scan` with the gains as :class:`SlotGains`, as the recursion makes them.
+
+    ``predict=True`` also returns (a, b): under the LQG, the expected cost of the returned policy
+    with its feedforward scaled by alpha, minus that at alpha = 0, is alpha a + alpha^2 b. That is
+    the line search's model, which ``forward.predicted_change`` computes by a forward pass; here it
+    costs two columns in products the step makes anyway (P3: one scan of 250 steps less per
+    iteration).
+    """
     lqg = merged_if_undelayed(lqg)
     K, l = lqg.horizon, lqg.delay_steps
     block = _default_block(lqg) if block is None else _validate.positive_int(block, "block")
     block = block if l > 0 else 1
     padded, bounds = _padded(lqg, bounds, -K % block)
     step = partial(_structured_step, l=l, reg=reg, store_value=store_value, gains_fn=gains_fn)
-    carry, out = packed_scan(step, _terminal(padded, block), _stage_data(padded, bounds, block), reverse=True,
-                             block=block, flush=_flush)
+    zero = jnp.zeros((), padded.d.dtype)
+    model = (padded.d[-1], jnp.zeros(l * lqg.n_controls, padded.d.dtype), zero, zero) if predict else ()
+    (carry, model), out = packed_scan(step, (_terminal(padded, block), model), _stage_data(padded, bounds, block),
+                                      reverse=True, block=block, flush=lambda c: (_flush(c[0]), c[1]))
     out = tuple(o[:K] for o in out)
+    if predict:
+        return SlotGains(*out[:2]), out[2:], carry[7], model[2:]
     return SlotGains(*out[:2]), out[2:], carry[7]
 
 

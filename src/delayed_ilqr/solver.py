@@ -105,7 +105,9 @@ class _State(NamedTuple):
 
 
 def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
-    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite).
+    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite,
+    predicted), with predicted the line search's model (a, b) from the structured pass (None for
+    the augmented reference, whose line search runs ``forward.predicted_change``).
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
     (u_min - u_k, u_max - u_k), and clamped commands get no feedback. With noise, lambda
@@ -119,10 +121,10 @@ def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
         kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
     if method == "augmented":
         gains, value = augmented_scan(lqg, reg, **kw)
-        return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite
-    gains, (s_tilde, _, S), ok = structured_slot_scan(lqg, reg, store_value=False, **kw)
+        return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite, None
+    gains, (s_tilde, _, S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True, **kw)
     S = jnp.concatenate([S, lqg.D[-1:]])
-    return lqg, gains, S, s_tilde[0], ok
+    return lqg, gains, S, s_tilde[0], ok, predicted
 
 
 def _grad_norm(gains: SlotGains, us):
@@ -147,7 +149,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     backward pass only, so that the returned policy belongs to the returned nominal. The loop
     body is the only place the backward pass is traced, which keeps compilation short.
     """
-    lqg, gains, S, expected_cost, pd = _backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
+    lqg, gains, S, expected_cost, pd, predicted = _backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
     running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
@@ -155,7 +157,8 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, S, st.xs)[1]
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
     search = running & ~converged & pd
-    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min),
+    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min,
+                                                      predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
     accept = search & ls.accepted
     reg_up, dreg_up = _increase(st.reg, st.dreg, o)
