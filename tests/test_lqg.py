@@ -340,11 +340,12 @@ def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gai
         assert a < 0                                        # the LQG's own step is a descent direction
 
 
-@pytest.mark.parametrize("block", [1, 3])
-@pytest.mark.parametrize("shape", [SHAPES[i] for i in (0, 2, 4, 5, 8)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))
-@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.0), (_lqg.unconstrained_gains, 0.5),
-                                           (_detuned, 0.0)], ids=["optimal", "regularised", "detuned"])
-def test_backward_pass_predicts_what_the_forward_pass_predicts(shape, gains_fn, reg, block):
+@pytest.mark.parametrize("shape, block", [(SHAPES[0], 1), (SHAPES[2], 1), (SHAPES[4], 1), (SHAPES[5], 1),
+                                          (SHAPES[8], 1), (SHAPES[8], 3)],
+                         ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s) if isinstance(s, tuple) else f"block{s}")
+@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.5), (_detuned, 0.0)],
+                         ids=["regularised", "detuned"])
+def test_backward_pass_predicts_what_the_forward_pass_predicts(shape, block, gains_fn, reg):
     """(a, b) accumulated by the structured pass (``predict=True``, derivation §12) == the forward
     pass ``predicted_change``, which the test above checks against exact expected costs."""
     lqg = random_lqg(44, *shape, mult_noise=0.5)
