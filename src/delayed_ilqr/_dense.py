@@ -66,32 +66,42 @@ def _sum_matmul_t(a, b):
     return jnp.sum(a[..., :, :, None] * b[..., :, None, :], axis=-3)
 
 
-def _batched_rule(fused, a_axes: str, b_axes: str, out_axes: str, transposed: bool = False):
-    """vmap rule: the fused form while the whole batch stays small (the 11 step sizes of the line
-    search), else one batched dot, einsum(a_axes, b_axes -> out_axes) with the batch axis z in
-    front. A batched dot is one library call for the whole batch, where the fused form would be one
-    large elementwise loop: 64 P2 solves in one vmap took 2.67 ms per problem fused, 1.58 ms
-    with dots."""
+def _dot_matvec(a, b):
+    return jnp.einsum("...mk,...k->...m", a, b)
+
+
+def _dot_matmat(a, b):
+    return jnp.einsum("...mk,...kn->...mn", a, b)
+
+
+def _dot_matmul_t(a, b):
+    # a' written to memory first, as for an unbatched dot (see matmul_t)
+    return _dot_matmat(jax.lax.optimization_barrier(jnp.swapaxes(a, -1, -2)), b)
+
+
+def _batchable(fused, dot):
+    """``fused`` as a function whose vmap stays fused while the whole batch is small (the line
+    search's 11 step sizes) and becomes one batched ``dot`` above: a batched dot is one library
+    call for the whole batch, where the fused form would be one large elementwise loop (64 P2
+    solves in one vmap took 2.67 ms per problem fused, 1.58 ms with dots). Nested vmaps (64
+    problems of 11 step sizes each) count every batch axis: the batched product is again such a
+    function, with the batch axis leading both operands."""
+    @jax.custom_batching.custom_vmap
+    def product(a, b):
+        return fused(a, b)
+
+    @product.def_vmap
     def rule(axis_size, in_batched, a, b):
-        size = axis_size * math.prod(dict(zip(a_axes + b_axes, a.shape[-len(a_axes):] + b.shape[-len(b_axes):])).values())
-        if size <= FUSED_MAX:
-            out = fused(a, b)
-            return jnp.broadcast_to(out, (axis_size,) + out.shape[-len(out_axes):]), True
-        if transposed:      # a' written to memory first, as for an unbatched dot (see matmul_t)
-            a, a_axes_now = jax.lax.optimization_barrier(jnp.swapaxes(a, -1, -2)), a_axes[::-1]
-        else:
-            a_axes_now = a_axes
-        a_spec, b_spec = ("z" * batched + axes for axes, batched in zip((a_axes_now, b_axes), in_batched))
-        return jnp.einsum(f"{a_spec},{b_spec}->z{out_axes}", a, b), True
-    return rule
+        a, b = (x if batched else jnp.broadcast_to(x, (axis_size,) + x.shape) for x, batched in zip((a, b), in_batched))
+        multiply_adds = math.prod(a.shape) * (b.shape[-1] if b.ndim == a.ndim else 1)
+        return (dot if multiply_adds > FUSED_MAX else product)(a, b), True
+
+    return product
 
 
-_fused_matvec = jax.custom_batching.custom_vmap(_sum_matvec)
-_fused_matmat = jax.custom_batching.custom_vmap(_sum_matmat)
-_fused_matmul_t = jax.custom_batching.custom_vmap(_sum_matmul_t)
-_fused_matvec.def_vmap(_batched_rule(_sum_matvec, "mk", "k", "m"))
-_fused_matmat.def_vmap(_batched_rule(_sum_matmat, "mk", "kn", "mn"))
-_fused_matmul_t.def_vmap(_batched_rule(_sum_matmul_t, "km", "kn", "mn", transposed=True))
+_fused_matvec = _batchable(_sum_matvec, _dot_matvec)
+_fused_matmat = _batchable(_sum_matmat, _dot_matmat)
+_fused_matmul_t = _batchable(_sum_matmul_t, _dot_matmul_t)
 
 
 # Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
