@@ -9,7 +9,7 @@ Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU.
    solve takes over 2 s). The reference times of other tools are quoted from issue #5, not
    measured here.
 2. The backward pass alone: P4 linearised at u = 0 for l = 10 ... 200, the compiled structured
-   pass (``structured_scan(store_value=False)``, what the solver runs) against the compiled
+   pass (``structured_slot_scan(store_value=False, predict=True)``, what the solver runs) against the compiled
    augmented one (``augmented_scan``), and the exponent a of time ~ l^a fitted in log-log.
 3. Memory: temp + output + argument bytes of the compiled solver (XLA's ``memory_analysis``)
    against the size of the returned gains, K (d + d n + l d^2) float64 numbers.
@@ -40,7 +40,7 @@ import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr.linearize import linearize, rollout
-from delayed_ilqr.lqg import augmented_scan, structured_scan
+from delayed_ilqr.lqg import augmented_scan, structured_slot_scan
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.solver import _solve
 
@@ -181,14 +181,16 @@ def p4_lqg(l: int):
 
 def backward_pass_times():
     """{l: (structured s, augmented s, |J0 difference| / |J0|)}, compiled medians."""
-    structured = jax.jit(lambda q: structured_scan(q, 0.0, store_value=False)[1][0][0])
+    # J(0) and the line-search model (a, b): all that the solver's pass computes stays live
+    structured = jax.jit(lambda q: (lambda gains, out, ok, model: (out[0][0], *model))(
+        *structured_slot_scan(q, 0.0, store_value=False, predict=True)))
     augmented = jax.jit(lambda q: augmented_scan(q, 0.0)[1].s_tilde[0])
     times = {}
     for l in SCALING_DELAYS:
         lqg = p4_lqg(l)
         j_s, _, t_s = first_and_median(lambda: structured(lqg))
         j_a, _, t_a = first_and_median(lambda: augmented(lqg))
-        times[l] = (t_s, t_a, abs(float(j_s) - float(j_a)) / abs(float(j_a)))
+        times[l] = (t_s, t_a, abs(float(j_s[0]) - float(j_a)) / abs(float(j_a)))
     return times
 
 
