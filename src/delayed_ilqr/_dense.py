@@ -38,9 +38,9 @@ def matmul(a, b):
     """a @ b for a [m, k] and b [k, n] or [k]."""
     m, k = a.shape
     n = b.shape[1] if b.ndim == 2 else 1
-    if not _fused(m, k, n):
-        return a @ b
-    return _fused_matvec(a, b) if b.ndim == 1 else _fused_matmat(a, b)
+    if b.ndim == 1:
+        return (_fused_matvec if _fused(m, k, n) else _dot_matvec)(a, b)
+    return (_fused_matmat if _fused(m, k, n) else _dot_matmat)(a, b)
 
 
 def matmul_t(a, b):
@@ -48,9 +48,7 @@ def matmul_t(a, b):
     XLA from folding the transpose into the product, whose transposed-operand form is several
     times slower on CPU for the small matrices of a step. Fused, the transpose is only indexing."""
     k, m = a.shape
-    if not _fused(m, k, b.shape[1]):
-        return jax.lax.optimization_barrier(a.T) @ b
-    return _fused_matmul_t(a, b)
+    return (_fused_matmul_t if _fused(m, k, b.shape[1]) else _dot_matmul_t)(a, b)
 
 
 # The fused forms broadcast over leading batch axes, so they serve unbatched and batched operands.
