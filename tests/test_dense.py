@@ -12,7 +12,7 @@ from delayed_ilqr._dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_s
 dims = st.integers(min_value=1, max_value=40)
 
 
-@settings(max_examples=40, deadline=None)
+@settings(deadline=None)
 @given(m=dims, k=dims, n=st.one_of(st.integers(1, 40), st.integers(100, 300)), vector=st.booleans(),
        seed=st.integers(0, 2 ** 32 - 1))
 def test_products_match_numpy(m, k, n, vector, seed):
@@ -40,7 +40,7 @@ def test_fused_products_are_fused():
     assert " dot(" not in small and "dot(" in large
 
 
-@settings(max_examples=40, deadline=None)
+@settings(deadline=None)
 @given(d=st.integers(1, 10), m=st.integers(0, 5), vector=st.booleans(), definite=st.booleans(),
        seed=st.integers(0, 2 ** 32 - 1))
 def test_cholesky_solve_matches_numpy(d, m, vector, definite, seed):
