@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from ._dense import matmul
 from ._scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets
+from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
 from .problem import Problem
 
 __all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
@@ -101,7 +101,7 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
 
     I, LM = gains
     K = lqg.horizon
-    Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)
+    Z = stacked_dynamics(lqg)
     y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), Z, I, LM))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns

@@ -260,6 +260,11 @@ def merged_if_undelayed(lqg: DelayedLQG):
                        C0=lqg.C0 + lqg.C1, C1=jnp.zeros_like(lqg.C1))
 
 
+def stacked_dynamics(lqg: DelayedLQG):
+    """Z = [A, B0, B1] [K, n, n + 2d]: x_{k+1} = Z_k [dx_k, du_k, du_{k-l}] in one product."""
+    return jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)
+
+
 def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     """Per-step inputs of the backward recursion, time-major, k = 0..K-1: the step k, the offsets
     (k mod l) d and ((k - 1) mod l) d of its slot and of the next step's in the flattened pending
@@ -267,7 +272,7 @@ def _stage_data(lqg: DelayedLQG, bounds=None, block: int = 1):
     here, once, rather than in every step), then the model, with Z = [A, B0, B1]."""
     k = jnp.arange(lqg.horizon)
     l, nd = max(lqg.delay_steps, 1), lqg.n_controls
-    Z = jnp.concatenate([lqg.A, lqg.B0, lqg.B1], axis=2)                 # [K, n, n + 2d]
+    Z = stacked_dynamics(lqg)
     return (k, slot_offsets(lqg.horizon, lqg.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, Z,
             lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N, bounds)
 
@@ -395,6 +400,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     ZX = matmul_t(Z, jnp.concatenate([S, s[:, None]] + s0_col + [Rt], axis=1))   # Z'[S, s, (s0,) Rt]
     ZSZ = matmul(ZX[:, :nx], Z)
     Zs = ZX[:, nx]
+    Zs0 = ZX[:, nx + 1] if model else None                         # Z's0
     w0 = nx + 1 + len(s0_col)                                      # where Z'Rt starts
     if c.shape[0] > 0:
         # The noise terms, sum_j of [C0, C1, c]_j' S [C0, C1, c]_j, in two products: X = [C0, C1, c]
@@ -412,7 +418,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
     # Coefficients of the quadratic in du_k: H (d x d), g (d), G = [G_x (d x n), G_w (d x l d)].
     H = E + ZSZ[b0, b0] + CSC[u0, u0]
     g = e + Zs[b0] + CSc[u0]
-    g0 = e + ZX[nx:nx + nd, nx + 1] + CSc[u0] if model else None
+    g0 = e + Zs0[b0] + CSc[u0] if model else None
     Gx = ZSZ[b0, a_] + Nxu
     if l > 0:                                               # j0: slot sigma in the flattened pending axis
         ZRt = ZX[:, w0:]                                             # [n + 2d, l d]
@@ -461,10 +467,10 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
         r_new, Rt_new, R_new = r, Rt, R
     if model:
         s0, r0, a, b = model
-        s0_new = dv + ZX[a_, nx + 1] + update[nx + 1, :nx]
+        s0_new = dv + Zs0[a_] + update[nx + 1, :nx]
         r0_new = r0
         if l > 0:
-            r0_new = jax.lax.dynamic_update_slice(r0, ZX[b1, nx + 1] + CSc[u1], (j0,)) + update[nx + 1, nx:]
+            r0_new = jax.lax.dynamic_update_slice(r0, Zs0[b1] + CSc[u1], (j0,)) + update[nx + 1, nx:]
         IH = HIK[:, 0]                                              # H I
         model = (s0_new, r0_new, a + 2 * I @ g0, b + I @ IH + 2 * I @ (g - g0))
     carry = ((s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F), model)
