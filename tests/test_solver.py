@@ -10,6 +10,8 @@ import delayed_ilqr as di
 from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
 from delayed_ilqr.direct import direct_optimum
+from delayed_ilqr.forward import predicted_change
+from delayed_ilqr.solver import _backward
 from delayed_ilqr.models import arm2, point_mass
 
 DELAYS = [0.0, 0.03, 0.1]
@@ -79,6 +81,28 @@ def test_zero_delay_is_ordinary_ilqg():
                                atol=1e-12 * cost0)
     np.testing.assert_allclose(np.asarray(a.policy.state_feedback), np.asarray(b.policy.state_feedback),
                                rtol=1e-7, atol=1e-9)
+
+
+def test_a_negligible_predicted_reduction_ends_the_solve_before_the_line_search():
+    """Without noise the solve stops once the LQG model promises less than tol_cost |cost| for
+    every step size. The number it stops on must be that promise, recomputed here from the
+    augmented backward pass and the forward model (``predicted_change``) at the returned nominal,
+    and going on must not buy more than the tolerance."""
+    problem = arm2(delay=0.1)
+    options = di.Options()
+    sol = di.solve(problem, options=options)
+    last = int(sol.iterations)
+    assert int(sol.status) == di.Status.CONVERGED_COST, sol.message
+    assert float(sol.trace.step_size[last]) == 0.0                       # no step taken ...
+    lqg, gains, S, *_ = _backward(problem, sol.x, sol.u, float(sol.trace.reg[last]), "augmented", 1e-5)
+    a, b = predicted_change(lqg, gains, S)
+    alphas = np.asarray(options.alphas)
+    promised = float(np.max(-(alphas * float(a) + alphas ** 2 * float(b))))
+    assert 0.0 <= promised < options.tol_cost * float(sol.cost)          # ... because none was promised
+    np.testing.assert_allclose(float(sol.trace.expected_reduction[last]), promised, rtol=1e-6)
+    longer = di.solve(problem, options=di.Options(tol_cost=1e-300, max_iterations=last + 3))
+    assert int(longer.iterations) > last
+    assert 0.0 <= float(sol.cost) - float(longer.cost) <= options.tol_cost * float(sol.cost)
 
 
 @pytest.mark.parametrize("delay", [0.03, 0.1])

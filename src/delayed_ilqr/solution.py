@@ -54,7 +54,8 @@ class Status(enum.IntEnum):
 
 _MESSAGES = {
     Status.CONVERGED_GRADIENT: "converged: the feedforward step is below Options.tol_grad",
-    Status.CONVERGED_COST: "converged: the accepted cost reduction is below Options.tol_cost",
+    Status.CONVERGED_COST: "converged: the cost reduction of the best step (or, without noise, the one the "
+                           "model predicts) is below Options.tol_cost",
     Status.MAX_ITERATIONS: "stopped at Options.max_iterations before converging; try increasing "
                            "max_iterations or a better u_init",
     Status.REGULARIZATION_LIMIT: "no descent: the regularisation exceeded Options.reg_max (H not positive "

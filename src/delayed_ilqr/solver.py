@@ -10,7 +10,7 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best, accept
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
    schedule); stop when the best reduction is below tol_cost (relative); without noise that last
-   step is not taken.
+   step is not taken, and the line search is not run when the model predicts less than that.
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal.
@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _validate
-from .forward import line_search, merit, no_step
+from .forward import line_search, merit, no_step, predicted_change
 from .linearize import linearize, rollout, trajectory_cost
 from .lqg import (SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan, to_slots,
                   unconstrained_gains, unregularized_feedback)
@@ -48,7 +48,9 @@ class Options:
         tol_cost: stop when an accepted step would reduce the merit by less than
             tol_cost * |merit| (relative: costs of motor tasks are often ~1e-4, where an absolute
             test stops early). Without noise that last step is not taken, so the returned policy
-            is the one of the last backward pass, with no extra pass for the returned nominal.
+            is the one of the last backward pass, with no extra pass for the returned nominal; and
+            when the backward pass's model predicts less than that for every alpha, the solve
+            stops before the line search.
         tol_grad: stop when mean_k max_i |I_k,i| / (|u_k,i| + 1) < tol_grad (and lambda < 1e-5).
         alphas: line-search step sizes, tried in parallel (default 10^linspace(0, -3, 11)).
         reg_init: initial lambda. 0 tries the exact Newton (LQG) step first, which makes a
@@ -155,16 +157,24 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, S, st.xs)[1]
+    if predicted is None:
+        predicted = predicted_change(lqg, gains, S)
+    # Without noise, a model that promises less than tol_cost |cost| for every alpha ends the
+    # solve before the line search (crocoddyl's stopping test): the step it would find is one the
+    # solver does not take (``small`` below). P3: one line search of nine fewer.
+    alphas = jnp.asarray(o.alphas)
+    model_best = jnp.max(-(alphas * predicted[0] + alphas ** 2 * predicted[1]))
+    flat = pd & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) & (problem.noise is None)
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
-    search = running & ~converged & pd
+    search = running & ~converged & pd & ~flat
     ls = jax.lax.cond(search, lambda: line_search(problem, lqg, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min,
                                                       predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
     accept = search & ls.accepted
     reg_up, dreg_up = _increase(st.reg, st.dreg, o)
     reg_down, dreg_down = _decrease(st.reg, st.dreg, o)
-    reg = jnp.where(accept, reg_down, jnp.where(converged, st.reg, reg_up))
-    dreg = jnp.where(accept, dreg_down, jnp.where(converged, st.dreg, dreg_up))
+    reg = jnp.where(accept, reg_down, jnp.where(converged | flat, st.reg, reg_up))
+    dreg = jnp.where(accept, dreg_down, jnp.where(converged | flat, st.dreg, dreg_up))
     small = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
     # Without noise a step too small to count is not taken: the cost it would remove is below
     # tol_cost |cost|, the nominal keeps the policy of this iteration's backward pass, and the
@@ -174,7 +184,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     move = accept & ~small if problem.noise is None else accept
     it = st.iteration + 1
     status = jnp.select(
-        [converged, small, ~accept & (reg > o.reg_max) & ls.all_non_finite & pd,
+        [converged, flat | small, ~accept & (reg > o.reg_max) & ls.all_non_finite & pd,
          ~accept & (reg > o.reg_max), it >= o.max_iterations],
         [Status.CONVERGED_GRADIENT, Status.CONVERGED_COST, Status.NON_FINITE_ROLLOUT,
          Status.REGULARIZATION_LIMIT, Status.MAX_ITERATIONS], _RUNNING).astype(jnp.int32)
@@ -183,7 +193,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     trace = Trace(
         cost=t.cost.at[it].set(keep(ls.cost, st.cost)),
         merit=t.merit.at[it].set(keep(ls.merit, merit_now)),
-        expected_reduction=t.expected_reduction.at[it].set(jnp.where(converged, 0.0, ls.expected)),
+        expected_reduction=t.expected_reduction.at[it].set(jnp.where(converged, 0.0, jnp.where(flat, model_best, ls.expected))),
         step_size=t.step_size.at[it].set(jnp.where(move, ls.alpha, 0.0)),
         reg=t.reg.at[it].set(st.reg),
         grad_norm=t.grad_norm.at[it].set(gnorm))
