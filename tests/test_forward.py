@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.forward import closed_loop_rollout, merit, predicted_change
+from delayed_ilqr.forward import _candidate_merits, candidate_rollouts, closed_loop_rollout, merit, predicted_change
 from delayed_ilqr.linearize import rollout
 from delayed_ilqr.models import arm2
 from delayed_ilqr.solver import _backward
@@ -56,3 +56,25 @@ def test_noise_aware_arm_converges_to_one_point_from_either_lambda(delay):
     np.testing.assert_allclose(float(sols[0].expected_cost), float(sols[1].expected_cost), rtol=1e-8)
     # and the same commands, up to the stopping rule's tolerance
     np.testing.assert_allclose(sols[0].u, sols[1].u, atol=1e-3 * float(jnp.max(jnp.abs(sols[0].u))))
+
+
+@pytest.mark.parametrize("delay, noise, limits", [(0.0, False, None), (0.1, False, 1.0), (0.05, True, None)])
+def test_the_batched_candidates_are_the_single_rollouts(delay, noise, limits):
+    """The line search runs all step sizes in one time-major scan and scores them from those
+    arrays; each candidate must be the single-alpha rollout of the same law, scored by ``merit``."""
+    problem = arm2(delay=delay, noise=noise)
+    if limits is not None:
+        problem = problem.replace(u_min=[-limits] * 2, u_max=[limits] * 2)
+    us = 0.3 * np.asarray(di.solve(arm2(delay=delay), options=di.Options(max_iterations=2)).u)
+    xs = rollout(problem, us)
+    lqg, gains, S, *_ = _backward(problem, xs, us, 0.0, "structured", 1e-5)
+    alphas = jnp.asarray(di.Options().alphas)
+    cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
+    cost, mer = _candidate_merits(problem, cand_xs, cand_us, S, xs)
+    for i, alpha in enumerate(np.asarray(alphas)):
+        x_i, u_i = closed_loop_rollout(problem, xs, us, gains, alpha)
+        np.testing.assert_allclose(np.asarray(cand_xs[:, i]), np.asarray(x_i[1:]), rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(np.asarray(cand_us[:, i]), np.asarray(u_i), rtol=1e-12, atol=1e-14)
+        c_i, m_i = merit(problem, x_i, u_i, S, xs)
+        np.testing.assert_allclose([float(cost[i]), float(mer[i])], [float(c_i), float(m_i)], rtol=1e-12)
+    assert len({float(c) for c in cost}) == len(alphas)      # the candidates differ: a real check

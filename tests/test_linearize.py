@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import delayed_commands, linearize, rollout
+from delayed_ilqr.linearize import delayed_commands, linearize, rollout, trajectory_cost
 from delayed_ilqr.models import arm2
 
 
@@ -75,3 +75,14 @@ def test_cross_term_of_a_general_cost_reaches_the_lqg():
     us = jnp.zeros((problem.horizon, 2))
     lqg = linearize(problem, rollout(problem, us), us)
     np.testing.assert_allclose(lqg.N, np.broadcast_to(-problem.dt * G, lqg.N.shape), rtol=1e-12)
+
+
+def test_trajectory_cost_is_eq_2_step_by_step():
+    """Eq. (2) discretised, summed here one step at a time: dt sum_k running(x_k, u_k) + final(x_K)."""
+    problem = arm2(delay=0.03)
+    rng = np.random.default_rng(1)
+    us = jnp.asarray(rng.normal(size=(problem.horizon, 2)))
+    xs = rollout(problem, us)
+    expected = sum(problem.dt * float(problem.cost.running(xs[k], us[k])) for k in range(problem.horizon))
+    expected += float(problem.cost.final(xs[-1]))
+    np.testing.assert_allclose(float(trajectory_cost(problem, xs, us)), expected, rtol=1e-13)

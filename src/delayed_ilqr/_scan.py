@@ -49,10 +49,12 @@ def _unpack(packed, layout, lead=()):
 _PACK_MAX = 128
 
 
-def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None):
+def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, pack_outputs: bool = True):
     """Same result as ``jax.lax.scan(f, init, xs, reverse=reverse)``; ``xs`` must be non-empty.
 
-    Only the per-step inputs and outputs with at most ``_PACK_MAX`` numbers per step are packed;
+    Only the per-step inputs and outputs with at most ``_PACK_MAX`` numbers per step are packed
+    (outputs not at all with ``pack_outputs=False``: unpacking copies them once more, which costs
+    more than it saves where they are large and few, as the line search's candidate trajectories);
     the carry is passed as it is (its large members, such as the value matrix of the backward
     pass, are updated in place).
 
@@ -73,7 +75,7 @@ def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None):
         x = [next(small_leaves) if small else next(big_leaves) for small in in_small]
         carry, ys = f(carry, jax.tree_util.tree_unflatten(in_tree, x))
         y_leaves, out_tree = jax.tree_util.tree_flatten(ys)
-        small = [math.prod(y.shape) <= _PACK_MAX for y in y_leaves]
+        small = [pack_outputs and math.prod(y.shape) <= _PACK_MAX for y in y_leaves]
         layout, dtypes = _layout([(y.shape, y.dtype) for y, s in zip(y_leaves, small) if s])
         out_spec[:] = [out_tree, layout, small]
         return carry, (_pack([y for y, s in zip(y_leaves, small) if s], dtypes),

@@ -19,19 +19,19 @@ import jax.numpy as jnp
 
 from ._dense import matmul
 from ._scan import packed_scan
-from .linearize import delayed_commands, noise_columns, trajectory_cost
+from .linearize import delayed_commands, noise_columns, path_cost, trajectory_cost
 from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
 from .problem import Problem
 
-__all__ = ["closed_loop_rollout", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
+__all__ = ["closed_loop_rollout", "candidate_rollouts", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
 
 
-def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
-    """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
+def _law_step(problem: Problem, alpha):
+    """One step of the closed loop under the delayed law, on y = [x, pending]
+    (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending].
+    Returns (y_new, (x_new, u)): the state after the step and the command it sent."""
     l, nd, nx = problem.delay_steps, problem.n_controls, problem.n_states
-    I, LM = gains
 
-    # on y = [x, pending] (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending]
     def step(y, data):
         j, x_bar, u_bar, ud_bar, I, LM = data
         x = y[:nx]
@@ -42,12 +42,46 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alph
         y_new = jnp.concatenate([x_new, y[nx:]])
         if l > 0:
             y_new = jax.lax.dynamic_update_slice_in_dim(y_new, u - u_bar, nx + j, 0)
+        # x_new, not x: the step's new state is then made once for both the carry and the
+        # output (with x, XLA recomputed the arm's dynamics in two fusions: P3 rollouts +20 %)
         return y_new, (x_new, u)
 
+    return step
+
+
+def _law_data(problem: Problem, xs_bar, us_bar, gains: SlotGains):
+    I, LM = gains
     K = us_bar.shape[0]
-    data = (slot_offsets(K, l, nd), xs_bar[:-1], us_bar, delayed_commands(problem, us_bar), I, LM)
-    _, (xs, us) = packed_scan(step, jnp.concatenate([problem.x0, jnp.zeros(l * nd, us_bar.dtype)]), data)
+    return (slot_offsets(K, problem.delay_steps, problem.n_controls), xs_bar[:-1], us_bar,
+            delayed_commands(problem, us_bar), I, LM)
+
+
+def _y0(problem: Problem, dtype):
+    return jnp.concatenate([problem.x0, jnp.zeros(problem.delay_steps * problem.n_controls, dtype)])
+
+
+def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
+    """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
+    _, (xs, us) = packed_scan(_law_step(problem, alpha), _y0(problem, us_bar.dtype),
+                              _law_data(problem, xs_bar, us_bar, gains))
     return jnp.concatenate([problem.x0[None], xs]), us
+
+
+def candidate_rollouts(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas):
+    """:func:`closed_loop_rollout` for every alpha [A] at once, time-major and without x_0:
+    (xs [K, A, n] (x_1 to x_K), us [K, A, d]).
+
+    One scan carries all A loops (the step is vmapped, not the scan), and its outputs stay in the
+    order it writes them: a vmapped scan hands back [A, K, ...], copied from the scan's [K, A, ...]
+    buffers, and joining x_0 to each candidate is another copy (P4 at l = 1: the line search's
+    part of the solver's peak memory went from 0.74 to 0.32 MB).
+    """
+    step = jax.vmap(lambda a, y, data: _law_step(problem, a)(y, data), in_axes=(0, 0, None))
+    y0 = jnp.broadcast_to(_y0(problem, us_bar.dtype), (alphas.shape[0], problem.n_states + problem.delay_steps
+                                                       * problem.n_controls))
+    _, (xs, us) = packed_scan(lambda y, data: step(alphas, y, data), y0, _law_data(problem, xs_bar, us_bar, gains),
+                              pack_outputs=False)
+    return xs, us
 
 
 def noise_cost(problem: Problem, xs, us, S):
@@ -112,6 +146,16 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     return a + 2 * xiK @ lqg.d[-1], b + xiK @ lqg.D[-1] @ xiK
 
 
+def _candidate_merits(problem: Problem, xs, us, S, xs_bar):
+    """:func:`merit` (cost, merit) of each candidate [A] of :func:`candidate_rollouts`, from its
+    time-major arrays."""
+    cost = jax.vmap(lambda x, u: path_cost(problem, problem.x0, x, u), in_axes=(1, 1))(xs, us)
+    if problem.noise is None:
+        return cost, cost
+    # candidate-major for the noise terms: batched at axis 1 they ran 4 % slower on P2-noisy
+    return cost, cost + jax.vmap(lambda u: noise_cost(problem, xs_bar, u, S))(jnp.swapaxes(us, 0, 1))
+
+
 class LineSearch(NamedTuple):
     """Outcome of one parallel line search."""
 
@@ -140,9 +184,9 @@ def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, 
     with ``predict=True``); otherwise :func:`predicted_change` computes them here.
     """
     alphas = jnp.asarray(alphas)
-    cand_xs, cand_us = jax.vmap(lambda a: closed_loop_rollout(problem, xs, us, gains, a))(alphas)
-    cand_cost, cand_merit = jax.vmap(lambda x, u: merit(problem, x, u, S, xs))(cand_xs, cand_us)
-    finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(1, 2))
+    cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
+    cand_cost, cand_merit = _candidate_merits(problem, cand_xs, cand_us, S, xs)
+    finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(0, 2))
     cand_merit = jnp.where(finite, cand_merit, jnp.inf)
     best = jnp.argmin(cand_merit)
     a, b = predicted_change(lqg, gains, S) if predicted is None else predicted
@@ -151,5 +195,6 @@ def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, 
     actual = merit_now - cand_merit[best]
     z = jnp.where(expected > 0, actual / jnp.where(expected > 0, expected, 1.0), jnp.sign(actual))
     accepted = finite[best] & (z > z_min)
-    return LineSearch(accepted, cand_xs[best], cand_us[best], cand_cost[best], cand_merit[best], alpha,
+    best_xs = jnp.concatenate([problem.x0[None], cand_xs[:, best]])
+    return LineSearch(accepted, best_xs, cand_us[:, best], cand_cost[best], cand_merit[best], alpha,
                       actual, expected, ~jnp.any(finite))

@@ -18,7 +18,7 @@ from ._scan import packed_scan
 from .lqg import DelayedLQG
 from .problem import Problem
 
-__all__ = ["delayed_commands", "rollout", "trajectory_cost", "linearize"]
+__all__ = ["delayed_commands", "rollout", "trajectory_cost", "path_cost", "linearize"]
 
 
 def delayed_commands(problem: Problem, us):
@@ -44,8 +44,14 @@ def rollout(problem: Problem, us):
 
 def trajectory_cost(problem: Problem, xs, us):
     """Eq. (2) discretised: sum_k dt running(x_k, u_k) + final(x_K)."""
-    running = jax.vmap(problem.cost.running)(xs[:-1], us)
-    return problem.dt * jnp.sum(running) + problem.cost.final(xs[-1])
+    return path_cost(problem, xs[0], xs[1:], us)
+
+
+def path_cost(problem: Problem, x0, xs_next, us):
+    """:func:`trajectory_cost` from x_0 [n] and x_1 .. x_K [K, n], the states a rollout writes
+    (the line search's candidates share x_0 and never store it)."""
+    running = problem.cost.running(x0, us[0]) + jnp.sum(jax.vmap(problem.cost.running)(xs_next[:-1], us[1:]))
+    return problem.dt * running + problem.cost.final(xs_next[-1])
 
 
 def noise_columns(problem: Problem, xs, us):
