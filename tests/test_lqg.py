@@ -357,6 +357,21 @@ def test_backward_pass_predicts_what_the_forward_pass_predicts(shape, block, gai
     assert abs(float(b) - float(want_b)) <= RTOL * scale, (float(b), float(want_b))
 
 
+@pytest.mark.parametrize("block", [1, 3])
+def test_leaving_S_out_changes_nothing_else(block):
+    """``store_S=False`` (the solver without noise) drops s and S from the outputs; the gains,
+    s_tilde, the flag and the line search's model must be the same numbers."""
+    lqg = random_lqg(45, *SHAPES[8])
+    full = _lqg.structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True)
+    lean = _lqg.structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True, store_S=False)
+    assert len(full[1]) == 3 and len(lean[1]) == 1
+    for got, want in [(lean[0], full[0]), (lean[1][0], full[1][0]), (lean[2], full[2]), (lean[3], full[3])]:
+        for g, w in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(want)):
+            np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
+    with pytest.raises(ValueError, match="store_S=False needs store_value=False"):
+        _lqg.structured_slot_scan(lqg, store_value=True, store_S=False)
+
+
 def test_negative_definite_E_is_flagged_not_raised():
     a = random_arrays(51, 5, 4, 4, 3, 2)
     a["E"] = np.broadcast_to(-10.0 * np.eye(4), a["E"].shape).copy()

@@ -371,7 +371,7 @@ def _pending_order(k, l: int, nd: int):
     return (slots[:, None] * nd + jnp.arange(nd)).reshape(-1)
 
 
-def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
+def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bool, gains_fn):
     """Step k+1 -> k of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
 
     ``carry`` holds J(k+1)'s coefficients with the pending commands in slot order (see
@@ -474,7 +474,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, gains_fn):
         IH = HIK[:, 0]                                              # H I
         model = (s0_new, r0_new, a + 2 * I @ g0, b + I @ IH + 2 * I @ (g - g0))
     carry = ((s_tilde_new, s_new, S_new, r_new, Rt_new, R_new, R_s, ok & step_ok, I, F), model)
-    out = (I, K, s_tilde_new, s_new, S_new)             # K = [L, M by slot]: see SlotGains
+    out = (I, K, s_tilde_new) + ((s_new, S_new) if store_S else ())     # K = [L, M by slot]: see SlotGains
     if store_value:
         out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, F, k, l, nd) if l > 0 else R_new, k, l, nd)
     return carry, out
@@ -589,7 +589,7 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
 
     Args:
         store_value: False keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
-            O(K l^2 d^2)); the solver uses it for long delays.
+            O(K l^2 d^2)); the solver uses it.
         gains_fn: ``(H, reg, g, G, bounds_k, warm) -> (ok, I, K)``, the minimiser of the step's
             quadratic in du (default: unconstrained, Cholesky of H + reg I). The control-limited
             solver passes a box-QP version; ``warm`` is the feedforward of the step after.
@@ -603,8 +603,11 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
 
 
 def structured_slot_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
-                         bounds=None, block: int | None = None, predict: bool = False):
+                         bounds=None, block: int | None = None, predict: bool = False, store_S: bool = True):
     """:func:`structured_scan` with the gains as :class:`SlotGains`, as the recursion makes them.
+
+    ``store_S=False`` leaves s and S out of the outputs (s_tilde only, with ``store_value=False``):
+    the solver needs S only with noise, and at l = 1 they are more numbers per step than the gains.
 
     ``predict=True`` also returns (a, b): under the LQG, the expected cost of the returned policy
     with its feedforward scaled by alpha, minus that at alpha = 0, is alpha a + alpha^2 b. That is
@@ -617,7 +620,9 @@ def structured_slot_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gai
     block = _default_block(lqg) if block is None else _validate.positive_int(block, "block")
     block = block if l > 0 else 1
     padded, bounds = _padded(lqg, bounds, -K % block)
-    step = partial(_structured_step, l=l, reg=reg, store_value=store_value, gains_fn=gains_fn)
+    if store_value and not store_S:
+        raise ValueError("store_S=False needs store_value=False: the value blocks include S")
+    step = partial(_structured_step, l=l, reg=reg, store_value=store_value, store_S=store_S, gains_fn=gains_fn)
     zero = jnp.zeros((), padded.d.dtype)
     model = (padded.d[-1], jnp.zeros(l * lqg.n_controls, padded.d.dtype), zero, zero) if predict else ()
     (carry, model), out = packed_scan(step, (_terminal(padded, block), model), _stage_data(padded, bounds, block),

@@ -109,7 +109,8 @@ class _State(NamedTuple):
 def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
     """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite,
     predicted), with predicted the line search's model (a, b) from the structured pass (None for
-    the augmented reference, whose line search runs ``forward.predicted_change``).
+    the augmented reference, whose line search runs ``forward.predicted_change``). The structured
+    pass returns S = None without noise, where nothing uses it.
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
     (u_min - u_k, u_max - u_k), and clamped commands get no feedback. With noise, lambda
@@ -124,8 +125,11 @@ def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
     if method == "augmented":
         gains, value = augmented_scan(lqg, reg, **kw)
         return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite, None
-    gains, (s_tilde, _, S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True, **kw)
-    S = jnp.concatenate([S, lqg.D[-1:]])
+    noisy = problem.noise is not None
+    gains, (s_tilde, *S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True,
+                                                               store_S=noisy, **kw)
+    # S enters the merit and the line search only through the noise terms
+    S = jnp.concatenate([S[1], lqg.D[-1:]]) if noisy else None
     return lqg, gains, S, s_tilde[0], ok, predicted
 
 
