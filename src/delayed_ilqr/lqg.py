@@ -501,8 +501,6 @@ def _r_update(R, F, row, Mw, Ww, j0, j_next, jq):
     """
     nd, ld = row.shape
     if not F:
-        # the factors are materialised first: fused into the loop they would be recomputed per element
-        Mw, Ww = jax.lax.optimization_barrier((Mw, Ww))
         for a in range(nd):
             R = R + Mw[a][:, None] * Ww[a][None, :] + Ww[a][:, None] * Mw[a][None, :]
         MWs = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, j0, nd, axis=1) for X in (Mw, Ww)])
