@@ -1,5 +1,6 @@
 """The line search's model: the predicted merit change of the LQG against the merit of real
 closed-loop rollouts on the nonlinear plant, and the noise-aware iteration that relies on it."""
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -65,16 +66,23 @@ def test_the_batched_candidates_are_the_single_rollouts(delay, noise, limits):
     problem = arm2(delay=delay, noise=noise)
     if limits is not None:
         problem = problem.replace(u_min=[-limits] * 2, u_max=[limits] * 2)
-    us = 0.3 * np.asarray(di.solve(arm2(delay=delay), options=di.Options(max_iterations=2)).u)
+    t = np.arange(problem.horizon)[:, None] * problem.dt
+    us = jnp.asarray(1.5 * np.sin(2 * np.pi * t / 0.5 + np.array([0.0, 1.0])))    # a nominal far from optimal
     xs = rollout(problem, us)
-    lqg, gains, S, *_ = _backward(problem, xs, us, 0.0, "structured", 1e-5)
+    _, gains, S, *_ = jax.jit(lambda: _backward(problem, xs, us, 0.0, "structured", 1e-5))()
     alphas = jnp.asarray(di.Options().alphas)
-    cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
-    cost, mer = _candidate_merits(problem, cand_xs, cand_us, S, xs)
+
+    def batch():
+        cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
+        return (cand_xs, cand_us) + _candidate_merits(problem, cand_xs, cand_us, S, xs)
+
+    cand_xs, cand_us, cost, mer = jax.jit(batch)()
+    single = jax.jit(lambda alpha: closed_loop_rollout(problem, xs, us, gains, alpha))   # one compile, not 11
+    score = jax.jit(lambda x, u: merit(problem, x, u, S, xs))
     for i, alpha in enumerate(np.asarray(alphas)):
-        x_i, u_i = closed_loop_rollout(problem, xs, us, gains, alpha)
+        x_i, u_i = single(alpha)
         np.testing.assert_allclose(np.asarray(cand_xs[:, i]), np.asarray(x_i[1:]), rtol=1e-12, atol=1e-14)
         np.testing.assert_allclose(np.asarray(cand_us[:, i]), np.asarray(u_i), rtol=1e-12, atol=1e-14)
-        c_i, m_i = merit(problem, x_i, u_i, S, xs)
+        c_i, m_i = score(x_i, u_i)
         np.testing.assert_allclose([float(cost[i]), float(mer[i])], [float(c_i), float(m_i)], rtol=1e-12)
     assert len({float(c) for c in cost}) == len(alphas)      # the candidates differ: a real check
