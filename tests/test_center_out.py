@@ -14,32 +14,29 @@ from delayed_ilqr import cli
 from delayed_ilqr.models import arm2_muscle6
 
 
-def test_reaches_converge_to_all_eight_targets_at_each_delay():
-    # the demo's job at two of its three delays (50 ms is in the tests below): 74 s -> about 50 s
-    delays = (0.0, 0.1)
-    results = co.center_out(delays=delays, n_targets=8, n_trials=50)
+def test_reaches_converge_to_all_eight_targets_with_delay():
+    # the demo's job at its longest delay (no delay: tests/test_muscle.py; 50 ms: the tests below),
+    # to keep the suite within 10 minutes on the slow CI machine (three delays took 74-90 s)
+    delay = 0.1
+    results = co.center_out(delays=(delay,), n_targets=8, n_trials=50)
     report = co.format_table(results)
     print("\n" + report)
-    assert [(r.delay, r.design) for r in results] == [(d, design) for d in delays for design in co.DESIGNS]
-    aware, deterministic = results[0::2], results[1::2]
-    for r in deterministic:
-        for j, t in enumerate(r.targets):
-            assert t.converged, (r.delay, j, t.status)
-            # the nominal ends on the target (w_p = 1/m^2 against r = 1e-4: sub-millimetre)
-            assert t.hand_error < 1e-3, (r.delay, j, t.hand_error)
+    assert [(r.delay, r.design) for r in results] == [(delay, design) for design in co.DESIGNS]
+    aware, deterministic = results
     for r in results:
+        for j, t in enumerate(r.targets):
+            assert t.converged, (r.design, j, t.status)
         assert np.all((np.asarray(r.solutions.u) >= 0.0) & (np.asarray(r.solutions.u) <= 1.0))
         assert r.delay_steps == round(r.delay / 0.01)
-    # noise-aware: 15 of 16 converge (one reach without delay cycles, docs/derivation.md §12)
-    assert sum(t.converged for r in aware for t in r.targets) >= 15
-    # with delay, the design that knows the noise does markedly better in it: the Monte Carlo mean
-    # cost, on the same noise, at most 0.7 of the deterministic design's (measured 0.34 at 100 ms)
-    for a, d in zip(aware[1:], deterministic[1:]):
-        mean = lambda r: np.mean([t.mc_cost.mean() for t in r.targets])
-        assert mean(a) < 0.7 * mean(d), (a.delay, mean(a), mean(d))
+    # the deterministic nominal ends on the target (w_p = 1/m^2 against r = 1e-4: sub-millimetre)
+    assert max(t.hand_error for t in deterministic.targets) < 1e-3
+    # the design that knows the noise does markedly better in it: the Monte Carlo mean cost, on the
+    # same noise, at most 0.7 of the deterministic design's (measured 0.34)
+    mean = lambda r: np.mean([t.mc_cost.mean() for t in r.targets])
+    assert mean(aware) < 0.7 * mean(deterministic), (mean(aware), mean(deterministic))
     records = json.loads(json.dumps(co.to_records(results)))
-    assert [len(r["targets"]) for r in records] == [8] * 4
-    assert [r["design"] for r in records] == list(co.DESIGNS) * 2
+    assert [len(r["targets"]) for r in records] == [8, 8]
+    assert [r["design"] for r in records] == list(co.DESIGNS)
 
 
 def _median_error(problem, policy, target, n_trials=100):

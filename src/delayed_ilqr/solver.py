@@ -126,10 +126,10 @@ def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
         gains, value = augmented_scan(lqg, reg, **kw)
         return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite, None
     noisy = problem.noise is not None
-    gains, (s_tilde, *S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True,
-                                                               store_S=noisy, **kw)
+    gains, (s_tilde, *s_and_S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True,
+                                                                     store_S=noisy, **kw)
     # S enters the merit and the line search only through the noise terms
-    S = jnp.concatenate([S[1], lqg.D[-1:]]) if noisy else None
+    S = jnp.concatenate([s_and_S[1], lqg.D[-1:]]) if noisy else None
     return lqg, gains, S, s_tilde[0], ok, predicted
 
 
@@ -197,7 +197,8 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     trace = Trace(
         cost=t.cost.at[it].set(keep(ls.cost, st.cost)),
         merit=t.merit.at[it].set(keep(ls.merit, merit_now)),
-        expected_reduction=t.expected_reduction.at[it].set(jnp.where(converged, 0.0, jnp.where(flat, model_best, ls.expected))),
+        expected_reduction=t.expected_reduction.at[it].set(
+            jnp.where(converged, 0.0, jnp.where(flat, model_best, ls.expected))),
         step_size=t.step_size.at[it].set(jnp.where(move, ls.alpha, 0.0)),
         reg=t.reg.at[it].set(st.reg),
         grad_norm=t.grad_norm.at[it].set(gnorm))
