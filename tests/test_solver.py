@@ -11,6 +11,7 @@ from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
 from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.forward import predicted_change
+from delayed_ilqr import solver as solver_module
 from delayed_ilqr.solver import _backward
 from delayed_ilqr.models import arm2, point_mass
 
@@ -83,16 +84,29 @@ def test_zero_delay_is_ordinary_ilqg():
                                rtol=1e-7, atol=1e-9)
 
 
-def test_a_negligible_predicted_reduction_ends_the_solve_before_the_line_search():
+def test_a_negligible_predicted_reduction_ends_the_solve_before_the_line_search(monkeypatch):
     """Without noise the solve stops once the LQG model promises less than tol_cost |cost| for
     every step size. The number it stops on must be that promise, recomputed here from the
     augmented backward pass and the forward model (``predicted_change``) at the returned nominal,
     and going on must not buy more than the tolerance."""
     problem = arm2(delay=0.1)
+    # A line search that overstates every reduction can never end the solve by the cost test, so
+    # a CONVERGED_COST with it can only come from the model's promise, before any line search.
+    real = solver_module.line_search
+
+    def overstating(*args, **kwargs):
+        ls = real(*args, **kwargs)
+        return ls._replace(actual=jnp.abs(ls.actual) + 1.0)
+
+    monkeypatch.setattr(solver_module, "line_search", overstating)
+    u0 = jnp.zeros((problem.horizon, 2))
+    overstated = jax.jit(lambda p: solver_module._solve.__wrapped__(p, u0, di.Options()))(problem)  # a fresh trace
+    monkeypatch.undo()
     options = di.Options()
     sol = di.solve(problem, options=options)
     last = int(sol.iterations)
     assert int(sol.status) == di.Status.CONVERGED_COST, sol.message
+    assert int(overstated.status) == di.Status.CONVERGED_COST and int(overstated.iterations) == last
     assert float(sol.trace.step_size[last]) == 0.0                       # no step taken ...
     lqg, gains, S, *_ = _backward(problem, sol.x, sol.u, float(sol.trace.reg[last]), "augmented", 1e-5)
     a, b = predicted_change(lqg, gains, S)
