@@ -158,10 +158,11 @@ def test_structured_matches_augmentation(shape, case):
         assert not np.any(R[k, dead]) and not np.any(R[k, :, dead])
 
 
-@pytest.mark.parametrize("K, l", [(50, 300), (100, 60)])
-def test_long_delay_matches_augmentation(K, l):
-    """l >= K and l < K with long delays; l d = 300 runs the default blocked pass (block 16)."""
-    structured_vs_augmented(random_lqg(7, K, 2, 1, 1, l), label=f"K={K}, l={l}")
+@pytest.mark.parametrize("K, d, l", [(50, 1, 300), (100, 1, 60), (60, 2, 40)])
+def test_long_delay_matches_augmentation(K, d, l):
+    """l >= K and l < K with long delays; l d = 300 runs the default blocked pass (block 16), and
+    from l d = 64 on the R update reads its factors copied out of the value update's product."""
+    structured_vs_augmented(random_lqg(7, K, 2, d, 1, l), label=f"K={K}, d={d}, l={l}")
 
 
 @pytest.mark.parametrize("shape", [SHAPES[i] for i in (2, 4, 8, 9)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))

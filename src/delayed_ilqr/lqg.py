@@ -449,13 +449,18 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     columns = [jnp.concatenate([L, Wx, zeros]), jnp.concatenate([jnp.zeros_like(I), HIg, I])[:, None]]
     if model:
         columns.append(jnp.concatenate([jnp.zeros_like(I), g0, jnp.zeros_like(I)])[:, None])
-    coef = jnp.concatenate(columns, axis=1)                        # [3d, n + 1 (+ 1)]
-    update = matmul_t(coef, jnp.concatenate([W, K, G]))            # [n + 1 (+ 1), n + l d]
+    copied = l * nd >= _COPIED_FACTORS_MIN_LD
+    if copied:                     # rows n + 1 (+ 1) on: W and K themselves (see _COPIED_FACTORS_MIN_LD)
+        columns.append(jnp.eye(3 * nd, 2 * nd, dtype=Z.dtype))
+    coef = jnp.concatenate(columns, axis=1)                        # [3d, n + 1 (+ 1) (+ 2d)]
+    update = matmul_t(coef, jnp.concatenate([W, K, G]))            # [n + 1 (+ 1) (+ 2d), n + l d]
     s_tilde_new = d_tilde + s_tilde + noise_cost + I @ (HIg + g)
     s_new = dv + Zs[a_] + update[nx, :nx]
     S_new = _sym(D + ZSZ[a_, a_] + update[:nx, :nx])
     if l > 0:
         Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
+        if copied:
+            Ww, Mw = update[-2 * nd:-nd, nx:], update[-nd:, nx:]
         # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
         r_pre = jax.lax.dynamic_update_slice(r, Zs[b1] + CSc[u1], (j0,))
         Rt_pre = jax.lax.dynamic_update_slice(ZRt[a_], ZSZ[a_, b1], (0, j0))
@@ -478,6 +483,17 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     if store_value:
         out = out + _value_blocks(r_new, Rt_new, _exact_r(R_new, F, k, l, nd) if l > 0 else R_new, k, l, nd)
     return carry, out
+
+
+# From this l d on, the value update's product also copies out W and K (exactly: unit columns),
+# and the R update reads its factors M = K, W from that buffer. Otherwise XLA fuses their cheap
+# producers (K = -H^-1 G from the Cholesky solve, W = H K / 2 + G) into the loop over R's
+# (l d)^2 elements, and that loop's speed then depended on where the heap put its buffers: P3's
+# pass took 2.57 to 2.93 ms over five heap offsets, against 2.50 to 2.61 ms with the copy.
+# Solves in separate processes, alternately (2-core machine): P3 32.0-32.7 -> 29.9-31.4 ms,
+# P4 l d = 200 38.5-39.9 -> 30.1-32.1 ms, l d = 100 16.0-16.8 -> 15.3-15.6 ms; at l d = 60 equal,
+# at l d <= 20 (P1, P2, P4 l = 1) the extra product rows cost 0-5 %.
+_COPIED_FACTORS_MIN_LD = 64
 
 
 def _r_update(R, F, row, Mw, Ww, j0, j_next, jq):
