@@ -450,7 +450,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     if model:
         columns.append(jnp.concatenate([jnp.zeros_like(I), g0, jnp.zeros_like(I)])[:, None])
     copied = l * nd >= _COPIED_FACTORS_MIN_LD
-    if copied:                     # rows n + 1 (+ 1) on: W and K themselves (see _COPIED_FACTORS_MIN_LD)
+    if copied:                     # the product's last 2d rows: W and K themselves (see _COPIED_FACTORS_MIN_LD)
         columns.append(jnp.eye(3 * nd, 2 * nd, dtype=Z.dtype))
     coef = jnp.concatenate(columns, axis=1)                        # [3d, n + 1 (+ 1) (+ 2d)]
     update = matmul_t(coef, jnp.concatenate([W, K, G]))            # [n + 1 (+ 1) (+ 2d), n + l d]
@@ -458,9 +458,8 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     s_new = dv + Zs[a_] + update[nx, :nx]
     S_new = _sym(D + ZSZ[a_, a_] + update[:nx, :nx])
     if l > 0:
-        Mw, Ww = K[:, nx:], W[:, nx:]                               # [d, l d], slot order
-        if copied:
-            Ww, Mw = update[-2 * nd:-nd, nx:], update[-nd:, nx:]
+        # the R update's factors [d, l d], slot order
+        Mw, Ww = (update[-nd:, nx:], update[-2 * nd:-nd, nx:]) if copied else (K[:, nx:], W[:, nx:])
         # J(k+1) rewritten in (dx_k, pending at k): slot sigma now holds du_{k-l}
         r_pre = jax.lax.dynamic_update_slice(r, Zs[b1] + CSc[u1], (j0,))
         Rt_pre = jax.lax.dynamic_update_slice(ZRt[a_], ZSZ[a_, b1], (0, j0))
