@@ -490,7 +490,8 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
 # (l d)^2 elements, and that loop's speed then depended on where the heap put its buffers: P3's
 # pass took 2.57 to 2.93 ms over five heap offsets, against 2.50 to 2.61 ms with the copy.
 # Solves in separate processes, alternately (2-core machine): P3 32.0-32.7 -> 29.9-31.4 ms,
-# P4 l d = 200 38.5-39.9 -> 30.1-32.1 ms, l d = 100 16.0-16.8 -> 15.3-15.6 ms; at l d = 60 equal,
+# P4 l d = 200 38.5-39.9 -> 30.1-32.1 ms, l d = 100 16.0-16.8 -> 15.3-15.6 ms; P4's pass at
+# l d = 80 about 5 % faster, at 60 and 64 equal (whether the product is fused or a library dot);
 # at l d <= 20 (P1, P2, P4 l = 1) the extra product rows cost 0-5 %.
 _COPIED_FACTORS_MIN_LD = 64
 
