@@ -11,7 +11,7 @@ import numpy as np
 import delayed_ilqr as di
 from delayed_ilqr.lqg import DelayedLQG, augmented_scan, structured_scan
 from delayed_ilqr.models import arm2
-from delayed_ilqr.solver import _solve
+from delayed_ilqr.solver import compiled_solver
 
 
 def _best_time(fn, repeats):
@@ -41,9 +41,11 @@ def test_structured_pass_beats_augmentation_at_long_delay():
 
 def test_second_problem_of_the_same_shapes_does_not_recompile():
     options = di.Options(max_iterations=3)          # static: the same object for both solves
-    first = di.solve(arm2(delay=0.1), options=options)
-    compilations = _solve._cache_size()
+    problem = arm2(delay=0.1)
+    first = di.solve(problem, options=options)
+    solver = compiled_solver(problem)
+    compilations = solver._cache_size()
     other = arm2(delay=0.1, x_target=(math.pi / 2 + 0.2, math.pi / 3 - 0.1, 0.0, 0.0))
     second = di.solve(other, options=options)
-    assert _solve._cache_size() == compilations
+    assert compiled_solver(other) is solver and solver._cache_size() == compilations
     assert float(second.cost) != float(first.cost)  # the new target was used, not a cached result

@@ -19,9 +19,15 @@ S, s, s_tilde, R, Rt, r   eq. (7): coefficients of the cost-to-go J(k)
 H          Hessian of J(k-1) in du_{k-1} (the quantity that must be positive definite)
 =========  =====================================================================================
 
-Importing the package enables float64 in JAX: a user who does nothing gets double precision.
+Importing the package enables float64 in JAX: a user who does nothing gets double precision. It
+also raises XLA's size limit for loops compiled as one function (see ``_xla_options``), which takes
+effect when the package is imported before JAX's first computation.
 """
-import jax
+from . import _xla_options
+
+_xla_options.configure()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
