@@ -6,8 +6,9 @@ Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU.
    structured (Theorem 1) and augmented (Riccati on the augmented state), in the same run. "First
    call" is the first ``solve`` of that problem and method in this process (compilation included);
    "median" is the median of the solves after it (at least 7, more until 0.5 s are spent, 3 when a
-   solve takes over 2 s). The reference times of other tools are quoted from issue #5, not
-   measured here.
+   solve takes over 2 s). The reference times of other tools are quoted from issue #5; where
+   crocoddyl is installed (``make bench`` installs it), its DDP is also timed in this run on P1
+   and P4 up to l = 100 (``crocoddyl_ref.py``).
 2. The backward pass alone: P4 linearised at u = 0 for l = 10 ... 200, the compiled structured
    pass (``structured_slot_scan(store_value=False, predict=True)``, what the solver runs) against the compiled
    augmented one (``augmented_scan``), and the exponent a of time ~ l^a fitted in log-log.
@@ -42,7 +43,7 @@ import delayed_ilqr as di
 from delayed_ilqr.linearize import linearize, rollout
 from delayed_ilqr.lqg import augmented_scan, structured_slot_scan
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.solver import _solve
+from delayed_ilqr.solver import compiled_solver
 
 RESULTS = Path(__file__).with_name("results.md")
 OPTIONS = {"structured": di.Options(), "augmented": di.Options(method="augmented")}
@@ -51,6 +52,8 @@ SCALING_DELAYS = (10, 20, 50, 100, 200)
 # best compiled median of other tools (state augmentation, 2-core machine), quoted from issue #5
 REFERENCE = {("P1", 10): ("crocoddyl", 0.7e-3), ("P2", 10): ("trajax", 8.1e-3),
              ("P3", 50): ("trajax", 0.293), ("P4", 100): ("trajax", 0.79), ("P4", 200): ("trajax", 5.3)}
+# solved by crocoddyl's DDP in this run too, when it is installed (P4 l = 200: minutes a solve)
+CROCODDYL_ROWS = (("P1", 10), ("P4", 1), ("P4", 10), ("P4", 50), ("P4", 100))
 P2_TARGET = np.array([math.pi / 2, math.pi / 3, 0.0, 0.0])
 FIRST_CALL_SNIPPET = """
 import time, jax, delayed_ilqr as di
@@ -146,26 +149,55 @@ def full_solves(problems):
     return runs
 
 
-def full_solve_section(problems, runs) -> list[str]:
+def crocoddyl_times():
+    """{(name, l): (median s, iterations, cost)} of crocoddyl's DDP on CROCODDYL_ROWS, timed now;
+    {} when crocoddyl is not installed."""
+    try:
+        import crocoddyl_ref
+    except ImportError:
+        print("  crocoddyl is not installed: its times are only quoted", file=sys.stderr)
+        return {}
+    cases = [(name, 0.01 if name == "P1" else 0.001, l) for name, l in CROCODDYL_ROWS]
+    times = crocoddyl_ref.crocoddyl_solve_times(cases, solvers=("DDP",))
+    return {(name, l): value for (name, _, l, _), value in times.items()}
+
+
+def full_solve_section(problems, runs, croc) -> list[str]:
     rows = []
     for name, p in problems:
         s, a = runs[name, p.delay_steps]["structured"], runs[name, p.delay_steps]["augmented"]
         tool, ref = REFERENCE.get((name, p.delay_steps), ("-", None))
+        c = croc.get((name, p.delay_steps))
         rows.append([name, p.horizon, p.delay_steps,
                      fmt_time(s.first_s), fmt_time(s.median_s), s.iterations, f"{s.cost:.8e}",
                      fmt_time(a.first_s), fmt_time(a.median_s), a.iterations, f"{a.cost:.8e}",
                      f"{a.median_s / s.median_s:.1f}", f"{abs(a.cost - s.cost) / abs(s.cost):.1e}",
                      "-" if ref is None else f"{tool} {fmt_time(ref)}",
-                     "-" if ref is None else f"{ref / s.median_s:.1f}"])
+                     "-" if ref is None else f"{ref / s.median_s:.1f}",
+                     "-" if c is None else f"{fmt_time(c[0])} ({c[1]} it)",
+                     "-" if c is None else f"{c[0] / s.median_s:.1f}",
+                     "-" if c is None else f"{abs(c[2] - s.cost) / abs(s.cost):.1e}"])
     header = ["problem", "K", "l", "structured first call", "structured median", "it", "structured cost",
               "augmented first call", "augmented median", "it", "augmented cost", "aug / struct",
-              "cost rel. diff", "reference (quoted)", "ref / ours"]
+              "cost rel. diff", "reference (quoted)", "ref / ours", "crocoddyl DDP, this run", "croc / ours",
+              "croc cost rel. diff"]
     statuses = sorted({r.status for row in runs.values() for r in row.values()})
     return ["## 1. Full solves, both methods, same run", "",
             "First call includes compilation; median of the solves after it (at least 7, more until "
             "0.5 s are spent; 3 when a solve takes over 2 s). \"reference\" is the best compiled median of other tools (state augmentation, "
             "2-core machine) quoted from issue #5, **not measured here**; \"ref / ours\" divides it by "
-            f"the structured median. Final statuses: {', '.join(statuses)}.", ""] + table(header, rows)
+            f"the structured median. \"crocoddyl DDP, this run\" is crocoddyl {croc_version()} timed in this "
+            "process on the same problem by state augmentation (C++ LQR action models, one thread; "
+            "`crocoddyl_ref.py`), \"it\" its steps taken. "
+            f"Final statuses: {', '.join(statuses)}.", ""] + table(header, rows)
+
+
+def croc_version() -> str:
+    try:
+        import crocoddyl
+    except ImportError:
+        return "(not installed)"
+    return crocoddyl.__version__
 
 
 # ---------------------------------------------------------------------------------------------
@@ -218,7 +250,7 @@ def scaling_exponents(times):
 def compiled_bytes(problem, method: str) -> int:
     """temp + output + argument bytes of the compiled solver (already compiled: a cache hit)."""
     u_init = jnp.zeros((problem.horizon, problem.n_controls))
-    stats = _solve.lower(problem, u_init, OPTIONS[method]).compile().memory_analysis()
+    stats = compiled_solver(problem).lower(problem, u_init, OPTIONS[method]).compile().memory_analysis()
     return stats.temp_size_in_bytes + stats.output_size_in_bytes + stats.argument_size_in_bytes
 
 
@@ -257,9 +289,9 @@ def fresh_process_first_call() -> float:
 def second_problem_first_call():
     """(first-call seconds, compilations added) of P2 with another target, after P2 was solved."""
     other = arm2(delay=0.1, x_target=P2_TARGET + [0.2, -0.1, 0.0, 0.0])
-    before = _solve._cache_size()
+    before = compiled_solver(other)._cache_size()
     _, seconds = timed(lambda: di.solve(other))
-    return seconds, _solve._cache_size() - before
+    return seconds, compiled_solver(other)._cache_size() - before
 
 
 def compilation_section(first_fresh, first_in_run, second_s, recompiled) -> list[str]:
@@ -312,7 +344,7 @@ def batch_section(b, single_median) -> list[str]:
 # goals of issue #5 and the report
 # ---------------------------------------------------------------------------------------------
 
-def goals_section(runs, exponents, memory, first_fresh, recompiled, batch) -> list[str]:
+def goals_section(runs, exponents, memory, first_fresh, recompiled, batch, croc) -> list[str]:
     s = {key: r["structured"].median_s for key, r in runs.items()}
     p4_aug = runs["P4", 200]["augmented"].median_s
     ratios = {(name, p.delay_steps): st / g for name, p, g, st, _ in memory}
@@ -324,6 +356,8 @@ def goals_section(runs, exponents, memory, first_fresh, recompiled, batch) -> li
         ("P1 l=10 vs crocoddyl 0.7 ms", "> 1x", 0.7e-3 / s["P1", 10], 1),
         ("P2 l=10 vs trajax 8.1 ms", "> 1x", 8.1e-3 / s["P2", 10], 1),
     ]
+    if ("P1", 10) in croc:
+        goals.insert(4, ("P1 l=10 vs crocoddyl DDP timed in this run", "> 1x", croc["P1", 10][0] / s["P1", 10], 1))
     rows = [[goal, target, f"{x:.1f}x", "met" if x >= bound else "**not met**"] for goal, target, x, bound in goals]
     rows += [
         ["P2 first call (fresh process)", "< 3 s", fmt_time(first_fresh), "met" if first_fresh < 3 else "**not met**"],
@@ -339,7 +373,8 @@ def goals_section(runs, exponents, memory, first_fresh, recompiled, batch) -> li
          "met" if batch["batch_s"] < batch["separate_s"] else "**not met**"],
     ]
     return ["## Goals of issue #5", "",
-            "Speed-ups use the structured median of section 1; the reference times are quoted, not measured.",
+            "Speed-ups use the structured median of section 1; the reference times are quoted from issue #5, "
+            "except the row that says it was timed in this run.",
             ""] + table(["goal", "target", "measured", "status"], rows)
 
 
@@ -360,10 +395,11 @@ def main() -> None:
     times = backward_pass_times()
     memory = memory_ratios(problems)
     batch = batch_timings(p2_batch())
+    croc = crocoddyl_times()
     sections = [
         header(),
-        goals_section(runs, scaling_exponents(times), memory, first_fresh, recompiled, batch),
-        full_solve_section(problems, runs),
+        goals_section(runs, scaling_exponents(times), memory, first_fresh, recompiled, batch, croc),
+        full_solve_section(problems, runs, croc),
         scaling_section(times),
         memory_section(memory),
         compilation_section(first_fresh, runs["P2", 10]["structured"].first_s, second_s, recompiled),
