@@ -1,4 +1,4 @@
-"""The XLA backend option set at import (``delayed_ilqr._xla_options``)."""
+"""The XLA backend options set at import (``delayed_ilqr._xla_options``)."""
 import jax
 import numpy as np
 
@@ -7,22 +7,27 @@ from delayed_ilqr import _xla_options
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.solver import compiled_solver
 
-OPTION = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
+NO_YNN = "--xla_cpu_experimental_ynn_fusion_type="
 
 
-def test_configure_adds_the_threshold_and_keeps_other_flags():
+def test_configure_adds_both_flags_and_keeps_other_flags():
     env = {}
     _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == OPTION
+    assert env["XLA_FLAGS"] == f"{THRESHOLD} {NO_YNN}"
     env = {"XLA_FLAGS": "--xla_cpu_enable_fast_math=false"}
     _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == "--xla_cpu_enable_fast_math=false " + OPTION
+    assert env["XLA_FLAGS"] == f"--xla_cpu_enable_fast_math=false {THRESHOLD} {NO_YNN}"
 
 
-def test_configure_keeps_a_threshold_the_user_set():
-    env = {"XLA_FLAGS": "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"}
+def test_configure_keeps_what_the_user_set():
+    mine = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
+    env = {"XLA_FLAGS": mine}
     _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
+    assert env["XLA_FLAGS"] == f"{mine} {NO_YNN}"
+    env = {"XLA_FLAGS": "--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"}
+    _xla_options.configure(env)
+    assert env["XLA_FLAGS"] == f"--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT {THRESHOLD}"
 
 
 def test_small_scans_compile_as_single_functions():
@@ -36,15 +41,26 @@ def test_small_scans_compile_as_single_functions():
         assert hlo.count('xla_cpu_small_call="true"') >= 3
 
 
-def test_long_delays_keep_library_fusions():
-    problem = point_mass(dt=0.001, delay=0.15)                    # l d = 300: the deferred R update
-    assert compiled_solver(problem) is not compiled_solver(point_mass(dt=0.001, delay=0.149))
+def test_long_delays_turn_library_dots_back_on():
+    long, short = point_mass(dt=0.001, delay=0.15), point_mass(dt=0.001, delay=0.149)   # l d = 300, 298
+    ynn = [compiled_solver(p).lower(p, np.zeros((p.horizon, 2)), di.Options()).compile().as_text().count("ynn_fusion")
+           for p in (long, short)]
+    assert ynn[0] > 0 and ynn[1] == 0
 
 
 def test_solve_inside_jit_compiles_with_the_outer_options():
-    # JAX refuses compiler options on a nested jit: inside a transformation solve uses the
-    # compilation with XLA's defaults
+    # JAX refuses compiler options on a nested jit (those of _solve_large): inside a transformation
+    # solve uses the process's options
     problem = point_mass(delay=0.1)
     inside = jax.jit(di.solve)(problem)
     np.testing.assert_allclose(float(inside.cost), float(di.solve(problem).cost), rtol=1e-12)
     assert int(inside.status) == int(di.solve(problem).status)
+
+
+def test_vmap_on_cpu_solves_one_problem_after_another():
+    # the batching rule of solver._one_after_another: one scan over the problems, each solved by
+    # the unbatched solver (whose scans XLA compiles as one function), not one batched while loop
+    problems = [point_mass(delay=0.1, x0=(0.0, x, 0.0, 0.0)) for x in (0.0, 0.1, 0.2)]
+    stacked = jax.tree_util.tree_map(lambda *leaves: jax.numpy.stack(leaves), *problems)
+    jaxpr = jax.make_jaxpr(jax.vmap(di.solve))(stacked).jaxpr
+    assert [eqn.primitive.name for eqn in jaxpr.eqns if eqn.primitive.name in ("scan", "while")] == ["scan"]
