@@ -54,6 +54,7 @@ REFERENCE = {("P1", 10): ("crocoddyl", 0.7e-3), ("P2", 10): ("trajax", 8.1e-3),
              ("P3", 50): ("trajax", 0.293), ("P4", 100): ("trajax", 0.79), ("P4", 200): ("trajax", 5.3)}
 # solved by crocoddyl's DDP in this run too, when it is installed (P4 l = 200: minutes a solve)
 CROCODDYL_ROWS = (("P1", 10), ("P4", 1), ("P4", 10), ("P4", 50), ("P4", 100))
+BATCH_REPEATS = 9
 P2_TARGET = np.array([math.pi / 2, math.pi / 3, 0.0, 0.0])
 FIRST_CALL_SNIPPET = """
 import time, jax, delayed_ilqr as di
@@ -316,8 +317,11 @@ def batch_timings(problems):
     """Batched and separate solves: per-problem seconds, costs and iterations of each."""
     stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
     batched_solve = jax.jit(jax.vmap(di.solve))
-    batched, _, t_batch = first_and_median(lambda: batched_solve(stacked), repeats=3)
-    separate, _, t_separate = first_and_median(lambda: [di.solve(p) for p in problems], repeats=3)
+    batch_call, separate_calls = (lambda: batched_solve(stacked)), (lambda: [di.solve(p) for p in problems])
+    batched, separate = timed(batch_call)[0], timed(separate_calls)[0]            # compilation
+    # alternately, so that the machine's drift moves both medians alike
+    times = [(timed(batch_call)[1], timed(separate_calls)[1]) for _ in range(BATCH_REPEATS)]
+    t_batch, t_separate = (statistics.median(t) for t in zip(*times))
     return dict(batch_s=t_batch / len(problems), separate_s=t_separate / len(problems),
                 batch_cost=np.asarray(batched.cost), separate_cost=np.array([float(s.cost) for s in separate]),
                 batch_iterations=np.asarray(batched.iterations),
@@ -328,9 +332,9 @@ def batch_section(b, single_median) -> list[str]:
     rel = np.max(np.abs(b["batch_cost"] - b["separate_cost"]) / np.abs(b["separate_cost"]))
     n = len(b["batch_cost"])
     return [f"## 5. Batches ({n} P2 problems, {n} targets)", "",
-            f"- one `jax.jit(jax.vmap(solve))` call: {fmt_time(b['batch_s'])} per problem (median of 3 batch "
-            f"calls / {n})",
-            f"- {n} separate solves: {fmt_time(b['separate_s'])} per problem (median of 3 loops / {n}); "
+            f"- one `jax.jit(jax.vmap(solve))` call: {fmt_time(b['batch_s'])} per problem (median of "
+            f"{BATCH_REPEATS} batch calls / {n}, alternating with the loops below)",
+            f"- {n} separate solves: {fmt_time(b['separate_s'])} per problem (median of {BATCH_REPEATS} loops / {n}); "
             f"P2 single solve (section 1): {fmt_time(single_median)}",
             f"- batched / separate per problem: {b['batch_s'] / b['separate_s']:.2f}",
             f"- iterations: separate {b['separate_iterations'].min()} to {b['separate_iterations'].max()} "
