@@ -1,6 +1,7 @@
 """The XLA backend options set at import (``delayed_ilqr._xla_options``)."""
 import jax
 import numpy as np
+import pytest
 
 import delayed_ilqr as di
 from delayed_ilqr import _xla_options
@@ -11,23 +12,20 @@ THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold
 NO_YNN = "--xla_cpu_experimental_ynn_fusion_type="
 
 
-def test_configure_adds_both_flags_and_keeps_other_flags():
-    env = {}
-    _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == f"{THRESHOLD} {NO_YNN}"
-    env = {"XLA_FLAGS": "--xla_cpu_enable_fast_math=false"}
-    _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == f"--xla_cpu_enable_fast_math=false {THRESHOLD} {NO_YNN}"
+MY_THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
+MY_YNN = "--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"
 
 
-def test_configure_keeps_what_the_user_set():
-    mine = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
-    env = {"XLA_FLAGS": mine}
+@pytest.mark.parametrize("before, after", [
+    (None, f"{THRESHOLD} {NO_YNN}"),
+    ("--xla_cpu_enable_fast_math=false", f"--xla_cpu_enable_fast_math=false {THRESHOLD} {NO_YNN}"),
+    (MY_THRESHOLD, f"{MY_THRESHOLD} {NO_YNN}"),                    # what the user set is kept
+    (MY_YNN, f"{MY_YNN} {THRESHOLD}"),
+])
+def test_configure_adds_the_flags_the_user_did_not_set(before, after):
+    env = {} if before is None else {"XLA_FLAGS": before}
     _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == f"{mine} {NO_YNN}"
-    env = {"XLA_FLAGS": "--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"}
-    _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == f"--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT {THRESHOLD}"
+    assert env["XLA_FLAGS"] == after
 
 
 def test_small_scans_compile_as_single_functions():
