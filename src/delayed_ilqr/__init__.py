@@ -20,8 +20,9 @@ H          Hessian of J(k-1) in du_{k-1} (the quantity that must be positive def
 =========  =====================================================================================
 
 Importing the package enables float64 in JAX: a user who does nothing gets double precision. It
-also raises XLA's size limit for loops compiled as one function (see ``_xla_options``), which takes
-effect when the package is imported before JAX's first computation.
+also sets two of XLA's CPU flags for the process, so that XLA compiles the solver's small loops as
+single functions (see ``_xla_options``); they take effect when the package is imported before
+JAX's first computation, and a flag the user set in ``XLA_FLAGS`` is kept.
 """
 from . import _xla_options
 

@@ -294,7 +294,8 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     Returns:
         A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
         reported in ``status`` / ``message``, never raised. Works under ``jax.vmap`` over problems
-        that differ only in their arrays (x0, cost arrays or parameters, limits).
+        that differ only in their arrays (x0, cost arrays or parameters, limits); on CPU the
+        batch is solved one problem after another in one compiled loop (``_one_after_another``).
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
