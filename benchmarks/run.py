@@ -17,7 +17,7 @@ Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU.
 4. Compilation: the first call of P2 in a fresh Python process, then a second P2 problem of the
    same shapes (another target) that must reuse the compiled solver.
 5. Batches: 64 P2 problems (64 targets) in one ``jax.jit(jax.vmap(solve))`` call, against 64
-   separate solves.
+   separate solves, the two timed alternately.
 
 Every timed call is wrapped in ``jax.block_until_ready``. The machines are shared and noisy, so
 only ratios measured within one run are meaningful; absolute times move between runs.
