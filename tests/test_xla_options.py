@@ -4,16 +4,16 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr import _xla_options
+from delayed_ilqr import _xla_options, solver
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.solver import compiled_solver
 
 THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
-NO_YNN = "--xla_cpu_experimental_ynn_fusion_type="
+NO_YNN = "--xla_cpu_experimental_ynn_fusion_type=-individual_dot"
 
 
 MY_THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
-MY_YNN = "--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"
+MY_YNN = "--xla_cpu_experimental_ynn_fusion_type=+individual_dot"
 
 
 @pytest.mark.parametrize("before, after", [
@@ -41,9 +41,12 @@ def test_small_scans_compile_as_single_functions():
 
 def test_long_delays_turn_library_dots_back_on():
     long, short = point_mass(dt=0.001, delay=0.15), point_mass(dt=0.001, delay=0.149)   # l d = 300, 298
-    ynn = [compiled_solver(p).lower(p, np.zeros((p.horizon, 2)), di.Options()).compile().as_text().count("ynn_fusion")
-           for p in (long, short)]
-    assert ynn[0] > 0 and ynn[1] == 0
+    assert compiled_solver(long) is solver._solve_large and compiled_solver(short) is solver._solve
+
+    def library_fusions(jitted):
+        return jitted.lower(long, np.zeros((long.horizon, 2)), di.Options()).compile().as_text().count("ynn_fusion")
+
+    assert library_fusions(solver._solve_large) > library_fusions(solver._solve)
 
 
 def test_solve_inside_jit_compiles_with_the_outer_options():

@@ -10,9 +10,11 @@ make that cover the solver's scans:
 * the threshold, raised to 1 MB: per-step work that small is dominated by the per-operation
   cost; larger loops keep the thunk runtime, whose large products use both cores and the
   library's kernels (at 100 MB the augmented P3 took 3.5 s instead of 0.6 s);
-* no YNNPACK library dots (``--xla_cpu_experimental_ynn_fusion_type=``; XLA's default uses them
-  for single dots, some of which it makes from fused products): a loop that holds one is never
-  compiled as one function, and P3's backward pass, with one a step, stayed a loop of thunks.
+* no YNNPACK single dots (``--xla_cpu_experimental_ynn_fusion_type=-individual_dot``; XLA's
+  default hands single dots, some of which it makes from fused products, to that library): a loop
+  that holds one is never compiled as one function, and P3's backward pass, with one a step,
+  stayed a loop of thunks. Its other fusions stay: without them too (``=``, nothing) the loops
+  are the same, but P4's solver at l = 1 held 1.26 MB instead of 1.04.
   ``solver.compiled_solver`` turns them back on from l d = 300 (:data:`LIBRARY_DOTS`), where the
   deferred R update's large products run faster through them.
 
@@ -26,8 +28,7 @@ Both are process-wide, and only ``XLA_FLAGS`` sets the threshold (``jax.jit``'s
 ``compiler_options`` take no map-valued options); XLA reads it when JAX starts its backend, so
 importing ``delayed_ilqr`` before the first JAX computation applies them. A flag the user set
 is kept: ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024`` and
-``--xla_cpu_experimental_ynn_fusion_type=LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT`` restore XLA's
-defaults.
+``--xla_cpu_experimental_ynn_fusion_type=+individual_dot`` restore XLA's defaults.
 """
 from __future__ import annotations
 
@@ -37,8 +38,8 @@ SMALL_LOOP_BYTES = 1_000_000
 # (name in XLA_FLAGS, flag): each is added unless XLA_FLAGS already names it
 _FLAGS = (("xla_cpu_small_while_loop_byte_threshold",
            f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={SMALL_LOOP_BYTES}"),
-          ("xla_cpu_experimental_ynn_fusion_type", "--xla_cpu_experimental_ynn_fusion_type="))
-# XLA's default YNNPACK setting, for a compilation that wants it back (``jax.jit``'s compiler_options)
+          ("xla_cpu_experimental_ynn_fusion_type", "--xla_cpu_experimental_ynn_fusion_type=-individual_dot"))
+# YNNPACK's single dots back, for one compilation (``jax.jit``'s compiler_options name the whole list)
 LIBRARY_DOTS = {"xla_cpu_experimental_ynn_fusion_type": "LIBRARY_FUSION_TYPE_INDIVIDUAL_DOT"}
 
 
