@@ -51,7 +51,7 @@ def test_long_delays_turn_library_dots_back_on():
 
 def test_solve_inside_jit_compiles_with_the_outer_options():
     # JAX refuses compiler options on a nested jit (those of _solve_large): inside a transformation
-    # solve uses the process's options
+    # solve compiles with the process's options, and the result is the same
     problem = point_mass(delay=0.1)
     inside = jax.jit(di.solve)(problem)
     np.testing.assert_allclose(float(inside.cost), float(di.solve(problem).cost), rtol=1e-12)

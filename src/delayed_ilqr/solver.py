@@ -18,8 +18,7 @@ converging iteration's own, or one more pass when the last iteration moved the n
 from __future__ import annotations
 
 import dataclasses
-import functools
-from functools import partial
+from functools import cache, partial
 from typing import NamedTuple
 
 import jax
@@ -29,8 +28,8 @@ import numpy as np
 from . import _validate, _xla_options
 from .forward import line_search, merit, no_step, predicted_change
 from .linearize import linearize, rollout, trajectory_cost
-from .lqg import (_DEFER_MIN_LD, SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan, to_slots,
-                  unconstrained_gains, unregularized_feedback)
+from .lqg import (_DEFER_MIN_LD, SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan,
+                  to_slots, unconstrained_gains, unregularized_feedback)
 from .problem import Problem
 from .solution import Policy, Solution, Status, Trace
 
@@ -236,7 +235,7 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
-# Two compilations of one solver. The package turns YNNPACK's library dots off for the process
+# Two compilations of one solver. The package turns YNNPACK's single dots off for the process
 # (``_xla_options``), so that XLA compiles each scan of a small problem as one function; from
 # l d = _DEFER_MIN_LD on, where the backward pass defers the R update to large products (and the
 # augmented reference's are larger still), those run faster through YNNPACK (P4 at l = 200: 77-85
@@ -245,18 +244,13 @@ _solve = jax.jit(_solve_body, static_argnames=("options",))
 _solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_options=_xla_options.LIBRARY_DOTS)
 
 
-def compiled_solver(problem: Problem, traced: bool = False):
-    """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``.
-
-    ``traced``: the call is inside a JAX transformation (``jit``, ``vmap``), where XLA's options are
-    the outermost compilation's (JAX refuses them on a nested ``jit``).
-    """
-    if not traced and problem.delay_steps * problem.n_controls >= _DEFER_MIN_LD:
-        return _solve_large
-    return _solve
+def compiled_solver(problem: Problem):
+    """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``
+    outside JAX transformations."""
+    return _solve_large if problem.delay_steps * problem.n_controls >= _DEFER_MIN_LD else _solve
 
 
-@functools.cache
+@cache
 def _one_after_another(options: Options):
     """``_solve`` with ``options`` as a function of (problem, u_init) whose ``vmap`` solves the
     problems one after another in one compiled loop (``lax.map``), not all at once.
@@ -312,7 +306,10 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
             raise ValueError(f"u_init must have shape {shape}; got shape {u_init.shape}")
     else:
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
-    traced = any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init)))
-    if traced and jax.default_backend() == "cpu":
+    if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
+        return compiled_solver(problem)(problem, u_init, options)
+    # inside jit or vmap: XLA's options are the outermost compilation's (JAX refuses them on a
+    # nested jit, so not _solve_large), and on CPU a vmap runs the problems one after another
+    if jax.default_backend() == "cpu":
         return _one_after_another(options)(problem, u_init)
-    return compiled_solver(problem, traced)(problem, u_init, options)
+    return _solve(problem, u_init, options)
