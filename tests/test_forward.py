@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.forward import _candidate_merits, candidate_rollouts, closed_loop_rollout, merit, predicted_change
+from delayed_ilqr.forward import candidate_scores, closed_loop_rollout, merit
 from delayed_ilqr.linearize import rollout
 from delayed_ilqr.models import arm2
 from delayed_ilqr.solver import _backward
@@ -15,9 +15,8 @@ from delayed_ilqr.solver import _backward
 def _slope_ratios(problem, us, alphas, noise_at_candidate=False):
     """(merit(alpha) - merit(0)) / (alpha a + alpha^2 b) for rollouts of the backward pass's gains."""
     xs = rollout(problem, us)
-    lqg, gains, S, _, ok, _ = _backward(problem, xs, us, 0.0, "structured", 1e-5)
+    gains, S, _, ok, (a, b) = _backward(problem, xs, us, 0.0, "structured", 1e-5)
     assert bool(ok)
-    a, b = predicted_change(lqg, gains, S)
     assert float(a) < 0                                       # a descent direction of the model
     m0 = merit(problem, xs, us, S, xs)[1]
     ratios = []
@@ -60,29 +59,22 @@ def test_noise_aware_arm_converges_to_one_point_from_either_lambda(delay):
 
 
 @pytest.mark.parametrize("delay, noise, limits", [(0.0, False, None), (0.1, False, 1.0), (0.05, True, None)])
-def test_the_batched_candidates_are_the_single_rollouts(delay, noise, limits):
-    """The line search runs all step sizes in one time-major scan and scores them from those
-    arrays; each candidate must be the single-alpha rollout of the same law, scored by ``merit``."""
+def test_the_scored_candidates_are_the_single_rollouts(delay, noise, limits):
+    """The line search scores all step sizes in one scan, as they run, without storing them; each
+    score must be ``merit`` of the single-alpha rollout of the same law."""
     problem = arm2(delay=delay, noise=noise)
     if limits is not None:
         problem = problem.replace(u_min=[-limits] * 2, u_max=[limits] * 2)
     t = np.arange(problem.horizon)[:, None] * problem.dt
     us = jnp.asarray(1.5 * np.sin(2 * np.pi * t / 0.5 + np.array([0.0, 1.0])))    # a nominal far from optimal
     xs = rollout(problem, us)
-    _, gains, S, *_ = jax.jit(lambda: _backward(problem, xs, us, 0.0, "structured", 1e-5))()
+    gains, S, *_ = jax.jit(lambda: _backward(problem, xs, us, 0.0, "structured", 1e-5))()
     alphas = jnp.asarray(di.Options().alphas)
-
-    def batch():
-        cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
-        return (cand_xs, cand_us) + _candidate_merits(problem, cand_xs, cand_us, S, xs)
-
-    cand_xs, cand_us, cost, mer = jax.jit(batch)()
+    cost, mer, finite = jax.jit(lambda: candidate_scores(problem, xs, us, gains, alphas, S))()
+    assert bool(jnp.all(finite))
     single = jax.jit(lambda alpha: closed_loop_rollout(problem, xs, us, gains, alpha))   # one compile, not 11
     score = jax.jit(lambda x, u: merit(problem, x, u, S, xs))
     for i, alpha in enumerate(np.asarray(alphas)):
-        x_i, u_i = single(alpha)
-        np.testing.assert_allclose(np.asarray(cand_xs[:, i]), np.asarray(x_i[1:]), rtol=1e-12, atol=1e-14)
-        np.testing.assert_allclose(np.asarray(cand_us[:, i]), np.asarray(u_i), rtol=1e-12, atol=1e-14)
-        c_i, m_i = score(x_i, u_i)
+        c_i, m_i = score(*single(alpha))
         np.testing.assert_allclose([float(cost[i]), float(mer[i])], [float(c_i), float(m_i)], rtol=1e-12)
     assert len({float(c) for c in cost}) == len(alphas)      # the candidates differ: a real check

@@ -1,11 +1,16 @@
-"""Eq. (3)-(4): the linearisation against central finite differences of the discrete step, and the
-general-cost path against the quadratic one."""
+"""Eq. (3)-(4): the linearisation against central finite differences of the discrete step, the
+general-cost path against the quadratic one, and the model built inside the pass against the stored one."""
+from functools import partial
+
+import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import delayed_commands, linearize, rollout, trajectory_cost
-from delayed_ilqr.models import arm2
+from delayed_ilqr.linearize import delayed_commands, linearize, rollout, step_models, trajectory_cost
+from delayed_ilqr.lqg import boxed_gains, structured_slot_scan
+from delayed_ilqr.models import arm2, cart_pole, point_mass
 
 
 def _central(fun, z, h=1e-6):
@@ -86,3 +91,33 @@ def test_trajectory_cost_is_eq_2_step_by_step():
     expected = sum(problem.dt * float(problem.cost.running(xs[k], us[k])) for k in range(problem.horizon))
     expected += float(problem.cost.final(xs[-1]))
     np.testing.assert_allclose(float(trajectory_cost(problem, xs, us)), expected, rtol=1e-13)
+
+
+@pytest.mark.parametrize("model, delay, noise, block", [
+    ("arm2", 0.0, False, None), ("arm2", 0.01, True, None), ("arm2", 0.05, True, 7), ("cart_pole", 0.1, False, 4),
+    ("point_mass", 0.15, False, None)],                # l d = 300: blocked by default, K = 600 padded to 608
+    ids=lambda v: str(v))
+def test_linearising_in_the_pass_equals_the_stored_model(model, delay, noise, block):
+    """The solver's structured pass builds each step's model from the nominal as it reaches it
+    (``step_models``); on the stored model of ``linearize`` the same pass must give the same
+    gains, value, positive-definiteness and predicted change (l = 0, l = 1, blocks padded with
+    idle steps, noise, control limits)."""
+    factory = {"arm2": arm2, "cart_pole": cart_pole, "point_mass": point_mass}[model]
+    kw = dict(noise=noise) if model == "arm2" else {}
+    problem = factory(delay=delay, **({"dt": 0.001} if model == "point_mass" else {}), **kw)
+    rng = np.random.default_rng(3)
+    us = jnp.asarray(0.3 * rng.normal(size=(problem.horizon, problem.n_controls)))
+    if problem.has_limits:
+        us = jnp.clip(us, problem.u_min, problem.u_max)
+    xs = rollout(problem, us)
+    kw = dict(store_value=False, predict=True, block=block)
+    if problem.has_limits:
+        kw.update(gains_fn=partial(boxed_gains, margin=1e-5), bounds=(problem.u_min - us, problem.u_max - us))
+    run = jax.jit(lambda models: structured_slot_scan(models, 1e-3, **kw))
+    stored = run(linearize(problem, xs, us))
+    in_pass = jax.jit(lambda xs, us: structured_slot_scan(step_models(problem, xs, us), 1e-3, **kw))(xs, us)
+    assert bool(stored[2]) and bool(in_pass[2])
+    for want, got in zip(jax.tree_util.tree_leaves(stored), jax.tree_util.tree_leaves(in_pass)):
+        scale = float(jnp.max(jnp.abs(want)))
+        np.testing.assert_allclose(np.asarray(got), np.asarray(want), rtol=1e-11, atol=1e-13 * scale)
+    assert float(jnp.max(jnp.abs(stored[0].feedback))) > 0     # a real comparison: gains are not zero

@@ -5,7 +5,8 @@ The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 
 where u_{k+i-l} are the commands this rollout actually sent (the pending buffer), so the law feeds
-back commands that are already on their way but not yet acting. All alphas run at once (``vmap``).
+back commands that are already on their way but not yet acting. All alphas run at once (``vmap``),
+scored as they run; only the best is rolled out again, so the line search stores one trajectory.
 The gains come as the backward recursion makes them (:class:`~delayed_ilqr.lqg.SlotGains`):
 [L_k, M_k] multiplies [x_k - x_bar_k, pending], with u_j - u_bar_j pending in slot j mod l, so a
 rollout writes one slot per step and never shifts a buffer.
@@ -19,35 +20,30 @@ import jax.numpy as jnp
 
 from ._dense import matmul
 from ._scan import packed_scan
-from .linearize import delayed_commands, noise_columns, path_cost, trajectory_cost
+from .linearize import delayed_commands, noise_columns, trajectory_cost
 from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
 from .problem import Problem
 
-__all__ = ["closed_loop_rollout", "candidate_rollouts", "merit", "predicted_change", "LineSearch", "line_search",
+__all__ = ["closed_loop_rollout", "candidate_scores", "merit", "predicted_change", "LineSearch", "line_search",
            "no_step"]
 
 
-def _law_step(problem: Problem, alpha):
+def _law(problem: Problem, alpha, y, data):
     """One step of the closed loop under the delayed law, on y = [x, pending]
     (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending].
-    Returns (y_new, (x_new, u)): the state after the step and the command it sent."""
+    Returns (y_new, x, u, ud, x_new): the state after the step, the state before it, the command
+    it sent, the command acting (u_{k-l}) and the new state."""
     l, nd, nx = problem.delay_steps, problem.n_controls, problem.n_states
-
-    def step(y, data):
-        j, x_bar, u_bar, ud_bar, I, LM = data
-        x = y[:nx]
-        du = alpha * I + matmul(LM, jnp.concatenate([x - x_bar, y[nx:]]))
-        u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-        ud = ud_bar + jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else u
-        x_new = x + problem.dt * problem.dynamics(x, u, ud)
-        y_new = jnp.concatenate([x_new, y[nx:]])
-        if l > 0:
-            y_new = jax.lax.dynamic_update_slice_in_dim(y_new, u - u_bar, nx + j, 0)
-        # x_new, not x: the step's new state is then made once for both the carry and the
-        # output (with x, XLA recomputed the arm's dynamics in two fusions: P3 rollouts +20 %)
-        return y_new, (x_new, u)
-
-    return step
+    j, x_bar, u_bar, ud_bar, I, LM = data
+    x = y[:nx]
+    du = alpha * I + matmul(LM, jnp.concatenate([x - x_bar, y[nx:]]))
+    u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
+    ud = ud_bar + jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else u
+    x_new = x + problem.dt * problem.dynamics(x, u, ud)
+    y_new = jnp.concatenate([x_new, y[nx:]])
+    if l > 0:
+        y_new = jax.lax.dynamic_update_slice_in_dim(y_new, u - u_bar, nx + j, 0)
+    return y_new, x, u, ud, x_new
 
 
 def _law_data(problem: Problem, xs_bar, us_bar, gains: SlotGains):
@@ -63,26 +59,50 @@ def _y0(problem: Problem, dtype):
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
     """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
-    _, (xs, us) = packed_scan(_law_step(problem, alpha), _y0(problem, us_bar.dtype),
-                              _law_data(problem, xs_bar, us_bar, gains))
+    def step(y, data):
+        y_new, _, u, _, x_new = _law(problem, alpha, y, data)
+        # x_new, not x: the step's new state is then made once for both the carry and the
+        # output (with x, XLA recomputed the arm's dynamics in two fusions: P3 rollouts +20 %)
+        return y_new, (x_new, u)
+
+    _, (xs, us) = packed_scan(step, _y0(problem, us_bar.dtype), _law_data(problem, xs_bar, us_bar, gains))
     return jnp.concatenate([problem.x0[None], xs]), us
 
 
-def candidate_rollouts(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas):
-    """:func:`closed_loop_rollout` for every alpha [A] at once, time-major and without x_0:
-    (xs [K, A, n] (x_1 to x_K), us [K, A, d]).
+def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas, S):
+    """:func:`merit` of the closed-loop rollout (:func:`closed_loop_rollout`) for every alpha [A],
+    scored as the rollouts run: (cost [A], merit [A], finite [A]), finite when every state stayed
+    finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
 
-    One scan carries all A loops (the step is vmapped, not the scan), and its outputs stay in the
-    order it writes them: a vmapped scan hands back [A, K, ...], copied from the scan's [K, A, ...]
-    buffers, and joining x_0 to each candidate is another copy (P4 at l = 1: the compiled
-    solver's temporaries went from 1.12 to 0.97 MB, at the same speed).
+    One scan carries all A loops (the step is vmapped, not the scan) and stores no trajectory:
+    each step adds its running cost (and noise cost, eq. of :func:`noise_cost`) to its loop's sum.
+    Storing the A candidates was 11 (n + d) numbers per step, 4.7 times the gains of P4 at l = 1,
+    and scoring them afterwards copied them once more; the line search rolls the best step size
+    out again instead (:func:`line_search`).
     """
-    step = jax.vmap(lambda a, y, data: _law_step(problem, a)(y, data), in_axes=(0, 0, None))
-    y0 = jnp.broadcast_to(_y0(problem, us_bar.dtype), (alphas.shape[0], problem.n_states + problem.delay_steps
+    noisy = problem.noise is not None
+    dt = problem.dt
+
+    def one(alpha, carry, data):
+        y, running, noise, finite = carry
+        law_data, S_next = data[:6], data[6]
+        y_new, x, u, ud, x_new = _law(problem, alpha, y, law_data)
+        if noisy:       # c' S c summed over the noise columns, c = sqrt(dt) F at the nominal state
+            F = problem.noise(law_data[1], u, ud)                                  # [n, p]
+            noise = noise + dt * jnp.sum(F * matmul(S_next, F))
+        return (y_new, running + problem.cost.running(x, u), noise, finite & jnp.all(jnp.isfinite(x_new)))
+
+    step = jax.vmap(one, in_axes=(0, 0, None))
+    A = alphas.shape[0]
+    zero = jnp.zeros(A, us_bar.dtype)
+    y0 = jnp.broadcast_to(_y0(problem, us_bar.dtype), (A, problem.n_states + problem.delay_steps
                                                        * problem.n_controls))
-    _, (xs, us) = packed_scan(lambda y, data: step(alphas, y, data), y0, _law_data(problem, xs_bar, us_bar, gains),
-                              pack_outputs=False)
-    return xs, us
+    S_next = S[1:] if noisy else jnp.zeros((us_bar.shape[0], 0), us_bar.dtype)
+    data = _law_data(problem, xs_bar, us_bar, gains) + (S_next,)
+    (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
+                                                 (y0, zero, zero, jnp.ones(A, bool)), data)
+    cost = dt * running + jax.vmap(problem.cost.final)(y[:, :problem.n_states])
+    return cost, cost + noise, finite
 
 
 def noise_cost(problem: Problem, xs, us, S):
@@ -147,16 +167,6 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     return a + 2 * xiK @ lqg.d[-1], b + xiK @ lqg.D[-1] @ xiK
 
 
-def _candidate_merits(problem: Problem, xs, us, S, xs_bar):
-    """:func:`merit` (cost, merit) of each candidate [A] of :func:`candidate_rollouts`, from its
-    time-major arrays."""
-    cost = jax.vmap(lambda x, u: path_cost(problem, problem.x0, x, u), in_axes=(1, 1))(xs, us)
-    if problem.noise is None:
-        return cost, cost
-    # candidate-major for the noise terms: batched at axis 1 they ran 4 % slower on P2-noisy
-    return cost, cost + jax.vmap(lambda u: noise_cost(problem, xs_bar, u, S))(jnp.swapaxes(us, 0, 1))
-
-
 class LineSearch(NamedTuple):
     """Outcome of one parallel line search."""
 
@@ -177,25 +187,25 @@ def no_step(xs, us, cost, merit_now) -> LineSearch:
     return LineSearch(jnp.asarray(False), xs, us, cost, merit_now, zero, zero, zero, jnp.asarray(False))
 
 
-def line_search(problem: Problem, lqg: DelayedLQG, gains: SlotGains, S, xs, us, merit_now, alphas, z_min,
-                predicted=None):
+def line_search(problem: Problem, gains: SlotGains, S, xs, us, merit_now, alphas, z_min, predicted):
     """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min.
 
-    ``predicted``: the model's (a, b) when the backward pass computed them (``lqg.structured_slot_scan``
-    with ``predict=True``); otherwise :func:`predicted_change` computes them here.
+    ``predicted``: the model's (a, b) of the backward pass (``lqg.structured_slot_scan`` with
+    ``predict=True``, or :func:`predicted_change`). The candidates are scored as they run
+    (:func:`candidate_scores`) and the best one is rolled out again: the line search stores one
+    trajectory, not one per alpha.
     """
     alphas = jnp.asarray(alphas)
-    cand_xs, cand_us = candidate_rollouts(problem, xs, us, gains, alphas)
-    cand_cost, cand_merit = _candidate_merits(problem, cand_xs, cand_us, S, xs)
-    finite = jnp.isfinite(cand_merit) & jnp.all(jnp.isfinite(cand_xs), axis=(0, 2))
+    cand_cost, cand_merit, finite = candidate_scores(problem, xs, us, gains, alphas, S)
+    finite = finite & jnp.isfinite(cand_merit)
     cand_merit = jnp.where(finite, cand_merit, jnp.inf)
     best = jnp.argmin(cand_merit)
-    a, b = predicted_change(lqg, gains, S) if predicted is None else predicted
+    a, b = predicted
     alpha = alphas[best]
     expected = -(alpha * a + alpha ** 2 * b)
     actual = merit_now - cand_merit[best]
     z = jnp.where(expected > 0, actual / jnp.where(expected > 0, expected, 1.0), jnp.sign(actual))
     accepted = finite[best] & (z > z_min)
-    best_xs = jnp.concatenate([problem.x0[None], cand_xs[:, best]])
-    return LineSearch(accepted, best_xs, cand_us[:, best], cand_cost[best], cand_merit[best], alpha,
+    best_xs, best_us = closed_loop_rollout(problem, xs, us, gains, alpha)
+    return LineSearch(accepted, best_xs, best_us, cand_cost[best], cand_merit[best], alpha,
                       actual, expected, ~jnp.any(finite))

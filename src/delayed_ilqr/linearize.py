@@ -1,6 +1,6 @@
 """Eq. (3)-(4): the LQG approximation of a :class:`~delayed_ilqr.Problem` around a nominal trajectory.
 
-Jacobians come from JAX autodiff (reverse mode for f, forward mode for F), vectorised over time with ``vmap``::
+One step's model comes from JAX autodiff (reverse mode for f, forward mode for F) at (x_k, u_k, u_{k-l})::
 
     A = I + dt f_x,  B0 = dt f_u,  B1 = dt f_ud,  c = sqrt(dt) F,  C0 = sqrt(dt) F_u,  C1 = sqrt(dt) F_ud
 
@@ -8,17 +8,22 @@ Jacobians come from JAX autodiff (reverse mode for f, forward mode for F), vecto
 commands only; its dependence on x is evaluated on the nominal (erratum N14). The cost of eq. (2)
 is expanded to second order in the factor-2 convention of eq. (4): d = dt l_x / 2, D = dt l_xx / 2,
 e = dt l_u / 2, E = dt l_uu / 2, N = dt l_ux / 2 for the running cost l, and the final cost alike.
+
+:func:`linearize` stores the model of every step (``vmap``); :func:`step_models` hands the solver's
+structured pass the nominal instead, and the pass linearises each step as it reaches it.
 """
 from __future__ import annotations
+
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 
 from ._scan import packed_scan
-from .lqg import DelayedLQG
+from .lqg import DelayedLQG, StepModels
 from .problem import Problem
 
-__all__ = ["delayed_commands", "rollout", "trajectory_cost", "path_cost", "linearize"]
+__all__ = ["delayed_commands", "rollout", "trajectory_cost", "step_models", "linearize"]
 
 
 def delayed_commands(problem: Problem, us):
@@ -44,14 +49,7 @@ def rollout(problem: Problem, us):
 
 def trajectory_cost(problem: Problem, xs, us):
     """Eq. (2) discretised: sum_k dt running(x_k, u_k) + final(x_K)."""
-    return path_cost(problem, xs[0], xs[1:], us)
-
-
-def path_cost(problem: Problem, x0, xs_next, us):
-    """:func:`trajectory_cost` from x_0 [n] and x_1 .. x_K [K, n], the states a rollout writes
-    (the line search's candidates share x_0 and never store it)."""
-    running = problem.cost.running(x0, us[0]) + jnp.sum(jax.vmap(problem.cost.running)(xs_next[:-1], us[1:]))
-    return problem.dt * running + problem.cost.final(xs_next[-1])
+    return problem.dt * jnp.sum(jax.vmap(problem.cost.running)(xs[:-1], us)) + problem.cost.final(xs[-1])
 
 
 def noise_columns(problem: Problem, xs, us):
@@ -62,34 +60,50 @@ def noise_columns(problem: Problem, xs, us):
     return jnp.sqrt(problem.dt) * jnp.swapaxes(F, 1, 2)
 
 
-def linearize(problem: Problem, xs, us) -> DelayedLQG:
-    """The delayed LQG (3)-(4) around the nominal (xs [K+1, n], us [K, d])."""
+def _step(problem: Problem, row):
+    """Eq. (3)-(4) at one step k < K: (A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, N) from
+    row = (x_k, u_k, u_{k-l}), shaped as one time step of :class:`~delayed_ilqr.lqg.DelayedLQG`."""
+    x, u, ud = row
     dt, nx, nd = problem.dt, problem.n_states, problem.n_controls
-    K = us.shape[0]
-    uds = delayed_commands(problem, us)
     # reverse mode: f has n outputs and n + 2 d inputs, so n vector-Jacobian products instead of
     # n + 2 d Jacobian-vector ones (the six-muscle arm: 10 against 22)
-    fx, fu, fud = jax.vmap(jax.jacrev(problem.dynamics, argnums=(0, 1, 2)))(xs[:-1], us, uds)
-    A = jnp.eye(nx) + dt * fx
-    B0, B1 = dt * fu, dt * fud
+    fx, fu, fud = jax.jacrev(problem.dynamics, argnums=(0, 1, 2))(x, u, ud)
     if problem.noise is None:
-        c = jnp.zeros((K, 0, nx))
-        C0 = C1 = jnp.zeros((K, 0, nx, nd))
+        c, C0 = jnp.zeros((0, nx), x.dtype), jnp.zeros((0, nx, nd), x.dtype)
+        C1 = C0
     else:
-        F = jax.vmap(problem.noise)(xs[:-1], us, uds)                        # [K, n, p]
-        Fu, Fud = jax.vmap(jax.jacfwd(problem.noise, argnums=(1, 2)))(xs[:-1], us, uds)  # [K, n, p, d]
         root = jnp.sqrt(dt)
-        c = root * jnp.swapaxes(F, 1, 2)
-        C0, C1 = root * jnp.moveaxis(Fu, 2, 1), root * jnp.moveaxis(Fud, 2, 1)
-
+        Fu, Fud = jax.jacfwd(problem.noise, argnums=(1, 2))(x, u, ud)           # [n, p, d]
+        c = root * problem.noise(x, u, ud).T
+        C0, C1 = root * jnp.moveaxis(Fu, 1, 0), root * jnp.moveaxis(Fud, 1, 0)
     running = problem.cost.running
-    lx, lu = jax.vmap(jax.grad(running, argnums=(0, 1)))(xs[:-1], us)
-    (lxx, lxu), (lux, luu) = jax.vmap(jax.hessian(running, argnums=(0, 1)))(xs[:-1], us)
-    final = problem.cost.final
+    lx, lu = jax.grad(running, argnums=(0, 1))(x, u)
+    (lxx, lxu), (lux, luu) = jax.hessian(running, argnums=(0, 1))(x, u)
     half = 0.5 * dt
-    d_tilde = jnp.concatenate([dt * jax.vmap(running)(xs[:-1], us), final(xs[-1])[None]])
-    d = jnp.concatenate([half * lx, 0.5 * jax.grad(final)(xs[-1])[None]])
-    D = jnp.concatenate([half * lxx, 0.5 * jax.hessian(final)(xs[-1])[None]])
+    return (jnp.eye(nx, dtype=x.dtype) + dt * fx, dt * fu, dt * fud, c, C0, C1, dt * running(x, u), half * lx,
+            half * lxx, half * lu, half * luu, half * lux)
+
+
+def _terminal(problem: Problem, x):
+    """(d_tilde_K, d_K, D_K): the final cost expanded at x_K."""
+    final = problem.cost.final
+    return final(x), 0.5 * jax.grad(final)(x), 0.5 * jax.hessian(final)(x)
+
+
+def step_models(problem: Problem, xs, us) -> StepModels:
+    """The delayed LQG (3)-(4) around the nominal (xs [K+1, n], us [K, d]), one step at a time:
+    the structured pass linearises each step as it reaches it, and nothing stores the model."""
+    return StepModels(partial(_step, problem), (xs[:-1], us, delayed_commands(problem, us)),
+                      _terminal(problem, xs[-1]), problem.delay_steps, problem.n_controls)
+
+
+def linearize(problem: Problem, xs, us) -> DelayedLQG:
+    """The delayed LQG (3)-(4) around the nominal (xs [K+1, n], us [K, d]), stored: every step of
+    :func:`step_models` at once (``vmap``)."""
+    A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, N = jax.vmap(partial(_step, problem))(
+        (xs[:-1], us, delayed_commands(problem, us)))
+    final = _terminal(problem, xs[-1])
     return DelayedLQG.from_traced(
-        A=A, B0=B0, B1=B1, c=c, C0=C0, C1=C1, d_tilde=d_tilde, d=d, D=D,
-        e=half * lu, E=half * luu, N=half * lux, delay_steps=problem.delay_steps)
+        A=A, B0=B0, B1=B1, c=c, C0=C0, C1=C1, d_tilde=jnp.concatenate([d_tilde, final[0][None]]),
+        d=jnp.concatenate([d, final[1][None]]), D=jnp.concatenate([D, final[2][None]]), e=e, E=E, N=N,
+        delay_steps=problem.delay_steps)

@@ -4,10 +4,12 @@ in one compiled ``lax.while_loop``.
 One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 
 1. linearise (eq. 3-4) and run the backward pass (Theorem 1, or augmentation with
-   ``Options(method="augmented")``) with H + lambda I;
+   ``Options(method="augmented")``) with H + lambda I; the structured pass linearises each step
+   as it reaches it, so the model is never stored;
 2. if some H + lambda I is not positive definite: raise lambda and try again;
 3. if the feedforward is negligible (Tassa's gradient measure < tol_grad with lambda < 1e-5): stop;
-4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best, accept
+4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best (scored
+   as the rollouts run, then rolled out again), accept
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
    schedule); stop when the best reduction is below tol_cost (relative); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
@@ -27,7 +29,7 @@ import numpy as np
 
 from . import _validate, _xla_options
 from .forward import line_search, merit, no_step, predicted_change
-from .linearize import linearize, rollout, trajectory_cost
+from .linearize import linearize, rollout, step_models, trajectory_cost
 from .lqg import (_DEFER_MIN_LD, SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan,
                   to_slots, unconstrained_gains, unregularized_feedback)
 from .problem import Problem
@@ -111,30 +113,33 @@ class _State(NamedTuple):
 
 
 def _backward(problem: Problem, xs, us, reg, method: str, limit_margin: float):
-    """Linearise and solve the LQG: (lqg, gains, S [K+1, n, n], s_tilde_0, positive_definite,
-    predicted), with predicted the line search's model (a, b) from the structured pass (None for
-    the augmented reference, whose line search runs ``forward.predicted_change``). The structured
-    pass returns S = None without noise, where nothing uses it.
+    """Linearise and solve the LQG: (gains, S [K+1, n, n], s_tilde_0, positive_definite, predicted),
+    with predicted the line search's model (a, b). The structured pass linearises each step as it
+    reaches it (``linearize.step_models``: the model is never stored) and predicts (a, b) as it
+    goes; it returns S = None without noise, where nothing uses it. The augmented reference
+    linearises into a stored model and predicts by ``forward.predicted_change``.
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
     (u_min - u_k, u_max - u_k), and clamped commands get no feedback. With noise, lambda
     regularises the feedforward only (see ``lqg.unregularized_feedback``).
     """
-    lqg = linearize(problem, xs, us)
     kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:
         kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))
     if problem.noise is not None:
         kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
     if method == "augmented":
+        lqg = linearize(problem, xs, us)
         gains, value = augmented_scan(lqg, reg, **kw)
-        return lqg, to_slots(gains), value.S, value.s_tilde[0], value.positive_definite, None
+        gains = to_slots(gains)
+        return gains, value.S, value.s_tilde[0], value.positive_definite, predicted_change(lqg, gains, value.S)
     noisy = problem.noise is not None
-    gains, (s_tilde, *s_and_S), ok, predicted = structured_slot_scan(lqg, reg, store_value=False, predict=True,
+    models = step_models(problem, xs, us)
+    gains, (s_tilde, *s_and_S), ok, predicted = structured_slot_scan(models, reg, store_value=False, predict=True,
                                                                      store_S=noisy, **kw)
     # S enters the merit and the line search only through the noise terms
-    S = jnp.concatenate([s_and_S[1], lqg.D[-1:]]) if noisy else None
-    return lqg, gains, S, s_tilde[0], ok, predicted
+    S = jnp.concatenate([s_and_S[1], models.terminal[2][None]]) if noisy else None
+    return gains, S, s_tilde[0], ok, predicted
 
 
 def _grad_norm(gains: SlotGains, us):
@@ -159,14 +164,12 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     backward pass only, so that the returned policy belongs to the returned nominal. The loop
     body is the only place the backward pass is traced, which keeps compilation short.
     """
-    lqg, gains, S, expected_cost, pd, predicted = _backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
+    gains, S, expected_cost, pd, predicted = _backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
     running = st.status == _RUNNING
     gnorm = _grad_norm(gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, S, st.xs)[1]
-    if predicted is None:
-        predicted = predicted_change(lqg, gains, S)
     # Without noise, a model that promises less than tol_cost |cost| for every alpha ends the
     # solve before the line search (crocoddyl's stopping test): the step it would find is one the
     # solver does not take (``small`` below). P3: one line search of nine fewer.
@@ -175,7 +178,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     flat = pd & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) & (problem.noise is None)
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
     search = running & ~converged & pd & ~flat
-    ls = jax.lax.cond(search, lambda: line_search(problem, lqg, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min,
+    ls = jax.lax.cond(search, lambda: line_search(problem, gains, S, st.xs, st.us, merit_now, o.alphas, o.z_min,
                                                       predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
     accept = search & ls.accepted
