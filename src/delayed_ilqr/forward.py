@@ -75,7 +75,8 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
     finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
 
     One scan carries all A loops (the step is vmapped, not the scan) and stores no trajectory:
-    each step adds its running cost (and noise cost, eq. of :func:`noise_cost`) to its loop's sum.
+    each step adds its running cost (and, with noise, its term c'S c of :func:`noise_cost`) to its
+    loop's sums.
     Storing the A candidates was 11 (n + d) numbers per step, 4.7 times the gains of P4 at l = 1,
     and scoring them afterwards copied them once more; the line search rolls the best step size
     out again instead (:func:`line_search`).
@@ -85,7 +86,7 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
 
     def one(alpha, carry, data):
         y, running, noise, finite = carry
-        law_data, S_next = data[:6], data[6]
+        law_data, S_next = data
         y_new, x, u, ud, x_new = _law(problem, alpha, y, law_data)
         if noisy:       # c' S c summed over the noise columns, c = sqrt(dt) F at the nominal state
             F = problem.noise(law_data[1], u, ud)                                  # [n, p]
@@ -97,8 +98,7 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
     zero = jnp.zeros(A, us_bar.dtype)
     y0 = jnp.broadcast_to(_y0(problem, us_bar.dtype), (A, problem.n_states + problem.delay_steps
                                                        * problem.n_controls))
-    S_next = S[1:] if noisy else jnp.zeros((us_bar.shape[0], 0), us_bar.dtype)
-    data = _law_data(problem, xs_bar, us_bar, gains) + (S_next,)
+    data = (_law_data(problem, xs_bar, us_bar, gains), S[1:] if noisy else None)
     (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
                                                  (y0, zero, zero, jnp.ones(A, bool)), data)
     cost = dt * running + jax.vmap(problem.cost.final)(y[:, :problem.n_states])

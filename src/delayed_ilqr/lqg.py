@@ -306,12 +306,14 @@ def _stage_data(models: StepModels, bounds, steps: int, block: int):
     padding, see :func:`_padded_rows`): the step k, the offsets (k mod l) d and ((k - 1) mod l) d
     of its slot and of the next step's in the flattened pending axis, 2 (k mod block) d, its rows
     in the deferred factors of :func:`_r_update` (computed here, once, rather than in every step),
-    whether it is a step of the horizon, then the row of ``models`` and the bounds."""
+    whether it is a step of the horizon (None without padding), then the row of ``models`` and
+    the bounds."""
     k = jnp.arange(steps)
     l, nd = max(models.delay_steps, 1), models.n_controls
     rows, bounds = _padded_rows(models.rows, bounds, steps - models.horizon)
-    return (k, slot_offsets(steps, models.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd,
-            k < models.horizon, rows, bounds)
+    live = k < models.horizon if steps > models.horizon else None
+    return (k, slot_offsets(steps, models.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, live, rows,
+            bounds)
 
 
 def _padded_rows(rows, bounds, steps: int):
@@ -412,7 +414,7 @@ def _pending_order(k, l: int, nd: int):
 def _step_model(model, row, live, l: int):
     """Step k's model for the recursion: Z = [A, B0, B1] and the rest of ``model(row)``, with B1
     and C1 folded into B0 and C0 for l = 0 (the delayed command is the current one), and the
-    idle step's for padding (``live`` False)."""
+    idle step's for padding (``live`` False; None: no padding)."""
     A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu = model = model(row)
     if live is not None:
         model = jax.tree_util.tree_map(lambda m, idle: jnp.where(live, m, idle), model, _idle_step(model))
@@ -422,7 +424,7 @@ def _step_model(model, row, live, l: int):
     return jnp.concatenate([A, B0, B1], axis=1), c, C0, C1, d_tilde, dv, D, e, E, Nxu
 
 
-def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bool, gains_fn, model, padded: bool):
+def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bool, gains_fn, model):
     """Step k+1 -> k of the corrected recursion (eq. 8 with the errata of docs/derivation.md).
 
     ``carry`` holds J(k+1)'s coefficients with the pending commands in slot order (see
@@ -436,8 +438,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     Q_yy + K'W + W'K with W = H K / 2 + G, q_y + K'(H I + g) + G'I and q0 + I'H I + 2 I'g
     (derivation §4). For the unregularised optimum it reduces to the paper's "- K'H K" form.
 
-    ``model`` gives the step's LQG from its row of ``data`` (see :class:`StepModels`), and
-    ``padded`` says whether ``data`` marks padding steps.
+    ``model`` gives the step's LQG from its row of ``data`` (see :class:`StepModels`).
 
     ``carry = (value, predicted)``. ``predicted`` is () or (s0, r0, a, b), which predicts the change of the
     model's cost when the feedforward is scaled by alpha, alpha a + alpha^2 b (derivation §12):
@@ -446,7 +447,7 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
     """
     (s_tilde, s, S, r, Rt, R, R_s, ok, warm, F), predicted = carry
     k, j0, j_next, jq, live, model_row, bounds = data
-    Z, c, C0, C1, d_tilde, dv, D, e, E, Nxu = _step_model(model, model_row, live if padded else None, l)
+    Z, c, C0, C1, d_tilde, dv, D, e, E, Nxu = _step_model(model, model_row, live, l)
     nx, nd = Z.shape[0], e.shape[0]
     # All products with S, s and Rt at once, through Z = [A, B0, B1] (few large products beat many
     # tiny ones: per-operation overhead dominates at the sizes of motor-control problems).
@@ -694,12 +695,12 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
         raise ValueError("store_S=False needs store_value=False: the value blocks include S")
     steps = K + (-K % block)
     step = partial(_structured_step, l=l, reg=reg, store_value=store_value, store_S=store_S, gains_fn=gains_fn,
-                   model=models.model, padded=steps > K)
+                   model=models.model)
     d_K = models.terminal[1]
     zero = jnp.zeros((), d_K.dtype)
     predicted = (d_K, jnp.zeros(l * models.n_controls, d_K.dtype), zero, zero) if predict else ()
     # the outputs unpacked: packing I, K and s_tilde into one row per step, then slicing them out,
-    # held both copies (P4 at l = 1: 56 kB more, 0.8 times the gains)
+    # held both copies (P4 at l = 1: 58 kB more, 0.9 times the gains)
     (carry, predicted), out = packed_scan(step, (_terminal(models, block), predicted),
                                           _stage_data(models, bounds, steps, block), reverse=True, block=block,
                                           flush=lambda c: (_flush(c[0]), c[1]), pack_outputs=False)
