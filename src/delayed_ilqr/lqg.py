@@ -333,10 +333,9 @@ def _padded_rows(rows, bounds, steps: int):
 def _idle_step(model):
     """A step that leaves every value exactly as it is (A = I, E = I, everything else zero): the
     backward pass crosses it with J unchanged and gains zero."""
-    A, *_, E, _ = model
-    idle = [jnp.zeros_like(x) for x in model]
-    idle[0], idle[10] = jnp.eye(A.shape[0], dtype=A.dtype), jnp.eye(E.shape[0], dtype=E.dtype)
-    return tuple(idle)
+    A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, Nxu = (jnp.zeros_like(x) for x in model)
+    return (jnp.eye(A.shape[0], dtype=A.dtype), B0, B1, c, C0, C1, d_tilde, dv, D, e,
+            jnp.eye(E.shape[0], dtype=E.dtype), Nxu)
 
 
 def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
