@@ -49,14 +49,17 @@ def _unpack(packed, layout, lead=()):
 _PACK_MAX = 128
 
 
-def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, pack_outputs: bool = True):
+def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, pack_outputs: bool = True,
+                pack_inputs: bool = True):
     """Same result as ``jax.lax.scan(f, init, xs, reverse=reverse)``; ``xs`` must be non-empty.
 
-    Only the per-step inputs and outputs with at most ``_PACK_MAX`` numbers per step are packed
-    (outputs not at all with ``pack_outputs=False``: unpacking copies them once more, which costs
-    more than it saves where they are large and few, as the line search's candidate trajectories);
-    the carry is passed as it is (its large members, such as the value matrix of the backward
-    pass, are updated in place).
+    Only the per-step inputs and outputs with at most ``_PACK_MAX`` numbers per step are packed,
+    and not at all with ``pack_inputs=False`` / ``pack_outputs=False``: a packed copy is held
+    beside the arrays it copies (packed and sliced apart, the backward pass's outputs were both
+    live; the line search's packed inputs, the gains and the nominal, were 1.3 times the gains
+    at l = 1), which costs more memory than it saves time where the loop is compiled as one
+    function (see ``_xla_options``) and its slices cost nothing. The carry is passed as it is
+    (its large members, such as the value matrix of the backward pass, are updated in place).
 
     With ``block`` > 1 the steps run in blocks of that many (the length must be a multiple of it),
     as a scan over blocks of a scan over steps, and ``flush(carry)`` is applied after each block:
@@ -65,7 +68,7 @@ def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, 
     """
     leaves, in_tree = jax.tree_util.tree_flatten(xs)
     K = leaves[0].shape[0]
-    in_small = [math.prod(x.shape[1:]) <= _PACK_MAX for x in leaves]
+    in_small = [pack_inputs and math.prod(x.shape[1:]) <= _PACK_MAX for x in leaves]
     in_layout, in_dtypes = _layout([(x.shape[1:], x.dtype) for x, small in zip(leaves, in_small) if small])
     out_spec = []
 

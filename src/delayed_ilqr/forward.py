@@ -65,7 +65,10 @@ def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alph
         # output (with x, XLA recomputed the arm's dynamics in two fusions: P3 rollouts +20 %)
         return y_new, (x_new, u)
 
-    _, (xs, us) = packed_scan(step, _y0(problem, us_bar.dtype), _law_data(problem, xs_bar, us_bar, gains))
+    # inputs unpacked: their packed copy, mostly the gains, was the solver's largest temporary
+    # (P4 at l = 1: the temporaries went from 167 to 78 kB), at the same speed
+    _, (xs, us) = packed_scan(step, _y0(problem, us_bar.dtype), _law_data(problem, xs_bar, us_bar, gains),
+                              pack_inputs=False)
     return jnp.concatenate([problem.x0[None], xs]), us
 
 
@@ -100,7 +103,8 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
                                                        * problem.n_controls))
     data = (_law_data(problem, xs_bar, us_bar, gains), S[1:] if noisy else None)
     (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
-                                                 (y0, zero, zero, jnp.ones(A, bool)), data)
+                                                 (y0, zero, zero, jnp.ones(A, bool)), data,
+                                                 pack_inputs=False)       # as in closed_loop_rollout
     cost = dt * running + jax.vmap(problem.cost.final)(y[:, :problem.n_states])
     return cost, cost + noise, finite
 
