@@ -317,9 +317,9 @@ def _stage_data(models: StepModels, bounds, steps: int, block: int):
 
 
 def _padded_rows(rows, bounds, steps: int):
-    """``rows`` and ``bounds`` with ``steps`` rows appended, copies of the last (any finite row
-    will do: the recursion replaces the model of these steps by :func:`_idle_step`'s, and their
-    bounds are +-1), so that blocked passes can run on a horizon that is a multiple of their block."""
+    """``rows`` and ``bounds`` with ``steps`` rows appended, copies of the last (any row will do:
+    the recursion replaces the model of these steps by :func:`_idle_step`'s, and their bounds are
+    +-1), so that blocked passes can run on a horizon that is a multiple of their block."""
     if steps == 0:
         return rows, bounds
     grow = lambda x, fill=None: jnp.concatenate([x, jnp.repeat(x[-1:], steps, axis=0) if fill is None
@@ -439,8 +439,9 @@ def _structured_step(carry, data, *, l: int, reg, store_value: bool, store_S: bo
 
     ``model`` gives the step's LQG from its row of ``data`` (see :class:`StepModels`).
 
-    ``carry = (value, predicted)``. ``predicted`` is () or (s0, r0, a, b), which predicts the change of the
-    model's cost when the feedforward is scaled by alpha, alpha a + alpha^2 b (derivation §12):
+    ``carry = (value, predicted)``. ``predicted`` is () or (s0, r0, a, b), which predicts the
+    change of the model's cost when the feedforward is scaled by alpha, alpha a + alpha^2 b
+    (derivation §12):
     (s0, r0) are s, r of the policy without feedforward (I = 0, same K), g0 the g they give, and
     a = sum_k 2 I'g0, b = sum_k I'H I + 2 I'(g - g0).
     """
