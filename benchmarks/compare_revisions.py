@@ -1,0 +1,93 @@
+"""Solve times of the working tree against another git revision, measured in one process.
+
+    .venv/bin/python benchmarks/compare_revisions.py HEAD~1 [--problems P1,P3,P4-200] [--rounds 30]
+
+These 2-core machines are shared and their speed moves by a third within minutes, so two versions
+timed in separate processes, even alternately, can differ by more than the change under test. Here
+``git archive REV src/delayed_ilqr`` is unpacked as a second package, ``delayed_ilqr_base``, both
+versions compile the same problems, and their solves alternate one by one: each round times one
+solve of each. It prints the medians and minima of both, the ratio of the medians (working tree /
+revision) and the relative difference of the costs. The package's imports are relative, so the
+copy runs under its new name; both set the same XLA flags at import (``_xla_options``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+import delayed_ilqr
+
+ROOT = Path(__file__).resolve().parents[1]
+# name -> (model, keyword arguments): the benchmark problems of benchmark_problems.md and two variants
+PROBLEMS = {
+    "P1": ("point_mass", dict(delay=0.1)),
+    "P2": ("arm2", dict(delay=0.1)),
+    "P2-noisy": ("arm2", dict(delay=0.1, noise=True)),
+    "P3": ("arm2", dict(delay=0.1, dt=0.002)),
+    **{f"P4-{l}": ("point_mass", dict(dt=0.001, delay=l * 0.001)) for l in (1, 10, 100, 200)},
+}
+
+
+def import_revision(rev: str, where: Path):
+    """The package as it is at ``rev``, imported as ``delayed_ilqr_base``."""
+    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src/delayed_ilqr"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(where)], input=archive, check=True)
+    (where / "src" / "delayed_ilqr").rename(where / "delayed_ilqr_base")
+    sys.path.insert(0, str(where))
+    return importlib.import_module("delayed_ilqr_base")
+
+
+def compiled_solve(package, name: str):
+    """(a function running one compiled solve, its cost) for problem ``name`` of ``package``."""
+    models, solver = importlib.import_module(f"{package.__name__}.models"), importlib.import_module(
+        f"{package.__name__}.solver")
+    model, kwargs = PROBLEMS[name]
+    problem = getattr(models, model)(**kwargs)
+    run = solver.compiled_solver(problem)
+    u_init = jnp.zeros((problem.horizon, problem.n_controls))
+    options = package.Options()
+    cost = float(jax.block_until_ready(run(problem, u_init, options)).cost)
+    return lambda: jax.block_until_ready(run(problem, u_init, options)), cost
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("revision", help="git revision to compare the working tree against, e.g. HEAD~1")
+    parser.add_argument("--problems", default="P1,P2,P2-noisy,P3,P4-1,P4-10,P4-100,P4-200",
+                        help=f"comma-separated, from {', '.join(PROBLEMS)}")
+    parser.add_argument("--rounds", type=int, default=30, help="timed solves of each version per problem")
+    args = parser.parse_args(argv)
+    names = args.problems.split(",")
+    unknown = [n for n in names if n not in PROBLEMS]
+    if unknown:
+        parser.error(f"unknown problems {unknown}; choose from {', '.join(PROBLEMS)}")
+    with tempfile.TemporaryDirectory() as tmp:
+        base = import_revision(args.revision, Path(tmp))
+        print(f"working tree against {args.revision}: medians (minima) of {args.rounds} interleaved solves each")
+        for name in names:
+            (run_base, cost_base), (run_new, cost_new) = (compiled_solve(p, name) for p in (base, delayed_ilqr))
+            times = ([], [])
+            for _ in range(args.rounds):
+                for run, recorded in zip((run_base, run_new), times):
+                    start = time.perf_counter()
+                    run()
+                    recorded.append(time.perf_counter() - start)
+            med_base, med_new = (statistics.median(t) * 1e3 for t in times)
+            min_base, min_new = (min(t) * 1e3 for t in times)
+            print(f"{name:9s} {args.revision}: {med_base:9.3f} ms ({min_base:.3f})   working tree: "
+                  f"{med_new:9.3f} ms ({min_new:.3f})   ratio {med_new / med_base:5.2f}   "
+                  f"cost rel. diff {abs(cost_new - cost_base) / abs(cost_base):.1e}")
+
+
+if __name__ == "__main__":
+    main()
