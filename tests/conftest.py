@@ -7,7 +7,7 @@ import jax
 import delayed_ilqr
 
 # what a program using the library does first; the suite's speed depends on the flags (their
-# effect is checked in test_cpu_flags.py), and they must be set before any JAX computation
+# effect is checked in test_xla_options.py), and they must be set before any JAX computation
 jax.config.update("jax_enable_x64", True)
 delayed_ilqr.configure_cpu()
 

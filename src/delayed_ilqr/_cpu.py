@@ -12,16 +12,17 @@ docs/performance.md#configure_cpu):
   (:data:`SMALL_LOOP_BYTES`): trades the thunk runtime's multi-threaded library kernels, which
   only large per-step products need, for no per-operation cost in every smaller loop; see
   docs/performance.md#xla_cpu_small_while_loop_byte_threshold.
-* ``--xla_cpu_experimental_ynn_fusion_type=-individual_dot``: no YNNPACK single dots, since a
-  loop that holds one is never compiled as one function; ``solver.compiled_solver`` turns them
-  back on for long delays (:data:`LIBRARY_DOTS`), whose large products they speed up; see
-  docs/performance.md#xla_cpu_experimental_ynn_fusion_type.
+* ``--xla_cpu_experimental_ynn_fusion_type=-individual_dot``: trades YNNPACK's single dots, fast
+  on large products, for loops that can be compiled as one function (a loop that holds one
+  never is); ``solver.compiled_solver`` turns them back on for long delays
+  (:data:`LIBRARY_DOTS`); see docs/performance.md#xla_cpu_experimental_ynn_fusion_type.
 
 Both are process-wide, and only ``XLA_FLAGS`` sets the threshold (``jax.jit``'s
 ``compiler_options`` take no map-valued options); XLA reads it once, when JAX starts its
-backend. Importing ``delayed_ilqr`` therefore sets nothing: a program that wants the speed calls
-:func:`configure_cpu` before its first JAX computation, as the ``delayed-ilqr`` command line,
-the tests and the benchmarks do.
+backend. Importing ``delayed_ilqr`` sets nothing (a process-wide setting is the program's to
+choose, and a flag that another jaxlib does not know aborts every process that inherits it): a
+program that wants the speed calls :func:`configure_cpu` before its first JAX computation, as the
+``delayed-ilqr`` command line, the tests and the benchmarks do.
 """
 from __future__ import annotations
 
