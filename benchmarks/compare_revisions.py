@@ -8,7 +8,8 @@ timed in separate processes, even alternately, can differ by more than the chang
 versions compile the same problems, and their solves alternate one by one: each round times one
 solve of each. It prints the medians and minima of both, the ratio of the medians (working tree /
 revision) and the relative difference of the costs. The package's imports are relative, so the
-copy runs under its new name; both set the same XLA flags at import (``_xla_options``).
+copy runs under its new name. The process turns float64 and XLA's CPU flags on first
+(``configure_cpu``); a revision that set them at import keeps them as they are.
 """
 from __future__ import annotations
 
@@ -67,6 +68,8 @@ def main(argv=None) -> None:
                         help=f"comma-separated, from {', '.join(PROBLEMS)}")
     parser.add_argument("--rounds", type=int, default=30, help="timed solves of each version per problem")
     args = parser.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    delayed_ilqr.configure_cpu()
     names = args.problems.split(",")
     unknown = [n for n in names if n not in PROBLEMS]
     if unknown:

@@ -143,6 +143,13 @@ def main() -> None:
     parser.add_argument("--check", action="store_true", help="compare costs with delayed_ilqr")
     parser.add_argument("--threads", type=int, default=1, help="OpenMP threads (default 1)")
     args = parser.parse_args()
+    if args.check:   # delayed_ilqr's costs, computed in float64 with XLA's CPU flags
+        import jax
+
+        import delayed_ilqr as di
+
+        jax.config.update("jax_enable_x64", True)
+        di.configure_cpu()
     cases = CASES + [P4_200] * args.with_200
     results = crocoddyl_solve_times(cases, threads=args.threads)
     print(f"crocoddyl {crocoddyl.__version__}, state augmentation, {args.threads} thread(s), "

@@ -59,6 +59,8 @@ P2_TARGET = np.array([math.pi / 2, math.pi / 3, 0.0, 0.0])
 FIRST_CALL_SNIPPET = """
 import time, jax, delayed_ilqr as di
 from delayed_ilqr.models import arm2
+jax.config.update("jax_enable_x64", True)
+di.configure_cpu()
 problem = arm2(delay=0.1)
 start = time.perf_counter()
 jax.block_until_ready(di.solve(problem))
@@ -394,6 +396,8 @@ def header() -> list[str]:
 
 
 def main() -> None:
+    jax.config.update("jax_enable_x64", True)
+    di.configure_cpu()
     problems = benchmark_problems()
     first_fresh = fresh_process_first_call()
     runs = full_solves(problems)

@@ -3,14 +3,18 @@ and agreement with an independent direct method (L-BFGS-B over all commands, aut
 
 Run: .venv/bin/python benchmarks/solve_p1_p2.py
 """
+import sys
 import time
+from pathlib import Path
 
 import jax
 import numpy as np
 
 import delayed_ilqr as di
-from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from direct import direct_optimum  # noqa: E402  (tests/direct.py: a test reference, not in the package)
 
 
 def timed_solve(problem, repeats=7):
@@ -26,6 +30,8 @@ def timed_solve(problem, repeats=7):
 
 
 def main():
+    jax.config.update("jax_enable_x64", True)
+    di.configure_cpu()
     print(f"{'problem':8} {'delay':>6} {'l':>3} {'cost':>14} {'iters':>5} {'status':>18} "
           f"{'first call':>10} {'solve':>9} {'direct (L-BFGS)':>16} {'rel. diff':>10}")
     for name, factory in (("P1", point_mass), ("P2", arm2)):

@@ -1,9 +1,15 @@
-"""Shared test configuration: float64 JAX and a reproducible, time-bounded hypothesis profile."""
+"""Shared test configuration: float64 JAX, XLA's CPU flags and a reproducible, time-bounded
+hypothesis profile."""
 import os
 
 import jax
 
+import delayed_ilqr
+
+# what a program using the library does first; the suite's speed depends on the flags (their
+# effect is checked in test_xla_options.py), and they must be set before any JAX computation
 jax.config.update("jax_enable_x64", True)
+delayed_ilqr.configure_cpu()
 
 from hypothesis import HealthCheck, settings  # noqa: E402
 

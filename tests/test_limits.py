@@ -10,8 +10,9 @@ import pytest
 import delayed_ilqr as di
 from delayed_ilqr.lqg import (DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan, unconstrained_gains,
                               unregularized_feedback)
-from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr.models import arm2, point_mass
+
+from direct import direct_optimum   # tests/direct.py
 
 
 def _random_lqg(K, nx, nd, p, l, seed):

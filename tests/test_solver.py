@@ -9,10 +9,11 @@ import pytest
 import delayed_ilqr as di
 from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
-from delayed_ilqr.direct import direct_optimum
 from delayed_ilqr import solver as solver_module
 from delayed_ilqr.solver import _backward
 from delayed_ilqr.models import arm2, point_mass
+
+from direct import direct_optimum   # tests/direct.py
 
 DELAYS = [0.0, 0.03, 0.1]
 

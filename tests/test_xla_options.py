@@ -1,38 +1,80 @@
-"""The XLA backend options set at import (``delayed_ilqr._xla_options``)."""
+"""XLA's CPU flags (``delayed_ilqr.configure_cpu``, module ``_cpu``): what they add to
+``XLA_FLAGS``, when they refuse, and that they reached XLA in this process (conftest.py calls
+``configure_cpu`` before any JAX computation)."""
+import os
+
 import jax
 import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr import _xla_options, solver
+from delayed_ilqr import _cpu, solver
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.solver import compiled_solver
 
 THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
 NO_YNN = "--xla_cpu_experimental_ynn_fusion_type=-individual_dot"
-
-
 MY_THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1024"
 MY_YNN = "--xla_cpu_experimental_ynn_fusion_type=+individual_dot"
+MY_LLVM = "--xla_backend_extra_options=-inline-threshold=225"
 
 
-@pytest.mark.parametrize("before, after", [
-    (None, f"{THRESHOLD} {NO_YNN}"),
-    ("--xla_cpu_enable_fast_math=false", f"--xla_cpu_enable_fast_math=false {THRESHOLD} {NO_YNN}"),
-    (MY_THRESHOLD, f"{MY_THRESHOLD} {NO_YNN}"),                    # what the user set is kept
-    (MY_YNN, f"{MY_YNN} {THRESHOLD}"),
+@pytest.fixture
+def before_jax(monkeypatch):
+    """``configure_cpu`` as before JAX's first computation (this process's backend has started)."""
+    monkeypatch.setattr(_cpu, "_backend_started", lambda: False)
+    monkeypatch.delenv("XLA_FLAGS", raising=False)
+
+
+@pytest.mark.parametrize("before, after, added", [
+    (None, f"{THRESHOLD} {NO_YNN}", (THRESHOLD, NO_YNN)),
+    ("--xla_cpu_enable_fast_math=false", f"--xla_cpu_enable_fast_math=false {THRESHOLD} {NO_YNN}",
+     (THRESHOLD, NO_YNN)),
+    (MY_THRESHOLD, f"{MY_THRESHOLD} {NO_YNN}", (NO_YNN,)),                    # what the user set is kept
+    (MY_YNN, f"{MY_YNN} {THRESHOLD}", (THRESHOLD,)),
+    (f"{MY_THRESHOLD} {MY_YNN}", f"{MY_THRESHOLD} {MY_YNN}", ()),
+    # a second --xla_backend_extra_options would replace the user's: the threshold joins it
+    (MY_LLVM, f"{MY_LLVM},xla_cpu_small_while_loop_byte_threshold=1000000 {NO_YNN}", (THRESHOLD, NO_YNN)),
 ])
-def test_configure_adds_the_flags_the_user_did_not_set(before, after):
-    env = {} if before is None else {"XLA_FLAGS": before}
-    _xla_options.configure(env)
-    assert env["XLA_FLAGS"] == after
+def test_configure_cpu_adds_the_flags_the_user_did_not_set(before_jax, monkeypatch, before, after, added):
+    if before is not None:
+        monkeypatch.setenv("XLA_FLAGS", before)
+    assert di.configure_cpu() == added
+    assert os.environ["XLA_FLAGS"] == after
+    assert di.configure_cpu() == ()                   # idempotent
+    assert os.environ["XLA_FLAGS"] == after
+
+
+def test_configure_cpu_after_the_first_computation_warns_and_changes_nothing(monkeypatch):
+    jax.numpy.zeros(1).block_until_ready()            # the backend starts (with conftest's flags)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_enable_fast_math=false")
+    with pytest.warns(UserWarning, match="before any JAX computation"):
+        assert di.configure_cpu() == ()
+    assert os.environ["XLA_FLAGS"] == "--xla_cpu_enable_fast_math=false"
+
+
+def test_a_flag_the_installed_jaxlib_does_not_know_is_left_out(before_jax, monkeypatch):
+    # as with a future jaxlib without the experimental YNNPACK flag: XLA would abort on it
+    known = _cpu._known_names
+    monkeypatch.setattr(_cpu, "_known_names", lambda names: {
+        **known(names), "xla_cpu_experimental_ynn_fusion_type": False})
+    with pytest.warns(UserWarning, match="does not know --xla_cpu_experimental_ynn_fusion_type"):
+        assert di.configure_cpu() == (THRESHOLD,)
+    assert os.environ["XLA_FLAGS"] == THRESHOLD
+
+
+def test_the_installed_jaxlib_knows_the_flags_and_only_those_names():
+    names = ("xla_backend_extra_options", "xla_cpu_small_while_loop_byte_threshold",
+             "xla_cpu_experimental_ynn_fusion_type", "xla_cpu_no_such_flag",
+             "cpu_experimental_ynn_fusion_type")      # the end of a known name is not a name
+    assert _cpu._known_names(names) == {**dict.fromkeys(names[:3], True), **dict.fromkeys(names[3:], False)}
 
 
 def test_small_scans_compile_as_single_functions():
     # The three scans (initial rollout, backward pass, line search) become calls that XLA compiles
     # whole (P1's iteration loop too); with XLA's default threshold (1024 bytes) only the rollout
-    # does, and with YNNPACK fusions P3's backward pass does not. This checks that both settings reached XLA in this
-    # process (the package was imported before JAX's first computation).
+    # does, and with YNNPACK fusions P3's backward pass does not. This checks that both settings
+    # reached XLA in this process (conftest.py called configure_cpu before JAX's first computation).
     for problem in (point_mass(delay=0.1), arm2(delay=0.1, dt=0.002)):
         u_init = np.zeros((problem.horizon, 2))
         hlo = compiled_solver(problem).lower(problem, u_init, di.Options()).compile().as_text()

@@ -19,25 +19,24 @@ S, s, s_tilde, R, Rt, r   eq. (7): coefficients of the cost-to-go J(k)
 H          Hessian of J(k-1) in du_{k-1} (the quantity that must be positive definite)
 =========  =====================================================================================
 
-Importing the package enables float64 in JAX: a user who does nothing gets double precision. It
-also sets two of XLA's CPU flags for the process, so that XLA compiles the solver's small loops as
-single functions (see ``_xla_options``); they take effect when the package is imported before
-JAX's first computation, and a flag the user set in ``XLA_FLAGS`` is kept.
+Importing the package changes nothing in the process: no environment variable, no JAX setting.
+Two lines that a program using it runs first, before any JAX computation::
+
+    jax.config.update("jax_enable_x64", True)   # required: the solver refuses float32
+    delayed_ilqr.configure_cpu()                 # optional: XLA flags that halve small solves
+
+The library needs float64 and says so with a ``ValueError`` that names the first line, rather
+than switching precision for its own computations (see ``_precision``). :func:`configure_cpu`
+adds two of XLA's CPU flags to ``XLA_FLAGS`` so that XLA compiles the solver's small loops as
+single functions (see ``_cpu``); it warns when it comes too late to take effect.
 """
-from . import _xla_options
+from . import lqg, models
+from ._cpu import configure_cpu
+from .problem import GeneralCost, Problem, QuadraticCost
+from .solution import Policy, Solution, Status, Trace
+from .solver import Options, solve
+from .simulate import Runs, simulate
 
-_xla_options.configure()
-
-import jax  # noqa: E402
-
-jax.config.update("jax_enable_x64", True)
-
-from . import lqg  # noqa: E402
-from .problem import GeneralCost, Problem, QuadraticCost  # noqa: E402
-from .solution import Policy, Solution, Status, Trace  # noqa: E402
-from .solver import Options, solve  # noqa: E402
-from .simulate import Runs, simulate  # noqa: E402
-
-__all__ = ["lqg", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve", "Solution", "Policy",
-           "Status", "Trace", "simulate", "Runs"]
+__all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
+           "Solution", "Policy", "Status", "Trace", "simulate", "Runs"]
 __version__ = "0.1.0"

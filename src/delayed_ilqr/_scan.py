@@ -58,7 +58,7 @@ def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, 
     beside the arrays it copies (packed and sliced apart, the backward pass's outputs were both
     live; the line search's packed inputs, the gains and the nominal, were 1.3 times the gains
     at l = 1), which costs more memory than it saves time where the loop is compiled as one
-    function (see ``_xla_options``) and its slices cost nothing. The carry is passed as it is
+    function (see ``_cpu``) and its slices cost nothing. The carry is passed as it is
     (its large members, such as the value matrix of the backward pass, are updated in place).
 
     With ``block`` > 1 the steps run in blocks of that many (the length must be a multiple of it),

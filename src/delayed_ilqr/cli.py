@@ -15,9 +15,11 @@ import time
 from typing import Optional, Sequence
 
 import click
+import jax
 import numpy as np
 
 from . import center_out, study
+from ._cpu import configure_cpu
 from .models import REGISTRY, arm2_muscle6
 from .solver import Options
 from .solution import Status
@@ -132,6 +134,9 @@ def main():
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
     0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments.
     """
+    # the process is the command's own: float64 and XLA's small-loop flags, before any computation
+    jax.config.update("jax_enable_x64", True)
+    configure_cpu()
 
 
 @main.command("models")

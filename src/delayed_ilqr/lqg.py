@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _validate
+from . import _precision, _validate
 from ._dense import cholesky_solve, matmul, matmul_t
 from ._scan import packed_scan
 
@@ -79,6 +79,7 @@ class DelayedLQG:
     """
 
     def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps, N=None):
+        _precision.require_x64("lqg.DelayedLQG")
         self.delay_steps = _validate.delay_steps(delay_steps)
         A = _validate.array(A, "A", (None, None, None))
         K, n = A.shape[0], A.shape[1]
@@ -727,6 +728,7 @@ def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
         (gains, value). ``value.expected_cost`` is J(0). If some H_k + reg I is not positive
         definite, ``value.positive_definite`` is False and the gains hold NaN from that step back.
     """
+    _precision.require_x64("lqg.backward_pass")   # at tracing, which float32 always causes
     gains, out, ok = structured_scan(lqg, reg, store_value=True)
     # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; the terminal J(K) has no pending blocks
     term = _terminal(stored_models(lqg))
@@ -788,6 +790,7 @@ def _augmented_step(carry, data, *, reg, gains_fn):
 @jax.jit
 def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     """The state-augmentation reference: same problem, same return types as :func:`backward_pass`."""
+    _precision.require_x64("lqg.augmented_backward_pass")   # at tracing, which float32 always causes
     return augmented_scan(lqg, reg)
 
 
@@ -869,6 +872,7 @@ def policy_cost(lqg: DelayedLQG, gains: Gains) -> jax.Array:
     through the closed loop, including the control-dependent noise, and sums the expected costs.
     Cost O(K (n + l d)^3): a reference, not a hot path.
     """
+    _precision.require_x64("lqg.policy_cost")
     return _policy_cost(lqg, _check_gains(lqg, gains))
 
 
@@ -914,5 +918,6 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
 
 def simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, seed: int = 0) -> LQGRuns:
     """Monte Carlo of the linear delayed system (3) under ``gains``, vectorised over trials."""
+    _precision.require_x64("lqg.simulate_lqg")
     n_trials = _validate.positive_int(n_trials, "n_trials")
     return _simulate_lqg(lqg, _check_gains(lqg, gains), n_trials, jax.random.PRNGKey(seed))

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _validate
+from . import _precision, _validate
 
 __all__ = ["Problem", "QuadraticCost", "GeneralCost"]
 
@@ -107,6 +107,7 @@ class Problem:
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
                  u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem"):
+        _precision.require_x64("Problem")
         if not callable(dynamics):
             raise TypeError(f"dynamics must be callable as f(x, u, ud); got {type(dynamics).__name__}")
         if noise is not None and not callable(noise):

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _validate
+from . import _precision, _validate
 from .linearize import trajectory_cost
 from .problem import Problem
 from .solution import Policy
@@ -280,6 +280,7 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
+    _precision.require_x64("simulate")
     n_trials = _validate.positive_int(n_trials, "n_trials")
     substeps = _validate.positive_int(substeps, "substeps")
     if isinstance(seed, bool) or not isinstance(seed, (numbers.Integral, np.integer)):

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _validate, _xla_options
+from . import _cpu, _precision, _validate
 from .forward import line_search, merit, no_step, predicted_change
 from .linearize import linearize, rollout, step_models, trajectory_cost
 from .lqg import (_DEFER_MIN_LD, SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan,
@@ -238,13 +238,13 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
-# Two compilations of one solver. The package turns YNNPACK's single dots off for the process
-# (``_xla_options``), so that XLA compiles each scan of a small problem as one function; from
+# Two compilations of one solver. configure_cpu turns YNNPACK's single dots off for the process
+# (``_cpu``), so that XLA compiles each scan of a small problem as one function; from
 # l d = _DEFER_MIN_LD on, where the backward pass defers the R update to large products (and the
 # augmented reference's are larger still), those run faster through YNNPACK (P4 at l = 200: 77-85
 # ms with it, 91-97 ms without), and this compilation turns it back on.
 _solve = jax.jit(_solve_body, static_argnames=("options",))
-_solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_options=_xla_options.LIBRARY_DOTS)
+_solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_options=_cpu.LIBRARY_DOTS)
 
 
 def compiled_solver(problem: Problem):
@@ -259,7 +259,7 @@ def _one_after_another(options: Options):
     problems one after another in one compiled loop (``lax.map``), not all at once.
 
     On CPU that is faster: each problem's scans stay small enough to be compiled as one function
-    (see ``_xla_options``), where a batched step does B times their work through separate
+    (see ``_cpu``), where a batched step does B times their work through separate
     operations, and each problem stops when it converges, where a batched ``while_loop`` runs every
     problem until the last one stops (and its line search at every iteration). 64 P2 targets in one
     ``jax.jit(jax.vmap(solve))`` call: 0.88-0.93 ms per problem, against 1.8-2.0 ms batched step by
@@ -296,6 +296,7 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
+    _precision.require_x64("solve")
     options = _DEFAULT_OPTIONS if options is None else options
     if not isinstance(options, Options):
         raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")

@@ -10,8 +10,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .linearize import rollout, trajectory_cost
-from .problem import Problem
+from delayed_ilqr.linearize import rollout, trajectory_cost
+from delayed_ilqr.problem import Problem
 
 __all__ = ["direct_optimum"]
 
