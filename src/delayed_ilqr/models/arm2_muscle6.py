@@ -1,7 +1,8 @@
 """The two-link arm driven by six muscles through delayed neural excitations (Li & Todorov 2004).
 
-``models.md`` §1.3 (the muscle model is in :mod:`delayed_ilqr.models.muscle`), rigid body of §1.2
-(:mod:`delayed_ilqr.models.arm2`, P2's parameters :data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
+``docs/models.md``, "Six-muscle arm" (the muscle model is in :mod:`delayed_ilqr.models.muscle`), on the
+rigid body of "Two-link arm" (:mod:`delayed_ilqr.models.arm2`, P2's parameters
+:data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
 
     x = [q1, q2, dq1, dq2, a1..a6] (10),   u = neural excitations in [0, 1]^6 (6)
     f(x, u, ud) = [dq,  M(q)^{-1} (tau - C(q, dq) - B dq),  (ud - a) / t(ud, a)]
@@ -77,7 +78,9 @@ import numpy as np
 from ..problem import GeneralCost, Problem
 from . import _common
 from . import muscle as _muscle
-from .arm2 import ARM2_PARAMS, Arm2Params, _check_params, hand_position, hand_velocity, joint_acceleration
+from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
+                   hand_velocity, joint_acceleration)
+from .metadata import CostParameter, ModelMetadata
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", "Arm2Muscle6Dynamics",
            "Arm2Muscle6Noise",
@@ -147,6 +150,15 @@ class ReachFinalCost:
         return params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel) + params["w_a"] * (a @ a)
 
 
+def _metadata(arm: Arm2Params) -> ModelMetadata:
+    """Labels (activations and excitations are fractions of the maximum), the hand task with the
+    target of ``cost.params``, and the warm start :func:`rest_commands`."""
+    return ModelMetadata(
+        state_labels=ARM_STATE_LABELS + tuple(f"activation a{i}" for i in range(1, 7)),
+        control_labels=tuple(f"excitation u{i}" for i in range(1, 7)),
+        task=hand_task(arm, target=CostParameter("target")), u_init=rest_commands)
+
+
 def _geometry(geometry):
     if isinstance(geometry, str):
         if geometry not in GEOMETRIES:
@@ -167,6 +179,9 @@ def default_x0(q0=Q0, a0=A_REST) -> tuple:
 def rest_commands(problem: Problem, level=A_REST):
     """A [K, 6] warm start holding every excitation at ``level`` (the activation's equilibrium)."""
     return jnp.full((problem.horizon, problem.n_controls), float(level))
+
+
+METADATA = _metadata(ARM2_PARAMS)
 
 
 def center_out_targets(n=8, radius=0.1, q0=Q0, arm: Arm2Params = ARM2_PARAMS, start_angle=0.0):
@@ -208,7 +223,8 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
-        with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST).
+        with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST), the warm start
+        its metadata names; the metadata's task space is the hand position (target: ``target``).
     """
     final_time = _common.positive(final_time, "final_time")
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
@@ -227,4 +243,5 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
     noise_fn = Arm2Muscle6Noise(sigma_u, t_act, t_deact) if noise else None
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
-                   cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6")
+                   cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
+                   metadata=METADATA if arm == ARM2_PARAMS else _metadata(arm))
