@@ -1,6 +1,6 @@
-"""P2: the planar two-link arm driven by delayed joint torques (``docs/models.md``, P2 and P3).
+"""P2: the planar two-link arm driven by delayed joint torques (``docs/models.md`` §2, P2 and P3).
 
-Rigid-body dynamics (``docs/models.md``, "Two-link arm"; Todorov's ``arm_dyn.m``)::
+Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``)::
 
     M(q) ddq + C(q, dq) + B dq = tau
     M(q) = [[a1 + 2 a2 cos q2, a3 + a2 cos q2], [a3 + a2 cos q2, a3]]
@@ -87,7 +87,7 @@ ARM2_PARAMS = Arm2Params()
 """Li & Todorov 2004 parameters as fixed by P2 (m2 = 1.1 kg, B = [[0.05, 0.025], [0.025, 0.05]])."""
 
 ARM2_PARAMS_ARM_DYN = Arm2Params(b11=0.5, b12=0.1, b21=0.1, b22=0.5)
-"""Todorov's web ``arm_dyn.m`` variant (``docs/models.md``): stronger friction B = [[0.5, 0.1], [0.1, 0.5]]."""
+"""Todorov's web ``arm_dyn.m`` variant (``docs/models.md`` §3): stronger friction B = [[0.5, 0.1], [0.1, 0.5]]."""
 
 ARM_STATE_LABELS = ("shoulder angle q1 [rad]", "elbow angle q2 [rad]", "shoulder velocity dq1 [rad/s]",
                     "elbow velocity dq2 [rad/s]")
@@ -213,7 +213,7 @@ def _check_params(params) -> Arm2Params:
 
 def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi / 2, 0.0, 0.0),
          x_target=(math.pi / 2, math.pi / 3, 0.0, 0.0), params: Arm2Params = ARM2_PARAMS) -> Problem:
-    """P2 of ``docs/models.md``: a torque-driven reach in joint space.
+    """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P2).

@@ -1,8 +1,7 @@
 """The two-link arm driven by six muscles through delayed neural excitations (Li & Todorov 2004).
 
-``docs/models.md``, "Six-muscle arm" (the muscle model is in :mod:`delayed_ilqr.models.muscle`), on the
-rigid body of "Two-link arm" (:mod:`delayed_ilqr.models.arm2`, P2's parameters
-:data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
+``docs/models.md`` §4 (the muscle model is in :mod:`delayed_ilqr.models.muscle`), rigid body of §3
+(:mod:`delayed_ilqr.models.arm2`, P2's parameters :data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
 
     x = [q1, q2, dq1, dq2, a1..a6] (10),   u = neural excitations in [0, 1]^6 (6)
     f(x, u, ud) = [dq,  M(q)^{-1} (tau - C(q, dq) - B dq),  (ud - a) / t(ud, a)]
@@ -11,13 +10,13 @@ rigid body of "Two-link arm" (:mod:`delayed_ilqr.models.arm2`, P2's parameters
 The command sent at step k reaches the muscles after the input delay: the *delayed* excitation
 ``ud`` = u_{k-l} drives the activation dynamics; ``u`` itself does not enter the plant.
 
-Noise (``noise=True``; §1.4): signal-dependent (multiplicative) noise on the excitations, the form
+Noise (``noise=True``; §4.5): signal-dependent (multiplicative) noise on the excitations, the form
 Todorov & Li (2005) describe for their 6-muscle arm ([V] abstract: dx = f dt + F(x, u) dw with
 control-dependent F; "acts multiplicatively on the muscle excitations" is [R]). The excitation
 acting on muscle i is ud_i (1 + sigma_u w_i) with white w_i, filtered by the activation dynamics at
 the time constant of the noise-free command, so F [10, 6] is zero except
 F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i). sigma_u = 0.1 is the default of the same construction on
-torques in Li's thesis arm (``nioc`` NonlinearReaching, §1.4 [V2]); its magnitude for the muscle arm
+torques in Li's thesis arm (``nioc`` NonlinearReaching, §4.5 [V2]); its magnitude for the muscle arm
 is not verified. In this continuous-time form a held excitation gives an activation whose
 stationary coefficient of variation is sigma_u / sqrt(2 t) = 2.8 to 3.2 sigma_u (t = 66 to 50 ms),
 28-32 % at 0.1. At 0.1 the noise term dominates the expected cost, and the noise-aware nominal
@@ -30,7 +29,7 @@ iteration converged for 23 of the 24 center-out reaches at 0.1 (``Options(max_it
 docs/derivation.md §12 has the counts at other noise levels); without noise all 24 converge.
 
 Cost (a :class:`~delayed_ilqr.GeneralCost`; the running cost is multiplied by dt, the final cost
-is not, as in Todorov's ``ilqg_det.m``, §1.5 [V])::
+is not, as in Todorov's ``ilqg_det.m``, §4.6 [V])::
 
     running(x, u) = r |u|^2
     final(x)      = w_p |e(q) - e*|^2 + w_v |de/dt(q, dq)|^2 + w_a |a|^2
@@ -41,29 +40,29 @@ with different targets or weights share one compiled solver (``jax.vmap`` over t
 =============  =====================  ==========================================================
 parameter      default                source
 =============  =====================  ==========================================================
-arm            ARM2_PARAMS            §1.2 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg,
+arm            ARM2_PARAMS            §3 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg,
                                       B = [[0.05, 0.025], [0.025, 0.05]]), as P2
-muscles        muscle.py              §1.3 (a)-(c) [V2]; geometry variant B (default) or A
-t_act/t_deact  50 / 66 ms             §1.3 (b) [V2 x4]
-dt             0.01 s                 §1.5 Li 2006 thesis reaching task [V2]
-final time     0.5 s (K = 50)         §1.5 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s
-x0             q = (pi/4, pi/2),      §1.5 Li 2006 thesis x0 [V2]; the rest activation is [D],
+muscles        muscle.py              §4.1-4.3 [V2]; geometry variant B (default) or A
+t_act/t_deact  50 / 66 ms             §4.2 [V2 x4]
+dt             0.01 s                 §4.6 Li 2006 thesis reaching task [V2]
+final time     0.5 s (K = 50)         §4.6 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s
+x0             q = (pi/4, pi/2),      §4.6 Li 2006 thesis x0 [V2]; the rest activation is [D],
                dq = 0, a = A_REST     see below
-target         (0.05, 0.5) m          §1.5 Li 2006 thesis hand target e* [V2] (9.0 cm from the
+target         (0.05, 0.5) m          §4.6 Li 2006 thesis hand target e* [V2] (9.0 cm from the
                                       start hand position (-0.021, 0.446) m)
-r              1e-4                   [D] within §1.5's range (1e-3 thesis torque arm, 1e-4 [R]
+r              1e-4                   [D] within §4.6's range (1e-3 thesis torque arm, 1e-4 [R]
                                       Li & Todorov 2004); excitations are O(0.1-1)
-w_p            1 (1/m^2)              §1.5 Li 2006 thesis final position weight [V2]
+w_p            1 (1/m^2)              §4.6 Li 2006 thesis final position weight [V2]
 w_v            0.1 (s^2/m^2)          [D] (thesis: 1e-2 on a torque arm); 0.1 stops the hand
 w_a            0                      [D] optional final activation penalty
-sigma_u        0.1                    §1.4 (see above)
+sigma_u        0.1                    §4.5 (see above)
 =============  =====================  ==========================================================
 
 Rest activation (:data:`A_REST` = 0.05, [D]): the force A(a, l) ~ (a / (0.56 N_f))^N_f has zero
 slope at a = 0 (N_f > 1 over the joint range), so at a = u = 0 the linearised dynamics have no path
 from the commands to the arm and iLQG's first step is zero. Starting from a small activation level
 (and warm-starting the solver with ``u_init = A_REST`` everywhere, :func:`rest_commands`, the
-equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §1.5) avoids this.
+equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §4.6) avoids this.
 At a = A_REST the muscles' net torques at the start posture are not exactly zero, so the arm drifts
 slightly if the command is held; the reach cost corrects this.
 """

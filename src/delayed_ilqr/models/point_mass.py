@@ -1,4 +1,4 @@
-"""P1: a damped planar point mass pushed by a delayed force (``docs/models.md``, P1 and P4).
+"""P1: a damped planar point mass pushed by a delayed force (``docs/models.md`` §2, P1 and P4).
 
     x = [px, py, vx, vy],  u = [fx, fy] (N)
     f(x, u, ud) = [vx, vy, (ud_x - b vx) / m, (ud_y - b vy) / m]       m = 1 kg, b = 0.5 N s/m
@@ -67,7 +67,7 @@ class PointMassNoise:
 
 def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1, 0.0, 0.0),
                x0=(0.0, 0.0, 0.0, 0.0)) -> Problem:
-    """P1 of ``docs/models.md``: the point mass reaching to (0.2, 0.1) m and stopping there.
+    """P1 of ``docs/models.md`` §2: the point mass reaching to (0.2, 0.1) m and stopping there.
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P1).
