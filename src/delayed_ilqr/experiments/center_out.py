@@ -155,8 +155,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
 def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
              seed: int) -> DelayResult:
     """One delay and design: the batched solve of all targets, then the Monte Carlo of each policy."""
-    problems, design_options = zip(*(designs.design(plant, name, options) for plant in plants))
-    sols, solve_time, first = timed_batched_solve(problems, design_options[0])
+    problems = [designs.design(plant, name, options)[0] for plant in plants]
+    sols, solve_time, first = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
     per_target, runs = [], []
     for j, plant in enumerate(plants):
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
