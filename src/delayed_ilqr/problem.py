@@ -118,7 +118,8 @@ class Problem:
         try:
             hash(metadata)
         except TypeError:
-            raise TypeError(f"metadata must be None or a hashable ModelMetadata; got {type(metadata).__name__}") from None
+            raise TypeError("metadata must be None or a hashable ModelMetadata; "
+                            f"got {type(metadata).__name__}") from None
         self.metadata = metadata
         self.dt = _validate.positive_float(dt, "dt")
         self.horizon = _validate.positive_int(horizon, "horizon")
