@@ -9,8 +9,10 @@ import pytest
 from click.testing import CliRunner
 
 import delayed_ilqr as di
-from delayed_ilqr import center_out as co
 from delayed_ilqr import cli
+from delayed_ilqr.experiments import center_out as co
+from delayed_ilqr.experiments import report, tables
+from delayed_ilqr.models.metadata import task_position
 from delayed_ilqr.models import arm2_muscle6
 
 
@@ -19,8 +21,8 @@ def test_reaches_converge_to_all_eight_targets_with_delay():
     # to keep the suite within 10 minutes on the slow CI machine (three delays took 74-90 s)
     delay = 0.1
     results = co.center_out(delays=(delay,), n_targets=8, n_trials=50)
-    report = co.format_table(results)
-    print("\n" + report)
+    table = tables.markdown_table(tables.center_out_rows(results))
+    print("\n" + table)
     assert [(r.delay, r.design) for r in results] == [(delay, design) for design in co.DESIGNS]
     aware, deterministic = results
     for r in results:
@@ -34,14 +36,14 @@ def test_reaches_converge_to_all_eight_targets_with_delay():
     # same noise, at most 0.7 of the deterministic design's (measured 0.34)
     mean = lambda r: np.mean([t.mc_cost.mean() for t in r.targets])
     assert mean(aware) < 0.7 * mean(deterministic), (mean(aware), mean(deterministic))
-    records = json.loads(json.dumps(co.to_records(results)))
+    records = json.loads(json.dumps(report.center_out_records(results)))
     assert [len(r["targets"]) for r in records] == [8, 8]
     assert [r["design"] for r in records] == list(co.DESIGNS)
 
 
 def _median_error(problem, policy, target, n_trials=100):
     runs = di.simulate(problem, policy, n_trials, seed=3)
-    return float(np.median(np.linalg.norm(co._hand(runs.x[:, -1]) - target, axis=1)))
+    return float(np.median(np.linalg.norm(task_position(problem, runs.x[:, -1]) - target, axis=1)))
 
 
 def test_delay_feedback_keeps_noisy_reaches_on_target():

@@ -29,7 +29,7 @@ def test_import_changes_no_environment_variable_and_no_jax_setting():
     result = run_fresh("""
         import json, os, jax
         before = dict(os.environ), dict(jax.config.values)
-        import delayed_ilqr, delayed_ilqr.cli, delayed_ilqr.study, delayed_ilqr.center_out
+        import delayed_ilqr, delayed_ilqr.cli, delayed_ilqr.experiments, delayed_ilqr.plot
         from jax._src import xla_bridge
         after = dict(os.environ), dict(jax.config.values)
         print(json.dumps({"environ": before[0] == after[0], "config": before[1] == after[1],

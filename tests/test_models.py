@@ -1,7 +1,7 @@
 """Model zoo: each model against an independent NumPy transcription of its reference definition.
 
-References: ``shared/reference/benchmark_problems.md`` (P1-P4 and their noisy variants) and
-``shared/reference/models.md`` §1.2 (arm) and §5 (Florian's cart-pole). The NumPy code below is
+References: ``docs/models.md`` §2 (P1-P4 and their noisy variants) and
+``docs/models.md`` §3 (arm) and §5 (Florian's cart-pole). The NumPy code below is
 written from those formulas, not from the library.
 """
 import importlib
@@ -26,7 +26,7 @@ RNG_SEED = 20240531
 
 
 # --------------------------------------------------------------------------------------------
-# Independent NumPy transcriptions of benchmark_problems.md
+# Independent NumPy transcriptions of docs/models.md §2
 # --------------------------------------------------------------------------------------------
 def np_point_mass_f(x, ud, m=1.0, b=0.5):
     return np.array([x[2], x[3], (ud[0] - b * x[2]) / m, (ud[1] - b * x[3]) / m])
@@ -72,7 +72,7 @@ def np_hand(q):
 
 
 def np_florian_up(phi, dphi, F, mc=1.0, mp=0.1, l=1.0, g=9.80665):
-    """models.md §5 verbatim: phi measured from upright. Returns (ddx, ddphi)."""
+    """docs/models.md §5, the source's form: phi measured from upright. Returns (ddx, ddphi)."""
     tmp = (F + mp * l * dphi ** 2 * math.sin(phi)) / (mc + mp)
     ddphi = (g * math.sin(phi) - math.cos(phi) * tmp) / (l * (4.0 / 3.0 - mp * math.cos(phi) ** 2 / (mc + mp)))
     ddx = tmp - mp * l * ddphi * math.cos(phi) / (mc + mp)
@@ -416,3 +416,48 @@ def test_registry_lists_every_model_with_a_description():
         assert isinstance(problem, Problem) and problem.name == name
     assert models.REGISTRY["pendulum"].factory is models.pendulum
     assert arm2_module.FINAL_TIME == 0.5 and cart_pole_module.FINAL_TIME == 3.0
+
+
+# --------------------------------------------------------------------------------------------
+# Metadata: labels, task space, warm start (what studies and figures read instead of the name)
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(models.REGISTRY))
+def test_every_model_carries_labels_with_units_and_a_task_space(name):
+    problem = models.REGISTRY[name].factory(delay=0.0, noise=True)
+    meta = problem.metadata
+    assert isinstance(meta, models.ModelMetadata)
+    assert len(meta.state_labels) == problem.n_states and len(meta.control_labels) == problem.n_controls
+    assert len(set(meta.state_labels)) == problem.n_states
+    assert isinstance(meta.task, models.TaskSpace) and meta.task.unit in ("m", "rad")
+    assert all(re.search(r"\[.+\]$", s) for s in meta.state_labels[:4])     # mechanical states have units
+    # metadata survives replace and the pytree round trip (static data, equal by value)
+    assert problem.replace(delay_steps=1).metadata == meta
+    leaves, treedef = jax.tree_util.tree_flatten(problem)
+    assert jax.tree_util.tree_unflatten(treedef, leaves).metadata == meta
+    assert models.REGISTRY[name].factory(delay=0.0, noise=True).metadata == meta
+
+
+def test_task_spaces_map_states_to_positions_and_targets():
+    from delayed_ilqr.models.metadata import default_u_init, task_position, task_target
+    arm = models.arm2()
+    np.testing.assert_allclose(task_target(arm), models.hand_position(jnp.asarray(arm.cost.x_target[:2])))
+    x = np.random.default_rng(RNG_SEED).standard_normal((3, 5, 4))
+    np.testing.assert_array_equal(task_position(arm, x), models.hand_position(jnp.asarray(x[..., :2])))
+    mass = models.point_mass()
+    np.testing.assert_array_equal(task_position(mass, x), x[..., :2])
+    np.testing.assert_array_equal(task_target(mass), [0.2, 0.1])
+    muscle = models.arm2_muscle6(target=(0.02, 0.4))
+    np.testing.assert_array_equal(task_target(muscle), [0.02, 0.4])
+    np.testing.assert_array_equal(default_u_init(muscle), models.rest_commands(muscle))
+    assert default_u_init(arm) is None
+    np.testing.assert_array_equal(task_target(models.cart_pole()), [math.pi])
+    # a plant without metadata: no task space, zero initial commands
+    bare = mass.replace(metadata=None)
+    assert task_target(bare) is None and task_position(bare, x) is None and default_u_init(bare) is None
+
+
+def test_metadata_must_be_hashable_and_well_formed():
+    with pytest.raises(TypeError, match="metadata must be None or a hashable ModelMetadata; got dict"):
+        models.point_mass().replace(metadata={"labels": ()})
+    with pytest.raises(TypeError, match="state_labels must be a tuple of strings"):
+        models.ModelMetadata(state_labels=["x"], control_labels=("u",))

@@ -1,7 +1,7 @@
 """The six-muscle arm: muscle curves against hand transcriptions, derivatives, geometry signs, a reach.
 
-Reference: ``shared/reference/models.md`` §1.3 (muscle force, activation, F_max, geometry variant B
-table) and §1.2 (rigid body). The NumPy code below is written from the formula text there, not
+Reference: ``docs/models.md`` §4 (muscle force, activation, F_max, geometry variant B
+table) and §3 (rigid body). The NumPy code below is written from the formula text there, not
 from the library.
 """
 import importlib
@@ -23,7 +23,7 @@ RNG_SEED = 20240601
 
 
 # --------------------------------------------------------------------------------------------
-# Independent NumPy transcription of models.md §1.3
+# Independent NumPy transcription of models.md §4
 # --------------------------------------------------------------------------------------------
 def np_nf(l):
     return 2.11 + 4.16 * (1.0 / l - 1.0)
@@ -57,7 +57,7 @@ def np_adot(u, a, t_act=0.05, t_deact=0.066):
     return (u - a) / t
 
 
-# variant B table of models.md §1.3 (d): rows (a_s, b_s, c_s, a_e, b_e, c_e); "-" (b = 0) -> c unused
+# variant B table of models.md §4.4: rows (a_s, b_s, c_s, a_e, b_e, c_e); "-" (b = 0) -> c unused
 TABLE_B = [(0, 0, None, 0.030, -0.011, 1.9), (0, 0, None, -0.019, 0, None), (0.040, -0.008, 1.9, 0, 0, None),
            (-0.042, 0, None, 0, 0, None), (0.030, -0.011, 1.9, 0.032, -0.010, 1.9),
            (-0.039, 0, None, -0.022, 0, None)]
@@ -81,7 +81,7 @@ ARM = dict(l1=0.30, l2=0.33, s2=0.16, I1=0.025, I2=0.045, m2=1.1, B=np.array([[0
 
 
 def np_f(x, ud):
-    """The full 10-state dynamics, written out (§1.2 rigid body + §1.3 muscles, variant B)."""
+    """The full 10-state dynamics, written out (§3 rigid body + §4 muscles, variant B)."""
     q, dq, a = x[:2], x[2:4], x[4:]
     d, l, v = np_geom_B(q, dq)
     fmax = 31.8 * np.array([18, 14, 22, 12, 5, 10], float)

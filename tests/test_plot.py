@@ -14,7 +14,9 @@ from matplotlib.image import imread
 from matplotlib.patches import Ellipse
 
 import delayed_ilqr as di
-from delayed_ilqr import plot, study
+from delayed_ilqr import plot
+from delayed_ilqr.experiments.delay_study import ControllerResult
+from delayed_ilqr.experiments.engine import endpoint_error
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.simulate import Runs, sample_stats, summarize
 
@@ -47,8 +49,8 @@ def fake_result(tau, controller, spread, diverged=0):
     cost = np.asarray(runs.cost).copy()
     cost[:diverged] = np.inf
     runs = runs._replace(cost=cost)
-    errors = study.endpoint_error(problem, runs.x[:, -1])
-    return study.ControllerResult(
+    errors = endpoint_error(problem, runs.x[:, -1])
+    return ControllerResult(
         model="arm2", delay=tau, delay_steps=problem.delay_steps, noise=True, controller=controller, converged=True,
         status="CONVERGED_COST", message="", iterations=5, solve_time=0.01, first_solve_time=1.0,
         nominal_cost=1.0, predicted_cost=1.0 + spread, cost=sample_stats(cost), endpoint_error=sample_stats(errors),
@@ -90,7 +92,7 @@ def test_trajectories_have_one_axis_per_state_and_command(tmp_path, n_show):
 
 
 def test_trajectories_of_a_generic_model_use_indexed_labels():
-    problem = point_mass(delay=0.03).replace(name="custom")
+    problem = point_mass(delay=0.03).replace(name="custom", metadata=None)
     x, u = nominal(problem)
     sol = SimpleNamespace(policy=SimpleNamespace(x_nominal=x, u_nominal=u))
     fig = plot.plot_trajectories(problem, sol)

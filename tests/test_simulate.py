@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.study import design_problem
-from delayed_ilqr import study
+from delayed_ilqr.experiments import delay_study as study
+from delayed_ilqr.experiments.designs import design as design_problem
 from delayed_ilqr.linearize import linearize
 from delayed_ilqr.lqg import Gains, policy_cost
 from delayed_ilqr.models import arm2, point_mass

@@ -1,40 +1,37 @@
-"""The ``delayed-ilqr`` command line: glue between the library, files and figures (no numerics here).
+"""The ``delayed-ilqr`` command line: parses arguments, runs the studies of
+:mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
+(:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
-Subcommands: ``models``, ``solve``, ``simulate``, ``compare`` and ``demo`` (``delayed-ilqr --help``).
-Exit codes: 0 success; 1 when some solve did not converge (results are still written); 2 for bad
-arguments (unknown model, a delay that is not a whole number of steps, a non-positive trial count).
+Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo`` and ``center-out``
+(``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
+still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps, a
+non-positive trial count).
 """
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import pathlib
 import sys
 import time
-from typing import Optional, Sequence
+from typing import Optional
 
 import click
 import jax
 import numpy as np
 
-from . import center_out, study
+from . import Options, Status
 from ._cpu import configure_cpu
+from .experiments import center_out, delay_study, engine, report, tables
 from .models import REGISTRY, arm2_muscle6
-from .solver import Options
-from .solution import Status
+from .models.metadata import default_u_init
 
 __all__ = ["main"]
 
 DEMO_DELAYS = (0.0, 0.05, 0.1)
 _MODEL = click.Choice(sorted(REGISTRY))
 _OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
-_DPI = 120
 
-
-# ------------------------------------------------------------------------------------------------
-# helpers
-# ------------------------------------------------------------------------------------------------
 
 class _DelayList(click.ParamType):
     """A comma-separated list of non-negative delays in seconds, e.g. ``0,0.05,0.1``."""
@@ -70,46 +67,6 @@ def _out_dir(out: Optional[pathlib.Path]) -> Optional[pathlib.Path]:
     return out
 
 
-def _write_json(path: pathlib.Path, data) -> None:
-    path.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
-
-
-def _json_float(value) -> Optional[float]:
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def _save_figure(fig, path: pathlib.Path) -> None:
-    fig.savefig(path, dpi=_DPI)
-
-
-def _policy_arrays(sol) -> dict:
-    p, t = sol.policy, sol.trace
-    n = int(sol.iterations) + 1
-    return dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
-                feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
-                delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
-                trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
-                trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
-
-
-def _table(rows: Sequence[tuple[str, str]]) -> str:
-    width = max(len(k) for k, _ in rows)
-    return "\n".join(f"{k.ljust(width)}  {v}" for k, v in rows)
-
-
-def _fmt(value: float) -> str:
-    return study._num(float(value))
-
-
-def _endpoint_text(result: study.ControllerResult) -> str:
-    scale, unit = study._unit_scale(result.endpoint_unit)
-    e = result.endpoint_error
-    if math.isfinite(e.mean):
-        return f"{_fmt(scale * e.mean)} {unit} (95% CI {_fmt(scale * e.ci95[0])} to {_fmt(scale * e.ci95[1])})"
-    return f"median {_fmt(scale * e.median)} {unit} (mean infinite: {e.n_diverged} trials diverged)"
-
-
 def _warn_not_converged(results) -> bool:
     failed = [r for r in results if not r.converged]
     for r in failed:
@@ -121,10 +78,6 @@ def _warn_not_converged(results) -> bool:
 def _settings(model, noise, trials, seed, substeps) -> dict:
     return dict(model=model, noise=bool(noise), trials=int(trials), seed=int(seed), substeps=int(substeps))
 
-
-# ------------------------------------------------------------------------------------------------
-# commands
-# ------------------------------------------------------------------------------------------------
 
 @click.group(context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
@@ -163,36 +116,20 @@ def solve_command(model, delay, noise, method, out):
     MODEL is one of the names that `delayed-ilqr models` lists.
     """
     problem = _problem(model, delay, noise)
-    sol, solve_time, first = study.timed_solve(problem, Options(method=method), study.default_u_init(problem))
-    status = Status(int(sol.status))
-    err = study.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0]
-    label, unit = study.endpoint_description(problem)
-    scale, unit = study._unit_scale(unit)
-    click.echo(_table([
-        ("model", f"{model}: {REGISTRY[model].description}"),
-        ("delay", f"{problem.delay:g} s ({problem.delay_steps} steps of dt = {problem.dt:g} s)"),
-        ("noise", "yes" if noise else "no"),
-        ("method", method),
-        ("status", f"{status.name}: {status.message}"),
-        ("iterations", str(int(sol.iterations))),
-        ("cost (eq. 2, nominal)", _fmt(sol.cost)),
-        ("expected cost (LQG)", _fmt(sol.expected_cost)),
-        (f"nominal {label}", f"{_fmt(scale * err)} {unit}".rstrip()),
-        ("solve time", f"{1e3 * solve_time:.1f} ms (first call with compilation: {first:.2f} s)"),
-    ]))
+    timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
+    sol = timed[0]
+    label, unit = engine.endpoint_description(problem)
+    endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
+    click.echo(tables.pairs(tables.solve_summary(problem, REGISTRY[model].description, noise, method, timed,
+                                                 endpoint)))
     out = _out_dir(out)
     if out is not None:
         from . import plot
-        _write_json(out / "solution.json", dict(
-            model=model, delay=problem.delay, delay_steps=problem.delay_steps, dt=problem.dt, noise=bool(noise),
-            method=method, converged=bool(status.converged), status=status.name, message=status.message,
-            iterations=int(sol.iterations), cost=_json_float(sol.cost), expected_cost=_json_float(sol.expected_cost),
-            endpoint_label=label, endpoint_error=_json_float(err), endpoint_unit=study.endpoint_description(problem)[1],
-            solve_time=solve_time, first_solve_time=first))
-        np.savez_compressed(out / "solution.npz", x=np.asarray(sol.x), u=np.asarray(sol.u), **_policy_arrays(sol))
-        _save_figure(plot.plot_trajectories(problem, sol), out / "trajectories.png")
-        _save_figure(plot.plot_convergence({model: sol}), out / "convergence.png")
-        click.echo(f"wrote solution.json, solution.npz, trajectories.png, convergence.png to {out}")
+        written = report.write_solution(out, model, problem, method, timed, endpoint)
+        written += report.save_figures({"trajectories.png": plot.plot_trajectories(problem, sol),
+                                        "convergence.png": plot.plot_convergence({model: sol})}, out)
+        click.echo(f"wrote {', '.join(written)} to {out}")
+    status = Status(int(sol.status))
     if not status.converged:
         click.echo(f"error: the solve did not converge ({status.name}): {status.message}", err=True)
         sys.exit(1)
@@ -208,7 +145,7 @@ def solve_command(model, delay, noise, method, out):
               help="Seed of the Monte Carlo noise (the same seed gives the same trials).")
 @click.option("--noise/--no-noise", default=True, show_default=True,
               help="Simulate (and design for) the stochastic plant, or the deterministic one.")
-@click.option("--controller", type=click.Choice(sorted(study.CONTROLLERS)), default="aware", show_default=True,
+@click.option("--controller", type=click.Choice(sorted(delay_study.CONTROLLERS)), default="aware", show_default=True,
               help="aware: designed with the delay; ignorant: designed for no delay and run on the delayed "
                    "plant; augmented: delay-aware by state augmentation.")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
@@ -221,73 +158,34 @@ def simulate_command(model, delay, trials, seed, noise, controller, substeps, ou
     MODEL is one of the names that `delayed-ilqr models` lists.
     """
     problem = _problem(model, delay, noise)
-    r = study.evaluate(problem, controller, trials, seed, substeps=substeps)
-    s, c = r.summary, r.cost
-    mean = f"{_fmt(c.mean)} (95% CI {_fmt(c.ci95[0])} to {_fmt(c.ci95[1])})" if math.isfinite(c.mean) \
-        else f"infinite ({c.n_diverged} of {c.n} trials diverged)"
-    click.echo(_table([
-        ("model", f"{model}: {REGISTRY[model].description}"),
-        ("delay", f"{problem.delay:g} s ({problem.delay_steps} steps of dt = {problem.dt:g} s)"),
-        ("noise", "yes" if noise else "no"),
-        ("controller", f"{controller}: {study.CONTROLLERS[controller]}"),
-        ("solve", f"{r.status} after {r.iterations} iterations, {1e3 * r.solve_time:.1f} ms"),
-        ("predicted E[J]", _fmt(r.predicted_cost)),
-        ("trials", f"{c.n} (seed {seed}, {substeps} substep(s) per step)"),
-        ("Monte Carlo mean J", mean),
-        ("Monte Carlo median J", f"{_fmt(c.median)} (95% CI {_fmt(c.median_ci95[0])} to {_fmt(c.median_ci95[1])})"),
-        (f"final {r.endpoint_label}", _endpoint_text(r)),
-        ("mean final state", np.array2string(np.asarray(s.final_state_mean), precision=4)),
-    ]))
+    r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
+    click.echo(tables.pairs(tables.simulate_summary(r, REGISTRY[model].description)))
     out = _out_dir(out)
     if out is not None:
         from . import plot
-        _write_json(out / "simulate.json", dict(settings=dict(_settings(model, noise, trials, seed, substeps),
-                                                               delay=problem.delay, controller=controller),
-                                                 result=r.to_dict()))
-        np.savez_compressed(out / "runs.npz", x=np.asarray(r.runs.x), u=np.asarray(r.runs.u),
-                            cost=np.asarray(r.runs.cost), **_policy_arrays(r.solution))
-        written = ["simulate.json", "runs.npz", "trajectories.png"]
-        _save_figure(plot.plot_trajectories(problem, r.solution, r.runs), out / "trajectories.png")
-        if study.arm_kinematics(problem) is not None:
-            _save_figure(plot.plot_hand_paths([r]), out / "hand_paths.png")
-            written.append("hand_paths.png")
+        settings = dict(_settings(model, noise, trials, seed, substeps), delay=problem.delay, controller=controller)
+        written = report.write_runs(out, r, settings)
+        figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}
+        if plot.draws_paths(problem):
+            figures["hand_paths.png"] = plot.plot_hand_paths([r])
+        written += report.save_figures(figures, out)
         click.echo(f"wrote {', '.join(written)} to {out}")
     if _warn_not_converged([r]):
         sys.exit(1)
 
 
-def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> list[str]:
-    """Writes the JSON records, the NPZ of all trials and gains, and the figures; returns file names."""
-    from . import plot
-    _write_json(out / f"{stem}.json", dict(settings=settings, results=study.to_records(results)))
-    arrays = {}
-    for r in results:
-        key = f"{r.controller}_{1e3 * r.delay:g}ms"
-        arrays[f"{key}_x"] = np.asarray(r.runs.x)
-        arrays[f"{key}_u"] = np.asarray(r.runs.u)
-        arrays[f"{key}_cost"] = np.asarray(r.runs.cost)
-        for name, value in _policy_arrays(r.solution).items():
-            arrays[f"{key}_{name}"] = value
-    np.savez_compressed(out / f"{stem}_runs.npz", **arrays)
-    written = [f"{stem}.json", f"{stem}_runs.npz", "cost_vs_delay.png", "convergence.png"]
-    _save_figure(plot.plot_delay_study(results), out / "cost_vs_delay.png")
-    sols = {f"{r.controller}, {1e3 * r.delay:g} ms": r.solution for r in results if r.controller != "ignorant"}
-    ignorant = [r for r in results if r.controller == "ignorant"]
-    zero_aware = any(r.controller == "aware" and r.delay_steps == 0 for r in results)
-    if ignorant and not zero_aware:  # the same design problem at every delay (= aware at 0 ms): one line
-        sols["ignorant (designed for 0 ms)"] = ignorant[0].solution
-    _save_figure(plot.plot_convergence(sols), out / "convergence.png")
-    if study.arm_kinematics(results[0].problem) is not None:
-        _save_figure(plot.plot_hand_paths(results), out / "hand_paths.png")
-        written.append("hand_paths.png")
-    return written
-
-
 def _run_study(model, delays, trials, seed, noise, controllers, substeps):
     for tau in delays:                   # every delay checked before anything is solved
         _problem(model, tau, noise, hint="--delays")
-    return study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
-                                substeps=substeps, progress=True)
+    return delay_study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
+                                      substeps=substeps, progress=True)
+
+
+def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> list[str]:
+    """Writes the JSON records, the NPZ of all trials and gains, and the figures; returns file names."""
+    from . import plot
+    written = report.write_delay_study(results, out, settings, stem)
+    return written + report.save_figures(plot.delay_study_figures(results), out)
 
 
 @main.command("compare")
@@ -314,35 +212,16 @@ def compare_command(model, delays, trials, seed, noise, augmented, substeps, out
     """
     controllers = ["aware", "ignorant"] + (["augmented"] if augmented else [])
     results = _run_study(model, delays, trials, seed, noise, controllers, substeps)
-    click.echo(study.format_table(results))
+    table = tables.delay_study_rows(results)
+    click.echo(tables.text_table(table))
     out = _out_dir(out)
     if out is not None:
         settings = dict(_settings(model, noise, trials, seed, substeps), delays=list(delays), controllers=controllers)
         written = _study_outputs(results, out, settings, "compare")
-        (out / "compare.md").write_text(study.format_markdown(results) + "\n")
+        (out / "compare.md").write_text(tables.markdown_table(table) + "\n")
         click.echo(f"wrote {', '.join(written + ['compare.md'])} to {out}")
     if _warn_not_converged(results):
         sys.exit(1)
-
-
-_REPORT_NOTES = """\
-Columns:
-
-- **predicted E[J]**: the controller's own LQG prediction of its expected cost (`Solution.expected_cost`)
-  for the plant it was designed for. The delay-ignorant controller is designed for a plant without delay,
-  so it predicts the same cost at every delay.
-- **MC mean J [95% CI]**: Monte Carlo mean of the cost (eq. 2) on the delayed noisy plant, with its
-  normal-approximation 95 % confidence interval. It is `inf` when some trials diverged (the closed
-  loop blew up); then compare the medians.
-- **MC median J**: the median cost, robust to the heavy tails of nearly unstable closed loops.
-- **diverged**: trials whose cost is not finite.
-- **hand position error**: distance of the final hand position from the target, mean +- 1.96 standard
-  errors (or the median when some trials diverged).
-- **solve [ms]**: one compiled solve; **iter**: iterations; **converged**: the solver's status.
-
-All controllers at one delay see the same noise samples (common random numbers), so their
-differences are less noisy than either value.
-"""
 
 
 @main.command("demo")
@@ -362,51 +241,12 @@ def demo_command(out, trials, seed):
     start = time.perf_counter()
     results = _run_study("arm2", list(DEMO_DELAYS), trials, seed, True, ["aware", "ignorant"], 1)
     elapsed = time.perf_counter() - start
-    table = study.format_table(results)
-    click.echo(table)
+    click.echo(tables.text_table(tables.delay_study_rows(results)))
     out = _out_dir(out)
     settings = dict(_settings("arm2", True, trials, seed, 1), delays=list(DEMO_DELAYS),
                     controllers=["aware", "ignorant"], elapsed_seconds=elapsed)
     written = _study_outputs(results, out, settings, "report")
-    failed = [r for r in results if not r.converged]
-    lines = [
-        "# Reaching with delayed commands: delay-aware vs delay-ignorant iLQG",
-        "",
-        f"Model: `arm2` with noise (P2-noisy): {REGISTRY['arm2'].description}; signal-dependent torque noise.",
-        f"Delays: {', '.join(f'{1e3 * d:g} ms' for d in DEMO_DELAYS)}. {trials} noisy trials per controller and "
-        f"delay (seed {seed}). Study time {elapsed:.1f} s (compilation included).",
-        "",
-        "- **aware**: " + study.CONTROLLERS["aware"],
-        "- **ignorant**: " + study.CONTROLLERS["ignorant"],
-        "",
-        "## Results",
-        "",
-        study.format_markdown(results),
-        "",
-        _REPORT_NOTES,
-    ]
-    if failed:
-        lines += ["## Solver warnings", ""]
-        lines += [f"- {r.controller} at {1e3 * r.delay:g} ms: {r.status}: {r.message}" for r in failed]
-        lines += [""]
-    lines += [
-        "## Figures",
-        "",
-        "![expected cost and endpoint error against the delay](cost_vs_delay.png)",
-        "",
-        "![hand paths and endpoint spread](hand_paths.png)",
-        "",
-        "![convergence of the solves](convergence.png)",
-        "",
-        "## Files",
-        "",
-        "- `report.json`: settings and every number of the table (non-finite values as null).",
-        "- `report_runs.npz`: per controller and delay (`<controller>_<delay>ms_<name>`): trials `x`, `u`, "
-        "`cost`; nominal `x_nominal`, `u_nominal`; gains `state_feedback`, `delay_feedback`, `feedforward`; "
-        "solver trace `trace_*`.",
-        "",
-    ]
-    (out / "report.md").write_text("\n".join(lines))
+    report.write_demo_report(out, results, REGISTRY["arm2"].description, DEMO_DELAYS, trials, seed, elapsed)
     click.echo(f"wrote report.md, {', '.join(written)} to {out} ({elapsed:.1f} s)")
     if _warn_not_converged(results):
         sys.exit(1)
@@ -453,27 +293,17 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
     results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
                                     designs=designs)
     elapsed = time.perf_counter() - start
-    table = center_out.format_table(results)
+    table = tables.markdown_table(tables.center_out_rows(results))
     click.echo(table)
     if out is not None:
         out = _out_dir(out)
         from . import plot
-        _save_figure(plot.plot_center_out(results), out / "center_out_hand_paths.png")
-        figures = ["center_out_hand_paths.png"]
-        for r in results:
-            name = f"center_out_excitations_{r.design}_{1e3 * r.delay:g}ms.png"
-            _save_figure(plot.plot_excitations(r), out / name)
-            figures.append(name)
+        figures = report.save_figures(plot.center_out_figures(results), out)
         settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
                         sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
                         elapsed_seconds=elapsed)
-        _write_json(out / "center_out.json", dict(settings=settings, results=center_out.to_records(results)))
-        lines = ["# Center-out reaching, six-muscle arm, delayed excitations", "",
-                 f"{n_targets} targets at {1e3 * radius:g} mm, {trials} noisy trials per target (sigma_u "
-                 f"{sigma_u:g}, seed {seed}); designs: {', '.join(designs)}. Study time {elapsed:.1f} s.", "",
-                 table, ""] + [f"![{f}]({f})" for f in figures] + [""]
-        (out / "center_out.md").write_text("\n".join(lines))
-        click.echo(f"wrote center_out.md, center_out.json, {', '.join(figures)} to {out} ({elapsed:.1f} s)")
+        written = report.write_center_out_report(out, results, settings, table, figures)
+        click.echo(f"wrote {', '.join(written + figures)} to {out} ({elapsed:.1f} s)")
     failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
     for delay, design, j in failed:
         click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)

@@ -103,16 +103,25 @@ class Problem:
         u_min, u_max: optional [d] box limits on the commands (``-inf``/``inf`` for none).
         n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
         name: a label for reports.
+        metadata: optional :class:`~delayed_ilqr.models.ModelMetadata` (labels, task space, warm
+            start) that studies and figures read; static data, so it must be hashable.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
-                 u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem"):
+                 u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem",
+                 metadata=None):
         _precision.require_x64("Problem")
         if not callable(dynamics):
             raise TypeError(f"dynamics must be callable as f(x, u, ud); got {type(dynamics).__name__}")
         if noise is not None and not callable(noise):
             raise TypeError(f"noise must be None or callable as F(x, u, ud); got {type(noise).__name__}")
         self.dynamics, self.noise, self.name = dynamics, noise, str(name)
+        try:
+            hash(metadata)
+        except TypeError:
+            raise TypeError("metadata must be None or a hashable ModelMetadata; "
+                            f"got {type(metadata).__name__}") from None
+        self.metadata = metadata
         self.dt = _validate.positive_float(dt, "dt")
         self.horizon = _validate.positive_int(horizon, "horizon")
         self.delay_steps = _validate.delay_steps(delay_steps)
@@ -164,7 +173,8 @@ class Problem:
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``)."""
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
-                      u_max=self.u_max, n_controls=self.n_controls, name=self.name)
+                      u_max=self.u_max, n_controls=self.n_controls, name=self.name,
+                      metadata=self.metadata)
         fields.update(changes)
         return Problem(**fields)
 
@@ -229,13 +239,13 @@ def _limits(u_min, u_max, nd):
 
 def _problem_flatten(p: Problem):
     return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                               p.n_controls, p.name, p._has_limits)
+                                               p.n_controls, p.name, p._has_limits, p.metadata)
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits) = aux
+     new._has_limits, new.metadata) = aux
     new.x0, new.cost, new.u_min, new.u_max = data
     return new
 

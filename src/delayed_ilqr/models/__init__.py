@@ -3,10 +3,13 @@
 Every factory takes ``delay`` in seconds (a whole number of steps of ``dt``, checked by
 :func:`delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
 over dt). Dynamics and noise callables are frozen dataclasses compared and hashed by value, so two
-problems built with the same arguments share one compiled solver.
+problems built with the same arguments share one compiled solver. Each factory attaches a
+:class:`ModelMetadata` (``Problem.metadata``: state and control labels with units, the task space
+such as the hand position, the default initial commands), which studies and figures read; the
+equations, parameters and their sources are in ``docs/models.md``.
 
 =============  ==========================================================================
-point_mass     P1 / P1-noisy / P4 of ``benchmark_problems.md`` (damped planar point mass)
+point_mass     P1 / P1-noisy / P4 of ``docs/models.md`` (damped planar point mass)
 arm2           P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters)
 arm2_muscle6   the same arm driven by six muscles through delayed excitations u in [0, 1]^6
                (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching)
@@ -23,11 +26,12 @@ from .arm2 import (ARM2_PARAMS, ARM2_PARAMS_ARM_DYN, Arm2Params, arm2, coriolis,
                    hand_velocity, joint_acceleration, mass_matrix, mass_matrix_inverse)
 from .arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
 from .cart_pole import cart_pole
+from .metadata import ModelMetadata, TaskSpace
 from .pendulum import pendulum
 from .point_mass import point_mass
 
 __all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole",
-           "REGISTRY", "ModelInfo", "delay_to_steps",
+           "REGISTRY", "ModelInfo", "ModelMetadata", "TaskSpace", "delay_to_steps",
            "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
            "joint_acceleration", "hand_position", "hand_jacobian", "hand_velocity"]
 

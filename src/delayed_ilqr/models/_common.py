@@ -65,7 +65,7 @@ def time_grid(dt, delay, horizon, final_time: float) -> tuple[float, int, int]:
 
 
 def benchmark_cost(x_target):
-    """The cost P1 and P2 share (``benchmark_problems.md``): P = 0, Q = 1e-4 I_2,
+    """The cost P1 and P2 share (``docs/models.md`` §2): P = 0, Q = 1e-4 I_2,
     P_f = diag(1e3, 1e3, 1e1, 1e1), and the final target [4]."""
     return QuadraticCost(P=jnp.zeros((4, 4)), Q=1e-4 * jnp.eye(2),
                          P_final=jnp.diag(jnp.array([1e3, 1e3, 1e1, 1e1])), x_target=jnp.array(x_target))

@@ -1,6 +1,6 @@
-"""P2: the planar two-link arm driven by delayed joint torques (``benchmark_problems.md`` P2, P3).
+"""P2: the planar two-link arm driven by delayed joint torques (``docs/models.md`` §2, P2 and P3).
 
-Rigid-body dynamics (``models.md`` §1.2, Todorov's ``arm_dyn.m``)::
+Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``)::
 
     M(q) ddq + C(q, dq) + B dq = tau
     M(q) = [[a1 + 2 a2 cos q2, a3 + a2 cos q2], [a3 + a2 cos q2, a3]]
@@ -28,10 +28,11 @@ import jax.numpy as jnp
 
 from ..problem import Problem
 from . import _common
+from .metadata import ModelMetadata, TaskSpace
 
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
            "mass_matrix", "mass_matrix_inverse", "coriolis", "joint_acceleration", "hand_position",
-           "hand_jacobian", "hand_velocity", "FINAL_TIME"]
+           "hand_jacobian", "hand_velocity", "HandPosition", "ARM_STATE_LABELS", "FINAL_TIME"]
 
 FINAL_TIME = 0.5  # s, tf of P2
 SIGMA_U = 0.2  # P2-noisy signal-dependent torque noise
@@ -86,7 +87,11 @@ ARM2_PARAMS = Arm2Params()
 """Li & Todorov 2004 parameters as fixed by P2 (m2 = 1.1 kg, B = [[0.05, 0.025], [0.025, 0.05]])."""
 
 ARM2_PARAMS_ARM_DYN = Arm2Params(b11=0.5, b12=0.1, b21=0.1, b22=0.5)
-"""Todorov's web ``arm_dyn.m`` variant (models.md §1.2): stronger friction B = [[0.5, 0.1], [0.1, 0.5]]."""
+"""Todorov's web ``arm_dyn.m`` variant (``docs/models.md`` §3): stronger friction B = [[0.5, 0.1], [0.1, 0.5]]."""
+
+ARM_STATE_LABELS = ("shoulder angle q1 [rad]", "elbow angle q2 [rad]", "shoulder velocity dq1 [rad/s]",
+                    "elbow velocity dq2 [rad/s]")
+"""Labels of the rigid body's states [q1, q2, dq1, dq2] (shared with the six-muscle arm)."""
 
 
 def _mat2(m11, m12, m21, m22):
@@ -145,6 +150,23 @@ def hand_velocity(q, dq, params: Arm2Params = ARM2_PARAMS):
 
 
 @dataclass(frozen=True)
+class HandPosition:
+    """The task map of the arms: the hand position e(q) [..., 2] in metres of states x [..., n >= 2]."""
+
+    params: Arm2Params = ARM2_PARAMS
+
+    def __call__(self, x):
+        return hand_position(jnp.asarray(x)[..., :2], self.params)
+
+
+def hand_task(params: Arm2Params, target=None) -> TaskSpace:
+    """The arms' task space: the hand position in metres (target: the hand at the target state, or
+    ``target(problem)``)."""
+    return TaskSpace(map=HandPosition(params), name="hand position", unit="m", point="hand", target=target,
+                     paths=True)
+
+
+@dataclass(frozen=True)
 class Arm2Dynamics:
     """f(x, u, ud) = [dq, M^{-1}(ud - C - B dq)]; equal (and hashed) by value."""
 
@@ -191,7 +213,7 @@ def _check_params(params) -> Arm2Params:
 
 def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi / 2, 0.0, 0.0),
          x_target=(math.pi / 2, math.pi / 3, 0.0, 0.0), params: Arm2Params = ARM2_PARAMS) -> Problem:
-    """P2 of ``benchmark_problems.md``: a torque-driven reach in joint space.
+    """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P2).
@@ -203,7 +225,8 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
         params: arm parameters; P2 uses :data:`ARM2_PARAMS`.
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"arm2"``.
+        A :class:`~delayed_ilqr.Problem` named ``"arm2"``; its metadata's task space is the hand
+        position (target: the hand at ``x_target``).
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")
@@ -212,4 +235,7 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
     params = _check_params(params)
     return Problem(dynamics=Arm2Dynamics(params), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=Arm2Noise(params) if noise else None,
-                   name="arm2")
+                   name="arm2", metadata=ModelMetadata(
+                       state_labels=ARM_STATE_LABELS,
+                       control_labels=("shoulder torque u1 [N m]", "elbow torque u2 [N m]"),
+                       task=hand_task(params)))

@@ -1,6 +1,6 @@
 """The two-link arm driven by six muscles through delayed neural excitations (Li & Todorov 2004).
 
-``models.md`` §1.3 (the muscle model is in :mod:`delayed_ilqr.models.muscle`), rigid body of §1.2
+``docs/models.md`` §4 (the muscle model is in :mod:`delayed_ilqr.models.muscle`), rigid body of §3
 (:mod:`delayed_ilqr.models.arm2`, P2's parameters :data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
 
     x = [q1, q2, dq1, dq2, a1..a6] (10),   u = neural excitations in [0, 1]^6 (6)
@@ -10,13 +10,13 @@
 The command sent at step k reaches the muscles after the input delay: the *delayed* excitation
 ``ud`` = u_{k-l} drives the activation dynamics; ``u`` itself does not enter the plant.
 
-Noise (``noise=True``; §1.4): signal-dependent (multiplicative) noise on the excitations, the form
+Noise (``noise=True``; §4.5): signal-dependent (multiplicative) noise on the excitations, the form
 Todorov & Li (2005) describe for their 6-muscle arm ([V] abstract: dx = f dt + F(x, u) dw with
 control-dependent F; "acts multiplicatively on the muscle excitations" is [R]). The excitation
 acting on muscle i is ud_i (1 + sigma_u w_i) with white w_i, filtered by the activation dynamics at
 the time constant of the noise-free command, so F [10, 6] is zero except
 F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i). sigma_u = 0.1 is the default of the same construction on
-torques in Li's thesis arm (``nioc`` NonlinearReaching, §1.4 [V2]); its magnitude for the muscle arm
+torques in Li's thesis arm (``nioc`` NonlinearReaching, §4.5 [V2]); its magnitude for the muscle arm
 is not verified. In this continuous-time form a held excitation gives an activation whose
 stationary coefficient of variation is sigma_u / sqrt(2 t) = 2.8 to 3.2 sigma_u (t = 66 to 50 ms),
 28-32 % at 0.1. At 0.1 the noise term dominates the expected cost, and the noise-aware nominal
@@ -29,7 +29,7 @@ iteration converged for 23 of the 24 center-out reaches at 0.1 (``Options(max_it
 docs/derivation.md §12 has the counts at other noise levels); without noise all 24 converge.
 
 Cost (a :class:`~delayed_ilqr.GeneralCost`; the running cost is multiplied by dt, the final cost
-is not, as in Todorov's ``ilqg_det.m``, §1.5 [V])::
+is not, as in Todorov's ``ilqg_det.m``, §4.6 [V])::
 
     running(x, u) = r |u|^2
     final(x)      = w_p |e(q) - e*|^2 + w_v |de/dt(q, dq)|^2 + w_a |a|^2
@@ -40,29 +40,29 @@ with different targets or weights share one compiled solver (``jax.vmap`` over t
 =============  =====================  ==========================================================
 parameter      default                source
 =============  =====================  ==========================================================
-arm            ARM2_PARAMS            §1.2 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg,
+arm            ARM2_PARAMS            §3 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg,
                                       B = [[0.05, 0.025], [0.025, 0.05]]), as P2
-muscles        muscle.py              §1.3 (a)-(c) [V2]; geometry variant B (default) or A
-t_act/t_deact  50 / 66 ms             §1.3 (b) [V2 x4]
-dt             0.01 s                 §1.5 Li 2006 thesis reaching task [V2]
-final time     0.5 s (K = 50)         §1.5 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s
-x0             q = (pi/4, pi/2),      §1.5 Li 2006 thesis x0 [V2]; the rest activation is [D],
+muscles        muscle.py              §4.1-4.3 [V2]; geometry variant B (default) or A
+t_act/t_deact  50 / 66 ms             §4.2 [V2 x4]
+dt             0.01 s                 §4.6 Li 2006 thesis reaching task [V2]
+final time     0.5 s (K = 50)         §4.6 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s
+x0             q = (pi/4, pi/2),      §4.6 Li 2006 thesis x0 [V2]; the rest activation is [D],
                dq = 0, a = A_REST     see below
-target         (0.05, 0.5) m          §1.5 Li 2006 thesis hand target e* [V2] (9.0 cm from the
+target         (0.05, 0.5) m          §4.6 Li 2006 thesis hand target e* [V2] (9.0 cm from the
                                       start hand position (-0.021, 0.446) m)
-r              1e-4                   [D] within §1.5's range (1e-3 thesis torque arm, 1e-4 [R]
+r              1e-4                   [D] within §4.6's range (1e-3 thesis torque arm, 1e-4 [R]
                                       Li & Todorov 2004); excitations are O(0.1-1)
-w_p            1 (1/m^2)              §1.5 Li 2006 thesis final position weight [V2]
+w_p            1 (1/m^2)              §4.6 Li 2006 thesis final position weight [V2]
 w_v            0.1 (s^2/m^2)          [D] (thesis: 1e-2 on a torque arm); 0.1 stops the hand
 w_a            0                      [D] optional final activation penalty
-sigma_u        0.1                    §1.4 (see above)
+sigma_u        0.1                    §4.5 (see above)
 =============  =====================  ==========================================================
 
 Rest activation (:data:`A_REST` = 0.05, [D]): the force A(a, l) ~ (a / (0.56 N_f))^N_f has zero
 slope at a = 0 (N_f > 1 over the joint range), so at a = u = 0 the linearised dynamics have no path
 from the commands to the arm and iLQG's first step is zero. Starting from a small activation level
 (and warm-starting the solver with ``u_init = A_REST`` everywhere, :func:`rest_commands`, the
-equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §1.5) avoids this.
+equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §4.6) avoids this.
 At a = A_REST the muscles' net torques at the start posture are not exactly zero, so the arm drifts
 slightly if the command is held; the reach cost corrects this.
 """
@@ -77,7 +77,9 @@ import numpy as np
 from ..problem import GeneralCost, Problem
 from . import _common
 from . import muscle as _muscle
-from .arm2 import ARM2_PARAMS, Arm2Params, _check_params, hand_position, hand_velocity, joint_acceleration
+from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
+                   hand_velocity, joint_acceleration)
+from .metadata import CostParameter, ModelMetadata
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", "Arm2Muscle6Dynamics",
            "Arm2Muscle6Noise",
@@ -147,6 +149,15 @@ class ReachFinalCost:
         return params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel) + params["w_a"] * (a @ a)
 
 
+def _metadata(arm: Arm2Params) -> ModelMetadata:
+    """Labels (activations and excitations are fractions of the maximum), the hand task with the
+    target of ``cost.params``, and the warm start :func:`rest_commands`."""
+    return ModelMetadata(
+        state_labels=ARM_STATE_LABELS + tuple(f"activation a{i}" for i in range(1, 7)),
+        control_labels=tuple(f"excitation u{i}" for i in range(1, 7)),
+        task=hand_task(arm, target=CostParameter("target")), u_init=rest_commands)
+
+
 def _geometry(geometry):
     if isinstance(geometry, str):
         if geometry not in GEOMETRIES:
@@ -167,6 +178,9 @@ def default_x0(q0=Q0, a0=A_REST) -> tuple:
 def rest_commands(problem: Problem, level=A_REST):
     """A [K, 6] warm start holding every excitation at ``level`` (the activation's equilibrium)."""
     return jnp.full((problem.horizon, problem.n_controls), float(level))
+
+
+METADATA = _metadata(ARM2_PARAMS)
 
 
 def center_out_targets(n=8, radius=0.1, q0=Q0, arm: Arm2Params = ARM2_PARAMS, start_angle=0.0):
@@ -208,7 +222,8 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
-        with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST).
+        with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST), the warm start
+        its metadata names; the metadata's task space is the hand position (target: ``target``).
     """
     final_time = _common.positive(final_time, "final_time")
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
@@ -227,4 +242,5 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
     noise_fn = Arm2Muscle6Noise(sigma_u, t_act, t_deact) if noise else None
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
-                   cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6")
+                   cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
+                   metadata=METADATA if arm == ARM2_PARAMS else _metadata(arm))

@@ -1,7 +1,7 @@
 """Cart-pole swing-up with a delayed force on the cart.
 
 Florian's "Correct equations for the dynamics of the cart-pole system" with friction neglected, as
-in anassinator/ilqr (``models.md`` §5). The pole is a uniform rod of length 2 l hinged on the cart;
+in anassinator/ilqr (``docs/models.md`` §5). The pole is a uniform rod of length 2 l hinged on the cart;
 ``l`` is the HALF-length (pivot to centre of mass), which is where the 4/3 factor (rod inertia
 m_p l^2 / 3 about its centre) comes from. Florian writes the angle phi from upright; here the
 angle is theta = pi - phi, measured from hanging DOWN, counter-clockwise positive (the pole's
@@ -42,6 +42,7 @@ import jax.numpy as jnp
 
 from ..problem import Problem, QuadraticCost
 from . import _common
+from .metadata import ModelMetadata, StateComponents, TaskSpace
 
 __all__ = ["cart_pole", "CartPoleDynamics", "CartPoleNoise", "FINAL_TIME", "U_MAX"]
 
@@ -54,6 +55,14 @@ SIGMA_U = 0.1
 FINAL_TIME = 3.0  # s
 Q_U = 1e-2
 P_FINAL = (10.0, 100.0, 10.0, 10.0)
+
+METADATA = ModelMetadata(
+    state_labels=("cart position x [m]", "pole angle theta [rad]", "cart velocity [m/s]",
+                  "pole angular velocity [rad/s]"),
+    control_labels=("force on cart u [N]",),
+    task=TaskSpace(map=StateComponents((1,)), name="pole angle", unit="rad", point="pole"))
+"""Labels, and the pole angle as the task space (the swing-up's goal; states of mixed units are
+never summed into one distance)."""
 
 
 @dataclass(frozen=True)
@@ -140,4 +149,4 @@ def cart_pole(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=
     dynamics = CartPoleDynamics()
     return Problem(dynamics=dynamics, x0=jnp.array(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=CartPoleNoise(dynamics) if noise else None, u_min=lo, u_max=hi,
-                   n_controls=1, name="cart_pole")
+                   n_controls=1, name="cart_pole", metadata=METADATA)

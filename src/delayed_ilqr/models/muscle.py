@@ -2,9 +2,9 @@
 
 Pure ``jax.numpy`` functions (elementwise; they broadcast over leading axes) of the averaged
 Brown, Cheng & Loeb "virtual muscle" model as used by Li & Todorov (2004) and in Li's 2006 thesis,
-transcribed from ``shared/reference/models.md`` §1.3.
+as written in ``docs/models.md`` §4.
 
-Force (§1.3 (a), [V2 x6]); l is the fibre length normalised by its optimal length L0, v = dl/dt in
+Force (§4.1, [V2 x6]); l is the fibre length normalised by its optimal length L0, v = dl/dt in
 L0 / s, a in [0, 1] the activation::
 
     T(a, l, v) = A(a, l) (F_L(l) F_V(l, v) + F_P(l))
@@ -14,12 +14,12 @@ L0 / s, a in [0, 1] the activation::
                = (0.62 - (-3.12 + 4.21 l - 2.67 l^2) v) / (0.62 + v)       v > 0 (lengthening)
     F_P(l)     = -0.02 exp(13.8 - 18.7 l)       (13.8 as in five of six sources, not feedbax's 14.77)
 
-Activation (§1.3 (b), [V2 x4])::
+Activation (§4.2, [V2 x4])::
 
     da/dt = (u - a) / t(u, a),   t = t_deact + u (t_act - t_deact) if u > a else t_deact,
     t_act = 50 ms, t_deact = 66 ms.
 
-Maximal force (§1.3 (c), [V2 x3]): F_max = 31.8 N/cm^2 x PCSA, PCSA = [18, 14, 22, 12, 5, 10] cm^2,
+Maximal force (§4.3, [V2 x3]): F_max = 31.8 N/cm^2 x PCSA, PCSA = [18, 14, 22, 12, 5, 10] cm^2,
 i.e. :data:`F_MAX` = [572.4, 445.2, 699.6, 381.6, 159, 318] N.
 
 Muscle order everywhere (:data:`MUSCLES`): brachialis (elbow flexor), lateral triceps (elbow
@@ -27,7 +27,7 @@ extensor), anterior deltoid (shoulder flexor), posterior deltoid (shoulder exten
 (bi-articular flexor), long triceps (bi-articular extensor). Joint angles q = (shoulder, elbow),
 flexion positive (counter-clockwise, as in :mod:`delayed_ilqr.models.arm2`).
 
-Geometry (§1.3 (d)), two variants, each a frozen dataclass (hashable by value) with
+Geometry (§4.4), two variants, each a frozen dataclass (hashable by value) with
 ``moment_arms(q) -> [..., 2, 6]`` (metres), ``lengths(q) -> [..., 6]`` (normalised) and
 ``velocities(q, dq) -> [..., 6]`` (L0 / s):
 
@@ -83,16 +83,16 @@ __all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "
 
 MUSCLES = ("brachialis", "lateral triceps", "anterior deltoid", "posterior deltoid", "biceps", "long triceps")
 
-# §1.3 (c) [V2 x3]: bioptim Fiso, CasADi MPC Fmax, feedbax comment
+# §4.3 [V2 x3]: bioptim Fiso, CasADi MPC Fmax, feedbax comment
 SPECIFIC_TENSION = 31.8  # N / cm^2
 PCSA = (18.0, 14.0, 22.0, 12.0, 5.0, 10.0)  # cm^2, in MUSCLES order
 F_MAX = tuple(SPECIFIC_TENSION * p for p in PCSA)  # N: 572.4, 445.2, 699.6, 381.6, 159, 318
 
-# §1.3 (b) [V2 x4]
+# §4.2 [V2 x4]
 T_ACT = 0.05  # s
 T_DEACT = 0.066  # s
 
-# §1.3 (a) [V2 x6]: Brown et al. slow/fast-twitch averages (feedbax TODOROV_LI_VIRTUALMUSCLE_PARAMS names)
+# §4.1 [V2 x6]: Brown et al. slow/fast-twitch averages (feedbax TODOROV_LI_VIRTUALMUSCLE_PARAMS names)
 BETA, OMEGA, RHO = 1.93, 1.03, 1.87  # force-length
 V_MAX, CV0, CV1 = -5.72, 1.38, 2.09  # force-velocity, shortening
 AV0, AV1, AV2, BV = -3.12, 4.21, -2.67, 0.62  # force-velocity, lengthening
@@ -188,7 +188,7 @@ def _rows(value, name, shape):
 
 @dataclass(frozen=True)
 class AngleDependentGeometry:
-    """Variant B (§1.3 (d), [V2]: Van Wouwe et al. 2022 / bioptim ``leuven_arm_model.py``).
+    """Variant B (§4.4, [V2]: Van Wouwe et al. 2022 / bioptim ``leuven_arm_model.py``).
 
     Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
         a, b: [2][6] moment-arm coefficients in metres, d_ji(q_j) = a_ji + b_ji cos(c_ji q_j).
@@ -230,7 +230,7 @@ class AngleDependentGeometry:
 
 @dataclass(frozen=True)
 class ConstantGeometry:
-    """Variant A (§1.3 (d), [V2]: Li 2006 thesis via jeremiedecock/pyarm): constant moment arms.
+    """Variant A (§4.4, [V2]: Li 2006 thesis via jeremiedecock/pyarm): constant moment arms.
 
     Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
         D: [2][6] moment arms in metres. The thesis matrix (columns sh.flex, sh.ext, el.flex,

@@ -5,7 +5,7 @@ A point mass m on a massless rod of length l, hinged at the top, with viscous da
     x = [theta, dtheta]   theta = 0 hanging down, theta = pi upright (counter-clockwise positive)
     m l^2 ddtheta = ud - m g l sin(theta) - b dtheta          u = torque at the hinge (N m)
 
-What is borrowed (``models.md`` §5): m = l = 1 and the swing-up from 0 to pi as in the
+What is borrowed (``docs/models.md`` §5): m = l = 1 and the swing-up from 0 to pi as in the
 TrajectoryOptimization.jl simple pendulum (with its viscous friction coefficient 0.01); the torque
 limit in the spirit of Gym Pendulum-v1 (m = l = 1, |u| <= 2 with g = 10) and of Todorov & Li's (2005)
 "limited-torque inverted pendulum", whose parameters were not retrieved. Chosen here:
@@ -43,6 +43,7 @@ import jax.numpy as jnp
 
 from ..problem import Problem, QuadraticCost
 from . import _common
+from .metadata import ModelMetadata, StateComponents, TaskSpace
 
 __all__ = ["pendulum", "PendulumDynamics", "PendulumNoise", "FINAL_TIME", "U_MAX"]
 
@@ -55,6 +56,11 @@ SIGMA_U = 0.1
 FINAL_TIME = 3.0  # s
 Q_U = 1e-2
 P_FINAL = (100.0, 10.0)
+
+METADATA = ModelMetadata(
+    state_labels=("angle theta [rad]", "angular velocity [rad/s]"), control_labels=("torque u [N m]",),
+    task=TaskSpace(map=StateComponents((0,)), name="angle", unit="rad", point="pendulum"))
+"""Labels, and the angle theta as the task space (the endpoint error is |theta_K - theta_target|)."""
 
 
 @dataclass(frozen=True)
@@ -119,4 +125,4 @@ def pendulum(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=U
     lo, hi = ((-u_max,), (u_max,)) if limits else (None, None)
     return Problem(dynamics=PendulumDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=PendulumNoise() if noise else None,
-                   u_min=lo, u_max=hi, n_controls=1, name="pendulum")
+                   u_min=lo, u_max=hi, n_controls=1, name="pendulum", metadata=METADATA)

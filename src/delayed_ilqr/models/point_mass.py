@@ -1,4 +1,4 @@
-"""P1: a damped planar point mass pushed by a delayed force (``benchmark_problems.md``, P1 and P4).
+"""P1: a damped planar point mass pushed by a delayed force (``docs/models.md`` §2, P1 and P4).
 
     x = [px, py, vx, vy],  u = [fx, fy] (N)
     f(x, u, ud) = [vx, vy, (ud_x - b vx) / m, (ud_y - b vy) / m]       m = 1 kg, b = 0.5 N s/m
@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from ..problem import Problem
 from . import _common
+from .metadata import ModelMetadata, StateComponents, TaskSpace
 
 __all__ = ["point_mass", "PointMassDynamics", "PointMassNoise", "FINAL_TIME"]
 
@@ -29,6 +30,12 @@ MASS = 1.0  # kg
 DAMPING = 0.5  # N s / m
 SIGMA_U = 0.5  # signal-dependent force noise (relative)
 SIGMA_A = 0.05  # additive force noise (N)
+
+METADATA = ModelMetadata(
+    state_labels=("position x [m]", "position y [m]", "velocity vx [m/s]", "velocity vy [m/s]"),
+    control_labels=("force fx [N]", "force fy [N]"),
+    task=TaskSpace(map=StateComponents((0, 1)), name="position", unit="m", point="mass"))
+"""Labels, and the position (px, py) as the task space (its paths are states already: no figure)."""
 
 
 @dataclass(frozen=True)
@@ -60,7 +67,7 @@ class PointMassNoise:
 
 def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1, 0.0, 0.0),
                x0=(0.0, 0.0, 0.0, 0.0)) -> Problem:
-    """P1 of ``benchmark_problems.md``: the point mass reaching to (0.2, 0.1) m and stopping there.
+    """P1 of ``docs/models.md`` §2: the point mass reaching to (0.2, 0.1) m and stopping there.
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P1).
@@ -79,4 +86,4 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
     cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     return Problem(dynamics=PointMassDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=PointMassNoise() if noise else None,
-                   name="point_mass")
+                   name="point_mass", metadata=METADATA)

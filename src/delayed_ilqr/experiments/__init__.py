@@ -1,0 +1,16 @@
+"""Studies of delayed control: one engine, two studies, one report writer.
+
+The data flow: a model's problem -> designs (problem transforms) -> timed solves -> Monte Carlo
+on the plant -> statistics -> tables and files (figures: :mod:`delayed_ilqr.plot`).
+
+==================  ===========================================================================
+:mod:`.designs`     controller designs as problem transforms (aware, ignorant, augmented,
+                    noise-aware, deterministic)
+:mod:`.engine`      timed solves (one problem, or a batch in one compiled call), Monte Carlo
+                    with endpoint errors in the model's task space
+:mod:`.delay_study` delay-aware vs delay-ignorant control at several delays
+:mod:`.center_out`  center-out reaching with the six-muscle arm, one batched solve per delay
+:mod:`.tables`      every table row, as plain text or markdown
+:mod:`.report`      JSON records, NPZ arrays, markdown reports and figures on disk
+==================  ===========================================================================
+"""

@@ -1,0 +1,173 @@
+"""Center-out reaching with the six-muscle arm and delayed excitations (Li & Todorov 2004).
+
+For each delay and design: the reaches to ``n_targets`` hand targets on a circle around the start
+hand position are solved in one compiled, vectorised call (``jax.vmap`` of
+:func:`~delayed_ilqr.solve` over the targets, which are cost parameters,
+:func:`.engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
+times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s ``noise=True``).
+
+Two designs of the same plant (:mod:`.designs`):
+
+* ``"noise-aware"`` (iLQG, the default): designed on the noisy arm itself, so the signal-dependent
+  noise enters the backward pass (Todorov & Li 2005): the nominal trades accuracy for smaller,
+  less noisy excitations and the feedback is the LQG optimum for the multiplicative noise.
+* ``"deterministic"`` (iLQR): designed on the noise-free arm, then run in the noise.
+
+Per delay and design the study reports iterations, solve time, the final hand error of the
+nominal, the predicted expected cost (J(0) of the last LQG) against the Monte Carlo mean, and the
+endpoint spread (mean hand error and the 2-sigma ellipse of the final hand positions); the hand is
+the task space of the model's metadata.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .. import Options, Policy, Problem, Solution, Status
+from ..models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets
+from ..models.metadata import task_position, task_target
+from . import designs
+from .engine import monte_carlo, take, timed_batched_solve
+
+__all__ = ["TargetResult", "DelayResult", "center_out", "DEFAULT_OPTIONS", "DESIGNS", "SIGMA_U"]
+
+#: Muscle reaches take 30-200 iterations (the excitations saturate at 0 and 1 on long stretches,
+#: where the box-QP's active set changes slowly); 300 leaves a margin.
+DEFAULT_OPTIONS = Options(max_iterations=300)
+
+#: The designs the study compares, by name (see :mod:`.designs`).
+DESIGNS = ("noise-aware", "deterministic")
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """One reach of the study (lengths in metres).
+
+    Attributes:
+        target: [2] hand target.
+        status: the solver's :class:`~delayed_ilqr.Status` name; iterations: its iteration count.
+        cost: eq. (2) of the noise-free nominal.
+        predicted_cost: the design's expected cost J(0) of its last LQG (for the deterministic
+            design, the noise-free cost: it does not know the noise).
+        hand_error: distance of the nominal's final hand position from the target.
+        endpoints: [N, 2] final hand positions of the noisy trials.
+        mc_error: [N] their distances from the target.
+        mc_cost: [N] eq. (2) of each noisy trial.
+    """
+
+    target: np.ndarray
+    status: str
+    iterations: int
+    cost: float
+    predicted_cost: float
+    hand_error: float
+    endpoints: np.ndarray
+    mc_error: np.ndarray
+    mc_cost: np.ndarray
+
+    @property
+    def converged(self) -> bool:
+        return Status[self.status].converged
+
+    @property
+    def endpoint_cov(self) -> np.ndarray:
+        """[2, 2] covariance of the final hand positions."""
+        return np.cov(self.endpoints, rowvar=False)
+
+    @property
+    def spread(self) -> float:
+        """Endpoint spread: sqrt of the largest eigenvalue of the covariance (1-sigma major axis)."""
+        return float(np.sqrt(np.max(np.linalg.eigvalsh(self.endpoint_cov))))
+
+
+@dataclass(frozen=True)
+class DelayResult:
+    """All reaches at one delay with one design.
+
+    Attributes:
+        delay: tau in seconds; delay_steps: l; dt: the time step (s).
+        design: "noise-aware" or "deterministic" (see the module docstring).
+        solve_time: seconds of the compiled batched solve of all targets (second call).
+        first_call: seconds of the first call (compilation included).
+        targets: one :class:`TargetResult` per target.
+        solutions: the batched :class:`~delayed_ilqr.Solution` (leading axis: target).
+        runs: the Monte Carlo :class:`~delayed_ilqr.Runs` per target.
+        plants: the plant of each target (its metadata maps states to hand positions).
+    """
+
+    delay: float
+    delay_steps: int
+    dt: float
+    design: str
+    solve_time: float
+    first_call: float
+    targets: list
+    solutions: Solution
+    runs: list
+    plants: list = field(repr=False, compare=False)
+
+    def policy(self, j: int) -> Policy:
+        """The delayed feedback policy of target j."""
+        return take(self.solutions.policy, j)
+
+
+def _designs(names) -> tuple:
+    names = tuple(names)
+    if not names or any(d not in DESIGNS for d in names):
+        raise ValueError(f"designs must be a non-empty selection of {DESIGNS}; got {names!r}")
+    return names
+
+
+def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, radius: float = 0.1,
+               n_trials: int = 200, seed: int = 0, options: Optional[Options] = None,
+               geometry: str = "angle_dependent", sigma_u: float = SIGMA_U,
+               designs: Sequence[str] = DESIGNS) -> list[DelayResult]:
+    """Runs the center-out study; one :class:`DelayResult` per delay and design (delay-major).
+
+    Args:
+        delays: input delays in seconds (whole multiples of the 10 ms step).
+        n_targets: targets on the circle (8 in the classic task), the first one to the right.
+        radius: circle radius in metres (start hand position at the centre).
+        n_trials: noisy trials per target; seed: their seed (target j uses seed + j, so every
+            design meets the same noise).
+        options: solver options (default :data:`DEFAULT_OPTIONS`).
+        geometry: muscle moment arms, "angle_dependent" (default) or "constant".
+        sigma_u: excitation noise of the plant (the model's default 0.1); the noise-aware design
+            is made for it.
+        designs: a non-empty selection of :data:`DESIGNS`.
+    """
+    options = DEFAULT_OPTIONS if options is None else options
+    if not isinstance(options, Options):
+        raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
+    names = _designs(designs)
+    targets = center_out_targets(n_targets, radius)
+    results = []
+    for delay in delays:
+        plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u)
+                  for t in targets]
+        for name in names:
+            results.append(_reaches(float(delay), name, plants, options, n_trials, seed))
+    return results
+
+
+def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
+             seed: int) -> DelayResult:
+    """One delay and design: the batched solve of all targets, then the Monte Carlo of each policy."""
+    problems = [designs.design(plant, name, options)[0] for plant in plants]
+    sols, solve_time, first = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
+    per_target, runs = [], []
+    for j, plant in enumerate(plants):
+        trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
+        target = task_target(plant)
+        nominal_end = task_position(plant, sols.x[j, -1])
+        per_target.append(TargetResult(
+            target=target, status=Status(int(sols.status[j])).name, iterations=int(sols.iterations[j]),
+            cost=float(sols.cost[j]), predicted_cost=float(sols.expected_cost[j]),
+            hand_error=float(np.linalg.norm(nominal_end - target)), endpoints=trials.endpoints,
+            mc_error=trials.errors, mc_cost=np.asarray(trials.runs.cost)))
+        runs.append(trials.runs)
+    return DelayResult(delay=delay, delay_steps=problems[0].delay_steps, dt=problems[0].dt, design=name,
+                       solve_time=solve_time, first_call=first, targets=per_target, solutions=sols, runs=runs,
+                       plants=plants)

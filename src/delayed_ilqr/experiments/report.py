@@ -1,0 +1,193 @@
+"""The report writer: JSON records, NPZ arrays, markdown documents and figures on disk.
+
+Everything a command writes into its ``--out`` folder is built here from the engine's results and
+the strings of :mod:`.tables`; the figures come from :mod:`delayed_ilqr.plot` (made by the
+caller, saved by :func:`save_figures`).
+"""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+from .. import Status
+from .delay_study import ControllerResult
+from .designs import REGISTRY
+from .tables import delay_study_rows, markdown_table
+
+__all__ = ["DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records", "center_out_records",
+           "write_solution", "write_runs", "write_delay_study", "write_demo_report", "write_center_out_report"]
+
+DPI = 120  # resolution of every saved figure
+
+
+def write_json(path: pathlib.Path, data) -> None:
+    """Strict JSON (non-finite numbers must already be ``None``), indented."""
+    path.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+
+
+def _json_float(value) -> Optional[float]:
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
+    """Saves ``{file name: Figure}`` into ``out``; returns the file names."""
+    for name, fig in figures.items():
+        fig.savefig(out / name, dpi=DPI)
+    return list(figures)
+
+
+def policy_arrays(sol) -> dict:
+    """The nominal, the gains and the solver trace of a solution, by NPZ name."""
+    p, t = sol.policy, sol.trace
+    n = int(sol.iterations) + 1
+    return dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
+                feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
+                delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
+                trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
+                trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
+
+
+def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
+    """``[r.to_dict() for r in results]``: JSON-ready records."""
+    return [r.to_dict() for r in results]
+
+
+def center_out_records(results: Sequence) -> list[dict]:
+    """Every number of the center-out study as JSON-ready dicts (one per delay and design, with a
+    list of targets)."""
+    return [dict(delay=r.delay, delay_steps=r.delay_steps, dt=r.dt, design=r.design, solve_time=r.solve_time,
+                 first_call=r.first_call,
+                 targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
+                               predicted_cost=t.predicted_cost, mc_cost_mean=float(t.mc_cost.mean()),
+                               hand_error=t.hand_error, mc_error_mean=float(t.mc_error.mean()),
+                               mc_error_median=float(np.median(t.mc_error)),
+                               endpoint_mean=t.endpoints.mean(axis=0).tolist(),
+                               endpoint_cov=t.endpoint_cov.tolist(), spread=t.spread)
+                          for t in r.targets])
+            for r in results]
+
+
+def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, endpoint) -> list[str]:
+    """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing) and
+    solution.npz (trajectory, gains, trace); ``timed`` and ``endpoint`` as in
+    :func:`.tables.solve_summary`."""
+    sol, solve_time, first = timed
+    status = Status(int(sol.status))
+    label, unit, value = endpoint
+    write_json(out / "solution.json", dict(
+        model=model, delay=problem.delay, delay_steps=problem.delay_steps, dt=problem.dt,
+        noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
+        message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
+        expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
+        endpoint_unit=unit, solve_time=solve_time, first_solve_time=first))
+    np.savez_compressed(out / "solution.npz", x=np.asarray(sol.x), u=np.asarray(sol.u), **policy_arrays(sol))
+    return ["solution.json", "solution.npz"]
+
+
+def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> list[str]:
+    """The ``simulate`` command's simulate.json (settings and the result's record) and runs.npz
+    (trials, nominal, gains, trace)."""
+    write_json(out / "simulate.json", dict(settings=settings, result=result.to_dict()))
+    np.savez_compressed(out / "runs.npz", x=np.asarray(result.runs.x), u=np.asarray(result.runs.u),
+                        cost=np.asarray(result.runs.cost), **policy_arrays(result.solution))
+    return ["simulate.json", "runs.npz"]
+
+
+def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, settings: dict, stem: str) -> list[str]:
+    """``<stem>.json`` (settings and every number of the table) and ``<stem>_runs.npz`` (per
+    controller and delay ``<controller>_<delay>ms_<name>``: trials, nominal, gains, trace)."""
+    write_json(out / f"{stem}.json", dict(settings=settings, results=delay_study_records(results)))
+    arrays = {}
+    for r in results:
+        key = f"{r.controller}_{1e3 * r.delay:g}ms"
+        arrays[f"{key}_x"] = np.asarray(r.runs.x)
+        arrays[f"{key}_u"] = np.asarray(r.runs.u)
+        arrays[f"{key}_cost"] = np.asarray(r.runs.cost)
+        for name, value in policy_arrays(r.solution).items():
+            arrays[f"{key}_{name}"] = value
+    np.savez_compressed(out / f"{stem}_runs.npz", **arrays)
+    return [f"{stem}.json", f"{stem}_runs.npz"]
+
+
+_DEMO_NOTES = """\
+Columns:
+
+- **predicted E[J]**: the controller's own LQG prediction of its expected cost (`Solution.expected_cost`)
+  for the plant it was designed for. The delay-ignorant controller is designed for a plant without delay,
+  so it predicts the same cost at every delay.
+- **MC mean J [95% CI]**: Monte Carlo mean of the cost (eq. 2) on the delayed noisy plant, with its
+  normal-approximation 95 % confidence interval. It is `inf` when some trials diverged (the closed
+  loop blew up); then compare the medians.
+- **MC median J**: the median cost, robust to the heavy tails of nearly unstable closed loops.
+- **diverged**: trials whose cost is not finite.
+- **hand position error**: distance of the final hand position from the target, mean +- 1.96 standard
+  errors (or the median when some trials diverged).
+- **solve [ms]**: one compiled solve; **iter**: iterations; **converged**: the solver's status.
+
+All controllers at one delay see the same noise samples (common random numbers), so their
+differences are less noisy than either value.
+"""
+
+_DEMO_FILES = """\
+## Figures
+
+![expected cost and endpoint error against the delay](cost_vs_delay.png)
+
+![hand paths and endpoint spread](hand_paths.png)
+
+![convergence of the solves](convergence.png)
+
+## Files
+
+- `report.json`: settings and every number of the table (non-finite values as null).
+- `report_runs.npz`: per controller and delay (`<controller>_<delay>ms_<name>`): trials `x`, `u`, `cost`; \
+nominal `x_nominal`, `u_nominal`; gains `state_feedback`, `delay_feedback`, `feedforward`; solver trace `trace_*`.
+"""
+
+
+def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], description: str,
+                      delays: Sequence[float], trials: int, seed: int, elapsed: float) -> str:
+    """The demo's report.md: the setting, the table, the notes on its columns, solver warnings,
+    figures and files; returns the file name."""
+    lines = [
+        "# Reaching with delayed commands: delay-aware vs delay-ignorant iLQG",
+        "",
+        f"Model: `arm2` with noise (P2-noisy): {description}; signal-dependent torque noise.",
+        f"Delays: {', '.join(f'{1e3 * d:g} ms' for d in delays)}. {trials} noisy trials per controller and "
+        f"delay (seed {seed}). Study time {elapsed:.1f} s (compilation included).",
+        "",
+        "- **aware**: " + REGISTRY["aware"].description,
+        "- **ignorant**: " + REGISTRY["ignorant"].description,
+        "",
+        "## Results",
+        "",
+        markdown_table(delay_study_rows(results)),
+        "",
+        _DEMO_NOTES,
+    ]
+    failed = [r for r in results if not r.converged]
+    if failed:
+        lines += ["## Solver warnings", ""]
+        lines += [f"- {r.controller} at {1e3 * r.delay:g} ms: {r.status}: {r.message}" for r in failed]
+        lines += [""]
+    (out / "report.md").write_text("\n".join(lines) + "\n" + _DEMO_FILES)
+    return "report.md"
+
+
+def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict, table: str,
+                            figures: Sequence[str]) -> list[str]:
+    """center_out.json (settings and every number) and center_out.md (setting, table, figures)."""
+    write_json(out / "center_out.json", dict(settings=settings, results=center_out_records(results)))
+    s = settings
+    lines = ["# Center-out reaching, six-muscle arm, delayed excitations", "",
+             f"{s['targets']} targets at {1e3 * s['radius']:g} mm, {s['trials']} noisy trials per target (sigma_u "
+             f"{s['sigma_u']:g}, seed {s['seed']}); designs: {', '.join(s['designs'])}. Study time "
+             f"{s['elapsed_seconds']:.1f} s.", "",
+             table, ""] + [f"![{f}]({f})" for f in figures] + [""]
+    (out / "center_out.md").write_text("\n".join(lines))
+    return ["center_out.md", "center_out.json"]

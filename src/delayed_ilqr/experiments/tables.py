@@ -1,0 +1,156 @@
+"""Tables of the studies and of single solves, as strings: every row is built here, once.
+
+A table is a header and rows of strings (:func:`delay_study_rows`, :func:`center_out_rows`),
+formatted as aligned plain text (:func:`text_table`) or GitHub markdown (:func:`markdown_table`);
+the ``solve`` and ``simulate`` commands print two-column summaries (:func:`pairs`).
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from .. import Status
+from .delay_study import ControllerResult
+from .designs import REGISTRY
+
+__all__ = ["num", "unit_scale", "delay_study_rows", "center_out_rows", "text_table", "markdown_table", "pairs",
+           "solve_summary", "simulate_summary"]
+
+Table = tuple[list[str], list[list[str]]]
+
+
+def num(value: float, digits: int = 4) -> str:
+    """``value`` to ``digits`` significant digits; "nan", "inf", "-inf" spelled out."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "nan"
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return f"{value:.{digits}g}"
+
+
+def unit_scale(unit: str) -> tuple[float, str]:
+    """(factor, unit) to print a quantity in: metres as millimetres, anything else as it is."""
+    return (1e3, "mm") if unit == "m" else (1.0, unit)
+
+
+def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
+    """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs,
+    diverged trials and the endpoint error (mean +- 1.96 standard errors, or the median)."""
+    scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
+    label = results[0].endpoint_label if results else "endpoint error"
+    header = ["delay [s]", "controller", "converged", "iter", "solve [ms]", "predicted E[J]",
+              "MC mean J [95% CI]", "MC median J", "diverged", f"{label}" + (f" [{unit}]" if unit else "")]
+    rows = []
+    for r in results:
+        c, e = r.cost, r.endpoint_error
+        mean = f"{num(c.mean)} [{num(c.ci95[0])}, {num(c.ci95[1])}]" if math.isfinite(c.mean) else num(c.mean)
+        err = f"{num(scale * e.mean, 3)} +- {num(1.96 * scale * e.standard_error, 2)}" \
+            if math.isfinite(e.mean) else f"median {num(scale * e.median, 3)}"
+        rows.append([f"{r.delay:g}", r.controller, "yes" if r.converged else "NO", str(r.iterations),
+                     f"{1e3 * r.solve_time:.1f}", num(r.predicted_cost), mean, num(c.median),
+                     f"{c.n_diverged}/{c.n}", err])
+    return header, rows
+
+
+_CENTER_OUT_HEADER = ["delay", "design", "converged", "iterations median [range]", "solve time per target",
+                      "nominal hand error (max)", "predicted E[J] (mean)", "MC mean J (mean)",
+                      "MC hand error (mean)", "MC hand error (median, mean over targets)",
+                      "MC endpoint spread (1-sigma major axis, mean)"]
+
+
+def _center_out_row(r) -> list[str]:
+    its = [t.iterations for t in r.targets]
+    n = len(r.targets)
+    return [f"{1e3 * r.delay:g} ms", r.design, f"{sum(t.converged for t in r.targets)}/{n}",
+            f"{int(np.median(its))} [{min(its)}-{max(its)}]", f"{1e3 * r.solve_time / n:.0f} ms",
+            f"{1e3 * max(t.hand_error for t in r.targets):.2f} mm",
+            f"{np.mean([t.predicted_cost for t in r.targets]):.3g}",
+            f"{np.mean([t.mc_cost.mean() for t in r.targets]):.3g}",
+            f"{1e3 * np.mean([t.mc_error.mean() for t in r.targets]):.1f} mm",
+            f"{1e3 * np.mean([np.median(t.mc_error) for t in r.targets]):.1f} mm",
+            f"{1e3 * np.mean([t.spread for t in r.targets]):.1f} mm"]
+
+
+def center_out_rows(results: Sequence) -> Table:
+    """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`)."""
+    return list(_CENTER_OUT_HEADER), [_center_out_row(r) for r in results]
+
+
+def text_table(table: Table) -> str:
+    """A plain-text table with aligned columns."""
+    header, rows = table
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)),
+             "  ".join("-" * w for w in widths)]
+    lines += ["  ".join(v.ljust(w) for v, w in zip(row, widths)) for row in rows]
+    return "\n".join(line.rstrip() for line in lines)
+
+
+def markdown_table(table: Table) -> str:
+    """The same table in GitHub markdown."""
+    header, rows = table
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def pairs(rows: Sequence[tuple[str, str]]) -> str:
+    """Two aligned columns: one ``key  value`` line per row."""
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k.ljust(width)}  {v}" for k, v in rows)
+
+
+def _problem_rows(problem, description: str, noise: bool) -> list[tuple[str, str]]:
+    return [("model", f"{problem.name}: {description}"),
+            ("delay", f"{problem.delay:g} s ({problem.delay_steps} steps of dt = {problem.dt:g} s)"),
+            ("noise", "yes" if noise else "no")]
+
+
+def solve_summary(problem, description: str, noise: bool, method: str, timed, endpoint) -> list[tuple[str, str]]:
+    """The ``solve`` command's summary rows.
+
+    Args:
+        problem: the problem solved; description: its model's description; noise: whether noisy.
+        method: the backward pass; timed: (solution, seconds, first seconds) of the solve.
+        endpoint: (label, unit, value) of the nominal's endpoint error.
+    """
+    sol, solve_time, first = timed
+    status = Status(int(sol.status))
+    label, unit, value = endpoint
+    scale, unit = unit_scale(unit)
+    return _problem_rows(problem, description, noise) + [
+        ("method", method),
+        ("status", f"{status.name}: {status.message}"),
+        ("iterations", str(int(sol.iterations))),
+        ("cost (eq. 2, nominal)", num(float(sol.cost))),
+        ("expected cost (LQG)", num(float(sol.expected_cost))),
+        (f"nominal {label}", f"{num(float(scale * value))} {unit}".rstrip()),
+        ("solve time", f"{1e3 * solve_time:.1f} ms (first call with compilation: {first:.2f} s)"),
+    ]
+
+
+def _endpoint_text(result: ControllerResult) -> str:
+    scale, unit = unit_scale(result.endpoint_unit)
+    e = result.endpoint_error
+    if math.isfinite(e.mean):
+        return f"{num(scale * e.mean)} {unit} (95% CI {num(scale * e.ci95[0])} to {num(scale * e.ci95[1])})"
+    return f"median {num(scale * e.median)} {unit} (mean infinite: {e.n_diverged} trials diverged)"
+
+
+def simulate_summary(r: ControllerResult, description: str) -> list[tuple[str, str]]:
+    """The ``simulate`` command's summary rows of one evaluated controller."""
+    c = r.cost
+    mean = f"{num(c.mean)} (95% CI {num(c.ci95[0])} to {num(c.ci95[1])})" if math.isfinite(c.mean) \
+        else f"infinite ({c.n_diverged} of {c.n} trials diverged)"
+    return _problem_rows(r.problem, description, r.noise) + [
+        ("controller", f"{r.controller}: {REGISTRY[r.controller].description}"),
+        ("solve", f"{r.status} after {r.iterations} iterations, {1e3 * r.solve_time:.1f} ms"),
+        ("predicted E[J]", num(r.predicted_cost)),
+        ("trials", f"{c.n} (seed {r.seed}, {r.substeps} substep(s) per step)"),
+        ("Monte Carlo mean J", mean),
+        ("Monte Carlo median J", f"{num(c.median)} (95% CI {num(c.median_ci95[0])} to {num(c.median_ci95[1])})"),
+        (f"final {r.endpoint_label}", _endpoint_text(r)),
+        ("mean final state", np.array2string(np.asarray(r.summary.final_state_mean), precision=4)),
+    ]

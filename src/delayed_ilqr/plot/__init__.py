@@ -1,0 +1,24 @@
+"""Figures for solutions, Monte Carlo runs and the studies.
+
+Every function builds a :class:`matplotlib.figure.Figure` directly (no ``pyplot``: no global
+state, no backend switch in the caller's session, never ``show()``) and returns it; save it with
+``fig.savefig("name.png")`` (rendered by Agg). matplotlib is imported inside the functions, so
+importing :mod:`delayed_ilqr` does not import it. Labels, units and the task space (e.g. the hand
+position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.metadata`).
+
+==========================  ===================================================================
+:mod:`.solution`            states and commands against time; convergence of solves
+:mod:`.delay_study`         cost and endpoint error against the delay; task-space (hand) paths
+:mod:`.center_out`          center-out hand paths and ellipses; excitation patterns
+==========================  ===================================================================
+
+``delay_study_figures`` and ``center_out_figures`` give a study's figures by file name.
+"""
+from ._common import COLORS
+from .center_out import center_out_figures, plot_center_out, plot_excitations
+from .delay_study import delay_study_figures, draws_paths, plot_delay_study, plot_hand_paths
+from .solution import plot_convergence, plot_trajectories, state_labels
+
+__all__ = ["plot_trajectories", "plot_hand_paths", "plot_delay_study", "plot_convergence", "plot_center_out",
+           "plot_excitations", "delay_study_figures", "center_out_figures", "draws_paths", "state_labels",
+           "COLORS"]

@@ -1,0 +1,205 @@
+"""Figures of a delay study: cost and endpoint error against the delay, and the task-space paths."""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+from ..experiments.tables import unit_scale
+from ..models.metadata import task_position, task_space, task_target
+from ._common import COLORS, controller_label, ellipse, figure
+from .solution import plot_convergence
+
+__all__ = ["plot_hand_paths", "plot_delay_study", "delay_study_figures", "draws_paths"]
+
+
+def draws_paths(problem) -> bool:
+    """Whether the model's task space gets a paths figure (:func:`plot_hand_paths`; the arms)."""
+    task = task_space(problem)
+    return task is not None and task.paths and task_target(problem) is not None
+
+
+def _paths_panel(ax, group, n_paths: int):
+    """Per controller: its nominal (thick) and ``n_paths`` trials (thin) in the task space, start and
+    target, viewed around the nominal paths. Returns (per controller (result, endpoints relative to
+    the target in display units, finite mask, colour), trials drawn)."""
+    zoom, nominals = [], []
+    for r in group:
+        if not draws_paths(r.problem):
+            raise ValueError("plot_hand_paths needs an arm model (a task space with paths, as arm2 and "
+                             f"arm2_muscle6 have); got {r.model!r}")
+        color = COLORS.get(r.controller, None)
+        paths = task_position(r.problem, r.runs.x)                                 # [N, K+1, 2]
+        nominal = task_position(r.problem, r.solution.x)
+        for j in range(min(n_paths, paths.shape[0])):
+            ax.plot(paths[j, :, 0], paths[j, :, 1], color=color, lw=0.6, alpha=0.45)
+        ax.plot(nominal[:, 0], nominal[:, 1], color=color, lw=2.2, label=f"{controller_label(r.controller)} nominal")
+        nominals.append(nominal)
+        target = task_target(r.problem)
+        ends = unit_scale(task_space(r.problem).unit)[0] * (paths[:, -1] - target)
+        zoom.append((r, ends, np.all(np.isfinite(ends), axis=1), color))
+    start = task_position(group[0].problem, group[0].runs.x[0, 0])
+    ax.scatter([start[0]], [start[1]], marker="o", s=60, color="k", zorder=6, label="start")
+    ax.scatter([target[0]], [target[1]], marker="*", s=180, color="tab:orange", zorder=6, label="target")
+    # view: the nominal paths, start and target with a margin; trials that leave it are clipped
+    box = np.vstack([start, target] + nominals)
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    centre, half_box = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo)) + 0.08
+    ax.set_xlim(centre[0] - half_box, centre[0] + half_box)
+    ax.set_ylim(centre[1] - half_box, centre[1] + half_box)
+    ax.set_aspect("equal")
+    return zoom, min(n_paths, paths.shape[0])
+
+
+def _endpoints_panel(ax, zoom, unit: str):
+    """Every trial's endpoint relative to the target with the 2-sigma ellipse of the finite ones; the
+    view is set by the tightest controller and legends count the endpoints outside it."""
+    # wide enough for the tightest controller's endpoints (99th percentile), at least 5 display units
+    spans = [np.percentile(np.abs(e[f]), 99) for _, e, f, _ in zoom if np.any(f)]
+    half = max(5.0, 1.3 * min(spans)) if spans else 5.0
+    for r, ends, finite, color in zoom:
+        inside = finite & np.all(np.abs(ends) <= half, axis=1)
+        outside = int(ends.shape[0] - np.count_nonzero(inside))
+        label = f"{controller_label(r.controller)} endpoints" + (f" ({outside} outside view)" if outside else "")
+        ax.scatter(ends[inside, 0], ends[inside, 1], s=5, color=color, alpha=0.35, label=label)
+        ellipse(ax, ends[finite], color, label=f"{controller_label(r.controller)} 2-sigma ellipse")
+    ax.scatter([0.0], [0.0], marker="*", s=180, color="tab:orange", zorder=6, label="target")
+    ax.set_xlim(-half, half)
+    ax.set_ylim(-half, half)
+    ax.set_aspect("equal")
+    ax.set_xlabel(f"endpoint x - target x [{unit}]")
+    ax.set_ylabel(f"endpoint y - target y [{unit}]")
+
+
+def plot_hand_paths(results: Sequence, n_paths: int = 10):
+    """Hand paths of the arms (task-space paths) and the spread of their endpoints, per delay and controller.
+
+    Args:
+        results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects of a model
+            whose task space draws paths (the arms: from
+            :func:`~delayed_ilqr.experiments.delay_study.compare_delays` or ``evaluate``).
+        n_paths: Monte Carlo paths drawn per controller.
+
+    Returns:
+        A Figure with two rows and one column per delay. Top: hand paths in the plane (shoulder at
+        the origin; per controller its nominal, thick, and ``n_paths`` trials, thin), start and
+        target, viewed around the nominal paths (trials that wander off are clipped). Bottom: every
+        trial's endpoint relative to the target (mm) with the 2-sigma covariance ellipse of the
+        finite endpoints; the view is set by the tightest controller and legends count the
+        endpoints outside it.
+
+    Raises:
+        ValueError: when the results are not of such a model.
+    """
+    results = list(results)
+    if not results:
+        raise ValueError("results must hold at least one ControllerResult; got none")
+    delays = sorted({r.delay for r in results})
+    fig = figure(figsize=(5.0 * len(delays), 9.0), layout="constrained")
+    axes = fig.subplots(2, len(delays), squeeze=False)
+    for col, tau in enumerate(delays):
+        group = [r for r in results if r.delay == tau]
+        top, bottom = axes[0, col], axes[1, col]
+        zoom, drawn = _paths_panel(top, group, n_paths)
+        task = task_space(group[0].problem)
+        top.set_xlabel(f"{task.point} x [{task.unit}]")
+        top.set_ylabel(f"{task.point} y [{task.unit}]")
+        top.set_title(f"delay {1e3 * tau:g} ms: {task.point} paths ({drawn} trials each)")
+        top.grid(alpha=0.3)
+        top.legend(loc="lower left", fontsize=8, framealpha=0.9)
+        _endpoints_panel(bottom, zoom, unit_scale(task.unit)[1])
+        bottom.set_title(f"delay {1e3 * tau:g} ms: final {task.point} positions (N = {group[0].runs.x.shape[0]})")
+        bottom.grid(alpha=0.3)
+        bottom.legend(loc="upper left", fontsize=7)
+    noise = "noisy" if results[0].noise else "deterministic"
+    fig.suptitle(f"{results[0].model}: reaching with delayed commands ({noise} plant)")
+    return fig
+
+
+def _series(ax, tau, stats, scale, color, c, ci):
+    """One controller's values against the delay: means with 95 % intervals where finite, else
+    medians with theirs (triangles, with the diverged count written next to them)."""
+    mean_ok = np.array([math.isfinite(st.mean) and math.isfinite(st.ci95[0]) for st in stats])
+    val = np.array([scale * (st.mean if ok else st.median) for st, ok in zip(stats, mean_ok)])
+    lo = np.array([scale * (st.ci95[0] if ok else st.median_ci95[0]) for st, ok in zip(stats, mean_ok)])
+    hi = np.array([scale * (st.ci95[1] if ok else st.median_ci95[1]) for st, ok in zip(stats, mean_ok)])
+    yerr = np.vstack([np.clip(val - lo, 0, None), np.clip(hi - val, 0, None)])
+    yerr = np.where(np.isfinite(yerr), yerr, 0.0)
+    ax.plot(tau, val, color=color, lw=1.5, alpha=0.7)
+    if np.any(mean_ok):
+        ax.errorbar(tau[mean_ok], val[mean_ok], yerr=yerr[:, mean_ok], fmt="o", color=color, capsize=4,
+                    ms=7, label=f"{controller_label(c)}: Monte Carlo mean, 95% CI")
+    if np.any(~mean_ok):
+        ax.errorbar(tau[~mean_ok], val[~mean_ok], yerr=yerr[:, ~mean_ok], fmt="^", color=color, capsize=4,
+                    ms=8, label=f"{controller_label(c)}: median, 95% CI (mean infinite)")
+        for t, v, st, ok in zip(tau, val, stats, mean_ok):
+            if not ok and st.n_diverged and math.isfinite(v):
+                ax.annotate(f"{st.n_diverged}/{st.n} diverged", (t, v), textcoords="offset points",
+                            xytext=(8, 6 - 14 * ci), fontsize=8, color=color)
+
+
+def _finish(ax, ylabel: str, title: str):
+    ax.set_yscale("log")
+    ax.set_xlabel("input delay [ms]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+
+
+def plot_delay_study(results: Sequence):
+    """Expected cost and endpoint error against the delay, one series per controller.
+
+    Args:
+        results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects (several delays).
+
+    Returns:
+        A Figure with two axes. Left: Monte Carlo mean cost with 95 % confidence intervals (filled
+        markers, log scale) and the controller's own predicted E[J] (open markers, dashed). Where a
+        mean is infinite (some trials diverged) the median and its 95 % interval are drawn instead
+        with a triangle marker and the diverged count is written next to it. Right: the endpoint
+        error (mm for lengths in metres), mean with 95 % interval, or median likewise.
+    """
+    results = list(results)
+    if not results:
+        raise ValueError("results must hold at least one ControllerResult; got none")
+    fig = figure(figsize=(12.5, 5.8), layout="constrained")
+    ax_cost, ax_err = fig.subplots(1, 2)
+    controllers = list(dict.fromkeys(r.controller for r in results))
+    scale, unit_text = unit_scale(results[0].endpoint_unit)
+    offsets = np.linspace(-1, 1, len(controllers)) * (0.6 if len(controllers) > 1 else 0.0)
+    delays = sorted({r.delay for r in results})
+    step = 1e3 * (min(np.diff(delays)) if len(delays) > 1 else 0.05)
+    for ci, (c, off) in enumerate(zip(controllers, offsets)):
+        rows = sorted((r for r in results if r.controller == c), key=lambda r: r.delay)
+        color = COLORS.get(c, None)
+        tau = np.array([1e3 * r.delay for r in rows]) + off * 0.04 * step
+        _series(ax_cost, tau, [r.cost for r in rows], 1.0, color, c, ci)
+        _series(ax_err, tau, [r.endpoint_error for r in rows], scale, color, c, ci)
+        ax_cost.plot(tau, np.array([r.predicted_cost for r in rows]), ls="--", marker="o", mfc="white", color=color,
+                     ms=7, label=f"{controller_label(c)}: its own predicted E[J]")
+    _finish(ax_cost, "cost J (eq. 2)", "expected cost")
+    label = results[0].endpoint_label
+    _finish(ax_err, f"{label}" + (f" [{unit_text}]" if unit_text else ""), f"final {label}")
+    n = results[0].cost.n
+    noise = "noisy" if results[0].noise else "deterministic"
+    fig.suptitle(f"{results[0].model}: delay-aware vs delay-ignorant control, {n} {noise} trials per point")
+    return fig
+
+
+def delay_study_figures(results: Sequence) -> dict:
+    """The figures of a delay study by file name: cost_vs_delay.png, convergence.png (one line per
+    solve; the delay-ignorant design problem is the same at every delay, so one line for it unless
+    the delay-aware one at 0 ms is drawn) and, for a model whose task space draws paths,
+    hand_paths.png."""
+    figures = {"cost_vs_delay.png": plot_delay_study(results)}
+    sols = {f"{r.controller}, {1e3 * r.delay:g} ms": r.solution for r in results if r.controller != "ignorant"}
+    ignorant = [r for r in results if r.controller == "ignorant"]
+    zero_aware = any(r.controller == "aware" and r.delay_steps == 0 for r in results)
+    if ignorant and not zero_aware:
+        sols["ignorant (designed for 0 ms)"] = ignorant[0].solution
+    figures["convergence.png"] = plot_convergence(sols)
+    if draws_paths(results[0].problem):
+        figures["hand_paths.png"] = plot_hand_paths(results)
+    return figures
