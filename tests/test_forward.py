@@ -6,16 +6,17 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.forward import candidate_scores, closed_loop_rollout, merit
-from delayed_ilqr.linearize import rollout
+from delayed_ilqr.ilqg.backward import backward
+from delayed_ilqr.ilqg.closed_loop import closed_loop_rollout
+from delayed_ilqr.ilqg.line_search import candidate_scores, merit
+from delayed_ilqr.ilqg.linearize import rollout
 from delayed_ilqr.models import arm2
-from delayed_ilqr.solver import _backward
 
 
 def _slope_ratios(problem, us, alphas, noise_at_candidate=False):
     """(merit(alpha) - merit(0)) / (alpha a + alpha^2 b) for rollouts of the backward pass's gains."""
     xs = rollout(problem, us)
-    gains, S, _, ok, (a, b) = _backward(problem, xs, us, 0.0, "structured", 1e-5)
+    gains, S, _, ok, (a, b) = backward(problem, xs, us, 0.0, "structured", 1e-5)
     assert bool(ok)
     assert float(a) < 0                                       # a descent direction of the model
     m0 = merit(problem, xs, us, S, xs)[1]
@@ -68,7 +69,7 @@ def test_the_scored_candidates_are_the_single_rollouts(delay, noise, limits):
     t = np.arange(problem.horizon)[:, None] * problem.dt
     us = jnp.asarray(1.5 * np.sin(2 * np.pi * t / 0.5 + np.array([0.0, 1.0])))    # a nominal far from optimal
     xs = rollout(problem, us)
-    gains, S, *_ = jax.jit(lambda: _backward(problem, xs, us, 0.0, "structured", 1e-5))()
+    gains, S, *_ = jax.jit(lambda: backward(problem, xs, us, 0.0, "structured", 1e-5))()
     alphas = jnp.asarray(di.Options().alphas)
     cost, mer, finite = jax.jit(lambda: candidate_scores(problem, xs, us, gains, alphas, S))()
     assert bool(jnp.all(finite))

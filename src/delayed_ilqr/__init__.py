@@ -35,7 +35,8 @@ jax.config.update("jax_enable_x64", True)
 from . import lqg  # noqa: E402
 from .problem import GeneralCost, Problem, QuadraticCost  # noqa: E402
 from .solution import Policy, Solution, Status, Trace  # noqa: E402
-from .solver import Options, solve  # noqa: E402
+from .options import Options  # noqa: E402
+from .ilqg.solver import solve  # noqa: E402
 from .simulate import Runs, simulate  # noqa: E402
 
 __all__ = ["lqg", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve", "Solution", "Policy",

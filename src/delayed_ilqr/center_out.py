@@ -31,7 +31,8 @@ from .models.arm2 import ARM2_PARAMS, hand_position
 from .models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets, rest_commands
 from .simulate import simulate
 from .solution import Policy, Solution, Status
-from .solver import Options, solve
+from .ilqg.solver import solve
+from .options import Options
 
 __all__ = ["TargetResult", "DelayResult", "center_out", "format_table", "to_records", "DEFAULT_OPTIONS", "DESIGNS"]
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from . import center_out, study
 from .models import REGISTRY, arm2_muscle6
-from .solver import Options
+from .options import Options
 from .solution import Status
 
 __all__ = ["main"]

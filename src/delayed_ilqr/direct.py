@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .linearize import rollout, trajectory_cost
+from .ilqg.linearize import rollout, trajectory_cost
 from .problem import Problem
 
 __all__ = ["direct_optimum"]

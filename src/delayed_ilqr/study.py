@@ -34,7 +34,8 @@ import numpy as np
 from .problem import Problem, QuadraticCost
 from .simulate import Runs, SampleStats, Summary, sample_stats, simulate
 from .solution import Solution, Status
-from .solver import Options, solve
+from .ilqg.solver import solve
+from .options import Options
 
 __all__ = ["CONTROLLERS", "ControllerResult", "evaluate", "compare_delays", "design_problem", "endpoint_error",
            "endpoint_description", "arm_kinematics", "timed_solve", "default_u_init", "format_table", "format_markdown", "to_records"]
