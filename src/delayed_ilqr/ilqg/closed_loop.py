@@ -13,28 +13,28 @@ the law itself does not know that order. Two orders are in use:
   pending = [du_{k-l}, ..., du_{k-1}]; :func:`augmented_feedback` lays [L, M] out in that order.
 
 :func:`closed_loop_step` advances y = [x, pending] one step in the slot frame, with the plant
-given as a function of the command deviation. It is the step of the solver's rollout and line
-search (:func:`nonlinear_step`: the nonlinear plant around a nominal), of the line search's model
-(``line_search.predicted_change``: the LQG's linear dynamics) and of ``delayed_ilqr.simulate``
-(the stochastic plant, under a policy whose delay may differ from the plant's). The exact policy
-cost propagates moments of z instead of samples: it uses the law's affine form
-(:func:`augmented_feedback`, :func:`closed_loop_affine`).
+given as a function of the command deviation. It is the step of the solver's rollouts and line
+search (``candidates.nonlinear_step``: the nonlinear plant around a nominal), of the line search's
+model (``line_search.predicted_change``: the LQG's linear dynamics), of ``delayed_ilqr.simulate``
+(the stochastic plant, under a policy whose delay may differ from the plant's) and of the linear
+Monte Carlo ``lqg.simulate_lqg``. The exact policy cost propagates moments of z instead of
+samples: it uses the law's affine form (:func:`augmented_feedback`, :func:`closed_loop_affine`).
+
+This module depends on nothing but the fused products, so that the LQG layer can use it.
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from typing import TYPE_CHECKING, Callable
 
 import jax
 import jax.numpy as jnp
 
 from .._dense import matmul
-from .._scan import packed_scan
-from ..lqg import Gains, SlotGains, slot_offsets
-from ..problem import Problem
-from .linearize import delayed_commands
 
-__all__ = ["delayed_law", "read_slot", "write_slot", "closed_loop_step", "augmented_feedback", "closed_loop_affine",
-           "NominalRow", "StepValues", "nominal_rows", "initial_frame", "nonlinear_step", "closed_loop_rollout"]
+if TYPE_CHECKING:       # annotations only: the LQG layer (policy cost, linear Monte Carlo) imports this module
+    from ..lqg import Gains, SlotGains
+
+__all__ = ["delayed_law", "read_slot", "write_slot", "closed_loop_step", "augmented_feedback", "closed_loop_affine"]
 
 
 def delayed_law(feedforward, feedback, z):
@@ -102,69 +102,3 @@ def closed_loop_affine(Mz, Mu, feedforward, feedback):
     that the map is (Mz + Mu F) z + Mu I. Mz [..., m, N], Mu [..., m, d] (the dynamics Az, Bz, or
     the noise columns Cz, Cu with a leading [p]); feedforward [d], feedback [d, N] in z's order."""
     return Mz + Mu @ feedback, Mu @ feedforward
-
-
-# ---------------------------------------------------------------------------------------------
-# The nonlinear plant around a nominal: the solver's rollouts
-# ---------------------------------------------------------------------------------------------
-
-class NominalRow(NamedTuple):
-    """Step k's data of a closed-loop rollout around the nominal (x_bar, u_bar); time-major in a scan."""
-
-    slot: jax.Array          # (k mod l) d
-    x_bar: jax.Array         # [n]
-    u_bar: jax.Array         # [d]
-    ud_bar: jax.Array        # [d] u_bar_{k-l}
-    gains: SlotGains         # row k
-
-
-class StepValues(NamedTuple):
-    """One step of :func:`nonlinear_step`: the state before it, the command sent and the one acting
-    (u_{k-l}), and the new state."""
-
-    x: jax.Array
-    u: jax.Array
-    ud: jax.Array
-    x_new: jax.Array
-
-
-def nominal_rows(problem: Problem, xs_bar, us_bar, gains: SlotGains) -> NominalRow:
-    """The :class:`NominalRow` of every step k = 0..K-1 (time-major)."""
-    K = us_bar.shape[0]
-    return NominalRow(slot_offsets(K, problem.delay_steps, problem.n_controls), xs_bar[:-1], us_bar,
-                      delayed_commands(problem, us_bar), gains)
-
-
-def initial_frame(problem: Problem, dtype):
-    """y_0 = [x0; 0]: nothing pending before t = 0."""
-    return jnp.concatenate([problem.x0, jnp.zeros(problem.delay_steps * problem.n_controls, dtype)])
-
-
-def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
-    """One step of the nonlinear plant under u = clip(u_bar + du), du by the law with feedforward
-    alpha I; the frame keeps the clipped deviation u - u_bar, and the plant acts on
-    u_{k-l} = u_bar_{k-l} + pending slot. Returns (y_{k+1}, :class:`StepValues`)."""
-    l = problem.delay_steps
-
-    def plant(x, du, du_delayed):
-        u = jnp.clip(row.u_bar + du, problem.u_min, problem.u_max)
-        ud = row.ud_bar + du_delayed if l > 0 else u
-        x_new = x + problem.dt * problem.dynamics(x, u, ud)
-        return x_new, u - row.u_bar, StepValues(x, u, ud, x_new)
-
-    gains = SlotGains(alpha * row.gains.feedforward, row.gains.feedback)
-    return closed_loop_step(y, row.slot, gains, plant, problem.n_states, row.x_bar)
-
-
-def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
-    """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
-    def step(y, row):
-        y_new, values = nonlinear_step(problem, alpha, y, row)
-        # x_new, not x: the step's new state is then made once for both the carry and the output
-        # (with x, XLA recomputes the dynamics in a second fusion; see docs/performance.md)
-        return y_new, (values.x_new, values.u)
-
-    # inputs unpacked: their packed copy would be the solver's largest temporary (docs/performance.md)
-    _, (xs, us) = packed_scan(step, initial_frame(problem, us_bar.dtype), nominal_rows(problem, xs_bar, us_bar, gains),
-                              pack_inputs=False)
-    return jnp.concatenate([problem.x0[None], xs]), us

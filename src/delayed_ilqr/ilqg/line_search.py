@@ -6,7 +6,7 @@ The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 
 where u_{k+i-l} are the commands this rollout actually sent, so the law feeds back commands that
-are already on their way but not yet acting (``closed_loop.nonlinear_step``). All alphas run at
+are already on their way but not yet acting (``candidates.nonlinear_step``). All alphas run at
 once (``vmap``), scored as they run; only the best is rolled out again, so the line search stores
 one trajectory.
 """
@@ -21,21 +21,23 @@ from .._dense import matmul
 from .._scan import packed_scan
 from ..lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
 from ..problem import Problem
-from .closed_loop import closed_loop_rollout, closed_loop_step, initial_frame, nominal_rows, nonlinear_step
+from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
+from .closed_loop import closed_loop_step
 from .linearize import noise_columns, trajectory_cost
 
 __all__ = ["candidate_scores", "noise_cost", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
 
 
 def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas, S):
-    """:func:`merit` of the closed-loop rollout (``closed_loop.closed_loop_rollout``) for every
+    """:func:`merit` of the closed-loop rollout (``candidates.closed_loop_rollout``) for every
     alpha [A], scored as the rollouts run: (cost [A], merit [A], finite [A]), finite when every
     state stayed finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
 
     One scan carries all A loops (the step is vmapped, not the scan) and stores no trajectory:
     each step adds its running cost (and, with noise, its term c'S c of :func:`noise_cost`) to its
     loop's sums. Storing the candidates would hold A (n + d) numbers per step, several times the
-    gains, and scoring them afterwards would copy them once more (docs/performance.md); the line
+    gains, and scoring them afterwards would copy them once more
+    (docs/performance.md#candidates-scored-as-they-run-candidate_scores); the line
     search rolls the best step size out again instead (:func:`line_search`).
     """
     noisy = problem.noise is not None
