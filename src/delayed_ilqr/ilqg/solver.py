@@ -151,6 +151,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
 
 
 def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
+    """The solve that is compiled: the rollout of u_init, then :func:`_iteration` until the stop."""
     u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
     xs = rollout(problem, u_init)
     cost = trajectory_cost(problem, xs, u_init)
@@ -200,7 +201,7 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     Args:
         problem: the :class:`~delayed_ilqr.Problem`.
         u_init: [K, d] initial commands (default zeros, clipped to the limits).
-        options: :class:`Options` (default ``Options()``).
+        options: :class:`~delayed_ilqr.Options` (default ``Options()``).
 
     Returns:
         A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
