@@ -10,7 +10,7 @@ import delayed_ilqr as di
 from delayed_ilqr.ilqg.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
 from delayed_ilqr.direct import direct_optimum
-from delayed_ilqr import solver as solver_module
+from delayed_ilqr.ilqg import solver as solver_module
 from delayed_ilqr.ilqg.backward import backward
 from delayed_ilqr.models import arm2, point_mass
 
