@@ -6,8 +6,8 @@ Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-
     x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
 
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
-terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the step is the solver's,
-``ilqg.closed_loop.closed_loop_step``)::
+terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the law is the solver's,
+``ilqg.closed_loop.delayed_law``)::
 
     u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
     ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
@@ -34,9 +34,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _validate
-from .ilqg.closed_loop import closed_loop_step, read_slot, write_slot
+from .ilqg.closed_loop import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
-from .lqg import Gains, SlotGains, slot_offsets, to_slots
+from .lqg import Gains
 from .problem import Problem
 from .solution import Policy
 
@@ -191,64 +191,55 @@ def summarize(cost, final_state) -> Summary:
                    median_ci95=stats.median_ci95, final_state_mean=mean, final_state_cov=cov)
 
 
-class _TrialRow(NamedTuple):
-    """Step k's data of a trial, time-major in the scan."""
-
-    slot: jax.Array          # (k mod l_p) d: du_k's slot in the policy's frame
-    plant_slot: jax.Array    # (k mod l) d: u_k's slot in the plant's frame of sent commands
-    x_bar: jax.Array         # [n] the policy's nominal state
-    u_bar: jax.Array         # [d] its nominal command
-    gains: SlotGains         # row k of the policy's law, without its feedforward
-    xi: jax.Array            # [substeps, p] standard normal samples
-
-
-def _trial_step(problem: Problem, substeps: int):
-    """The scan body of one trial, on (y, sent): y = [x; pending] with the deviations u_j - u_bar_j
-    in the policy's slot frame (period l_p), and ``sent`` the commands u_j in the plant's (period l),
-    so that the policy's delay need not be the plant's."""
-    l, nx, nd = problem.delay_steps, problem.n_states, problem.n_controls
+def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
+    """The scan body of one trial: the state and the last m = max(l, l_p) sent commands and their
+    nominals in time order, so that the policy's delay l_p need not be the plant's l. The law is
+    the solver's (``ilqg.closed_loop.delayed_law``) on z = [x - x_bar; u_{k-l_p} - u_bar_{k-l_p},
+    ..., u_{k-1} - u_bar_{k-1}], with [L, M] in that order (``augmented_feedback``). Time order,
+    not the solver's slot frame: under the vmap over trials it runs faster
+    (docs/performance.md#simulate-pending-commands-in-time-order)."""
+    l = problem.delay_steps
     h = problem.dt / substeps
     root_h = math.sqrt(h)
 
-    def step(carry, row: _TrialRow):
-        y, sent = carry
+    def step(carry, data):
+        x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
+        x_bar, u_bar, I, LM, xi = data           # xi: [substeps, p]
+        pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
+        du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
+        u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
+        ud = sent[m - l] if l > 0 else u
 
-        def plant(x, du, _):            # _: du_{k-l_p}, the policy's, not what acts on the plant
-            u = jnp.clip(row.u_bar + du, problem.u_min, problem.u_max)
-            ud = read_slot(sent, row.plant_slot, nd) if l > 0 else u
+        def substep(x, xi_j):
+            x_new = x + h * problem.dynamics(x, u, ud)
+            if problem.noise is not None:
+                x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
+            return x_new, None
 
-            def substep(x, xi_j):
-                x_new = x + h * problem.dynamics(x, u, ud)
-                if problem.noise is not None:
-                    x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
-                return x_new, None
-
-            x_new, _ = jax.lax.scan(substep, x, row.xi)
-            return x_new, u - row.u_bar, (x_new, u)
-
-        y_new, (x_new, u) = closed_loop_step(y, row.slot, row.gains, plant, nx, row.x_bar)
-        if l > 0:
-            sent = write_slot(sent, row.plant_slot, u)
-        return (y_new, sent), (x_new, u)
+        x_new, _ = jax.lax.scan(substep, x, xi)
+        if m > 0:
+            sent = jnp.concatenate([sent[1:], u[None]])
+            nominal = jnp.concatenate([nominal[1:], u_bar[None]])
+        return (x_new, sent, nominal), (x_new, u)
 
     return step
 
 
 @partial(jax.jit, static_argnames=("n_trials", "substeps"))
 def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, key) -> Runs:
-    K, nd, p, l = problem.horizon, problem.n_controls, problem.n_noise, problem.delay_steps
+    K, nd, p = problem.horizon, problem.n_controls, problem.n_noise
     l_p = policy.delay_feedback.shape[1]
-    step = _trial_step(problem, substeps)
+    m = max(problem.delay_steps, l_p)
+    step = _trial_step(problem, l_p, m, substeps)
     dtype = problem.x0.dtype
     # simulate runs the law without its feedforward (see Policy)
-    gains = to_slots(Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback))
+    gains = Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
 
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
-        init = (jnp.concatenate([problem.x0, jnp.zeros(l_p * nd, dtype)]), jnp.zeros(l * nd, dtype))
-        rows = _TrialRow(slot_offsets(K, l_p, nd), slot_offsets(K, l, nd), policy.x_nominal[:-1], policy.u_nominal,
-                         gains, xi)
-        _, (xs, us) = jax.lax.scan(step, init, rows)
+        init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
+        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi)
+        _, (xs, us) = jax.lax.scan(step, init, data)
         xs = jnp.concatenate([problem.x0[None], xs])
         return xs, us, trajectory_cost(problem, xs, us)
 

@@ -14,11 +14,12 @@ the law itself does not know that order. Two orders are in use:
 
 :func:`closed_loop_step` advances y = [x, pending] one step in the slot frame, with the plant
 given as a function of the command deviation. It is the step of the solver's rollouts and line
-search (``candidates.nonlinear_step``: the nonlinear plant around a nominal), of the line search's
-model (``line_search.predicted_change``: the LQG's linear dynamics), of ``delayed_ilqr.simulate``
-(the stochastic plant, under a policy whose delay may differ from the plant's) and of the linear
-Monte Carlo ``lqg.simulate_lqg``. The exact policy cost propagates moments of z instead of
-samples: it uses the law's affine form (:func:`augmented_feedback`, :func:`closed_loop_affine`).
+search (``candidates.nonlinear_step``: the nonlinear plant around a nominal) and of the line
+search's model (``line_search.predicted_change``: the LQG's linear dynamics). The Monte Carlo
+``delayed_ilqr.simulate`` runs a policy whose delay may differ from the plant's, with the pending
+commands in time order (faster under its vmap over trials): it applies :func:`delayed_law` with
+:func:`augmented_feedback`. The exact policy cost propagates moments of z instead of samples: it
+uses the law's affine form (:func:`augmented_feedback`, :func:`closed_loop_affine`).
 
 This module depends on nothing but the fused products, so that the LQG layer can use it.
 """
