@@ -40,10 +40,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import linearize, rollout
+from delayed_ilqr.ilqg.linearize import linearize, rollout
 from delayed_ilqr.lqg import augmented_scan, structured_slot_scan
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.solver import compiled_solver
+from delayed_ilqr.ilqg.solver import compiled_solver
 
 RESULTS = Path(__file__).with_name("results.md")
 OPTIONS = {"structured": di.Options(), "augmented": di.Options(method="augmented")}

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from delayed_ilqr.linearize import rollout, trajectory_cost
+from delayed_ilqr.ilqg.linearize import rollout, trajectory_cost
 from delayed_ilqr.problem import Problem
 
 __all__ = ["direct_optimum"]

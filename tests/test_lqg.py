@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from delayed_ilqr import lqg as _lqg
-from delayed_ilqr.forward import predicted_change
+from delayed_ilqr.ilqg.line_search import predicted_change
 from delayed_ilqr.lqg import DelayedLQG, Gains, policy_cost, simulate_lqg
 
 RTOL = 1e-9

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from delayed_ilqr import models
-from delayed_ilqr.linearize import rollout
+from delayed_ilqr.ilqg.linearize import rollout
 from delayed_ilqr.models import muscle
 
 am6 = importlib.import_module("delayed_ilqr.models.arm2_muscle6")

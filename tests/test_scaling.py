@@ -13,7 +13,7 @@ import numpy as np
 import delayed_ilqr as di
 from delayed_ilqr.lqg import DelayedLQG, augmented_scan, structured_scan
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.solver import compiled_solver
+from delayed_ilqr.ilqg.solver import compiled_solver
 
 
 def _best_time(fn, repeats):

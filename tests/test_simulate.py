@@ -11,7 +11,7 @@ import pytest
 import delayed_ilqr as di
 from delayed_ilqr.experiments import delay_study as study
 from delayed_ilqr.experiments.designs import design as design_problem
-from delayed_ilqr.linearize import linearize
+from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.lqg import Gains, policy_cost
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.simulate import sample_stats

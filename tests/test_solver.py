@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.linearize import linearize, rollout, trajectory_cost
+from delayed_ilqr.ilqg.linearize import linearize, rollout, trajectory_cost
 from delayed_ilqr.lqg import Gains, augmented_backward_pass, backward_pass, policy_cost
-from delayed_ilqr import solver as solver_module
-from delayed_ilqr.solver import _backward
+from delayed_ilqr.ilqg import solver as solver_module
+from delayed_ilqr.ilqg.backward import backward
 from delayed_ilqr.models import arm2, point_mass
 
 from direct import direct_optimum   # tests/direct.py
@@ -108,7 +108,7 @@ def test_a_negligible_predicted_reduction_ends_the_solve_before_the_line_search(
     assert int(sol.status) == di.Status.CONVERGED_COST, sol.message
     assert int(overstated.status) == di.Status.CONVERGED_COST and int(overstated.iterations) == last
     assert float(sol.trace.step_size[last]) == 0.0                       # no step taken ...
-    *_, (a, b) = _backward(problem, sol.x, sol.u, float(sol.trace.reg[last]), "augmented", 1e-5)
+    *_, (a, b) = backward(problem, sol.x, sol.u, float(sol.trace.reg[last]), "augmented", 1e-5)
     alphas = np.asarray(options.alphas)
     promised = float(np.max(-(alphas * float(a) + alphas ** 2 * float(b))))
     assert 0.0 <= promised < options.tol_cost * float(sol.cost)          # ... because none was promised

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr import _cpu, solver
+from delayed_ilqr import _cpu
+from delayed_ilqr.ilqg import solver
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.solver import compiled_solver
+from delayed_ilqr.ilqg.solver import compiled_solver
 
 THRESHOLD = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000"
 NO_YNN = "--xla_cpu_experimental_ynn_fusion_type=-individual_dot"

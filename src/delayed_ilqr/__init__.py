@@ -34,7 +34,8 @@ from . import lqg, models
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
 from .solution import Policy, Solution, Status, Trace
-from .solver import Options, solve
+from .ilqg.solver import solve
+from .options import Options
 from .simulate import Runs, simulate
 
 __all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",

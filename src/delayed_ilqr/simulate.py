@@ -6,7 +6,8 @@ Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-
     x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
 
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
-terms, without the feedforward, see :class:`~delayed_ilqr.Policy`)::
+terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the law is the solver's,
+``ilqg.closed_loop.delayed_law``)::
 
     u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
     ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
@@ -33,7 +34,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision, _validate
-from .linearize import trajectory_cost
+from .ilqg.closed_loop import augmented_feedback, delayed_law
+from .ilqg.linearize import trajectory_cost
+from .lqg import Gains
 from .problem import Problem
 from .solution import Policy
 
@@ -188,19 +191,22 @@ def summarize(cost, final_state) -> Summary:
                    median_ci95=stats.median_ci95, final_state_mean=mean, final_state_cov=cov)
 
 
-def _delayed_law_step(problem: Problem, policy: Policy, l_p: int, m: int, substeps: int):
-    """The scan body of one trial: state and the last m sent commands (and their nominals) in the carry."""
+def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
+    """The scan body of one trial: the state and the last m = max(l, l_p) sent commands and their
+    nominals in time order, so that the policy's delay l_p need not be the plant's l. The law is
+    the solver's (``ilqg.closed_loop.delayed_law``) on z = [x - x_bar; u_{k-l_p} - u_bar_{k-l_p},
+    ..., u_{k-1} - u_bar_{k-1}], with [L, M] in that order (``augmented_feedback``). Time order,
+    not the solver's slot frame: under the vmap over trials it runs faster
+    (docs/performance.md#simulate-pending-commands-in-time-order)."""
     l = problem.delay_steps
     h = problem.dt / substeps
     root_h = math.sqrt(h)
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
-        x_bar, u_bar, L, M, xi = data            # xi: [substeps, p]
-        du = L @ (x - x_bar)
-        if l_p > 0:
-            pending = sent[m - l_p:] - nominal[m - l_p:]                 # u_{k+i-l_p} - u_nominal, i < l_p
-            du = du + jnp.einsum("ide,ie->d", M, pending)
+        x_bar, u_bar, I, LM, xi = data           # xi: [substeps, p]
+        pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
+        du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         ud = sent[m - l] if l > 0 else u
 
@@ -224,13 +230,15 @@ def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, ke
     K, nd, p = problem.horizon, problem.n_controls, problem.n_noise
     l_p = policy.delay_feedback.shape[1]
     m = max(problem.delay_steps, l_p)
-    step = _delayed_law_step(problem, policy, l_p, m, substeps)
+    step = _trial_step(problem, l_p, m, substeps)
     dtype = problem.x0.dtype
+    # simulate runs the law without its feedforward (see Policy)
+    gains = Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
 
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
         init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
-        data = (policy.x_nominal[:-1], policy.u_nominal, policy.state_feedback, policy.delay_feedback, xi)
+        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi)
         _, (xs, us) = jax.lax.scan(step, init, data)
         xs = jnp.concatenate([problem.x0[None], xs])
         return xs, us, trajectory_cost(problem, xs, us)
@@ -265,7 +273,7 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
         n_trials: N, the number of independent trials (positive int).
         seed: non-negative integer; the trials use ``jax.random.split(jax.random.PRNGKey(seed), N)``.
         substeps: Euler-Maruyama sub-steps per control step (positive int); 1 integrates at dt,
-            exactly like :func:`~delayed_ilqr.linearize.rollout` in the noise-free case.
+            exactly like :func:`~delayed_ilqr.ilqg.linearize.rollout` in the noise-free case.
 
     Returns:
         :class:`Runs` with x [N, K+1, n], u [N, K, d], cost [N]; ``runs.summary()`` gives the mean

@@ -19,11 +19,11 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from ._scan import packed_scan
-from .lqg import DelayedLQG, StepModels
-from .problem import Problem
+from .._scan import packed_scan
+from ..lqg import DelayedLQG, StepModels
+from ..problem import Problem
 
-__all__ = ["delayed_commands", "rollout", "trajectory_cost", "step_models", "linearize"]
+__all__ = ["delayed_commands", "rollout", "trajectory_cost", "noise_columns", "step_models", "linearize"]
 
 
 def delayed_commands(problem: Problem, us):

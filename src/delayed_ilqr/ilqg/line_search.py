@@ -1,15 +1,14 @@
-"""Forward pass: closed-loop rollouts under the delayed feedback law, and the parallel line search.
+"""The line search: candidate step sizes scored on the nonlinear plant, the merit they minimise,
+and the LQG's prediction of its change.
 
 The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear plant)::
 
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 
-where u_{k+i-l} are the commands this rollout actually sent (the pending buffer), so the law feeds
-back commands that are already on their way but not yet acting. All alphas run at once (``vmap``),
-scored as they run; only the best is rolled out again, so the line search stores one trajectory.
-The gains come as the backward recursion makes them (:class:`~delayed_ilqr.lqg.SlotGains`):
-[L_k, M_k] multiplies [x_k - x_bar_k, pending], with u_j - u_bar_j pending in slot j mod l, so a
-rollout writes one slot per step and never shifts a buffer.
+where u_{k+i-l} are the commands this rollout actually sent, so the law feeds back commands that
+are already on their way but not yet acting (``candidates.nonlinear_step``). All alphas run at
+once (``vmap``), scored as they run; only the best is rolled out again, so the line search stores
+one trajectory.
 """
 from __future__ import annotations
 
@@ -18,90 +17,47 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._dense import matmul
-from ._scan import packed_scan
-from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
-from .problem import Problem
+from .._dense import matmul
+from .._scan import packed_scan
+from ..lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
+from ..problem import Problem
+from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
+from .closed_loop import closed_loop_step
+from .linearize import noise_columns, trajectory_cost
 
-__all__ = ["closed_loop_rollout", "candidate_scores", "merit", "predicted_change", "LineSearch", "line_search",
-           "no_step"]
-
-
-def _law(problem: Problem, alpha, y, data):
-    """One step of the closed loop under the delayed law, on y = [x, pending]
-    (pending[slot of j] = u_j - u_bar_j): du = alpha I + [L, M] [x - x_bar, pending].
-    Returns (y_new, x, u, ud, x_new): the state after the step, the state before it, the command
-    it sent, the command acting (u_{k-l}) and the new state."""
-    l, nd, nx = problem.delay_steps, problem.n_controls, problem.n_states
-    j, x_bar, u_bar, ud_bar, I, LM = data
-    x = y[:nx]
-    du = alpha * I + matmul(LM, jnp.concatenate([x - x_bar, y[nx:]]))
-    u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-    ud = ud_bar + jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else u
-    x_new = x + problem.dt * problem.dynamics(x, u, ud)
-    y_new = jnp.concatenate([x_new, y[nx:]])
-    if l > 0:
-        y_new = jax.lax.dynamic_update_slice_in_dim(y_new, u - u_bar, nx + j, 0)
-    return y_new, x, u, ud, x_new
-
-
-def _law_data(problem: Problem, xs_bar, us_bar, gains: SlotGains):
-    I, LM = gains
-    K = us_bar.shape[0]
-    return (slot_offsets(K, problem.delay_steps, problem.n_controls), xs_bar[:-1], us_bar,
-            delayed_commands(problem, us_bar), I, LM)
-
-
-def _y0(problem: Problem, dtype):
-    return jnp.concatenate([problem.x0, jnp.zeros(problem.delay_steps * problem.n_controls, dtype)])
-
-
-def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):
-    """Noise-free rollout of the nonlinear plant under the delayed law; returns (xs [K+1, n], us [K, d])."""
-    def step(y, data):
-        y_new, _, u, _, x_new = _law(problem, alpha, y, data)
-        # x_new, not x: the step's new state is then made once for both the carry and the
-        # output (with x, XLA recomputed the arm's dynamics in two fusions: P3 rollouts +20 %)
-        return y_new, (x_new, u)
-
-    # inputs unpacked: their packed copy, mostly the gains, was the solver's largest temporary
-    # (P4 at l = 1: the temporaries went from 167 to 78 kB), at the same speed
-    _, (xs, us) = packed_scan(step, _y0(problem, us_bar.dtype), _law_data(problem, xs_bar, us_bar, gains),
-                              pack_inputs=False)
-    return jnp.concatenate([problem.x0[None], xs]), us
+__all__ = ["candidate_scores", "noise_cost", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]
 
 
 def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas, S):
-    """:func:`merit` of the closed-loop rollout (:func:`closed_loop_rollout`) for every alpha [A],
-    scored as the rollouts run: (cost [A], merit [A], finite [A]), finite when every state stayed
-    finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
+    """:func:`merit` of the closed-loop rollout (``candidates.closed_loop_rollout``) for every
+    alpha [A], scored as the rollouts run: (cost [A], merit [A], finite [A]), finite when every
+    state stayed finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
 
     One scan carries all A loops (the step is vmapped, not the scan) and stores no trajectory:
     each step adds its running cost (and, with noise, its term c'S c of :func:`noise_cost`) to its
-    loop's sums.
-    Storing the A candidates was 11 (n + d) numbers per step, 4.7 times the gains of P4 at l = 1,
-    and scoring them afterwards copied them once more; the line search rolls the best step size
-    out again instead (:func:`line_search`).
+    loop's sums. Storing the candidates would hold A (n + d) numbers per step, several times the
+    gains, and scoring them afterwards would copy them once more
+    (docs/performance.md#candidates-scored-as-they-run-candidate_scores); the line
+    search rolls the best step size out again instead (:func:`line_search`).
     """
     noisy = problem.noise is not None
     dt = problem.dt
 
     def one(alpha, carry, data):
         y, running, noise, finite = carry
-        law_data, S_next = data
-        y_new, x, u, ud, x_new = _law(problem, alpha, y, law_data)
+        row, S_next = data
+        y_new, (x, u, ud, x_new) = nonlinear_step(problem, alpha, y, row)
         if noisy:       # c' S c summed over the noise columns, c = sqrt(dt) F at the nominal state
-            F = problem.noise(law_data[1], u, ud)                                  # [n, p]
+            F = problem.noise(row.x_bar, u, ud)                                    # [n, p]
             noise = noise + dt * jnp.sum(F * matmul(S_next, F))
         return (y_new, running + problem.cost.running(x, u), noise, finite & jnp.all(jnp.isfinite(x_new)))
 
     step = jax.vmap(one, in_axes=(0, 0, None))
     A = alphas.shape[0]
     zero = jnp.zeros(A, us_bar.dtype)
-    y0 = jnp.broadcast_to(_y0(problem, us_bar.dtype), (A, problem.n_states + problem.delay_steps
-                                                       * problem.n_controls))
-    data = (_law_data(problem, xs_bar, us_bar, gains), S[1:] if noisy else None)
+    y0 = jnp.broadcast_to(initial_frame(problem, us_bar.dtype), (A, problem.n_states + problem.delay_steps
+                                                                 * problem.n_controls))
+    data = (nominal_rows(problem, xs_bar, us_bar, gains), S[1:] if noisy else None)
     (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
                                                  (y0, zero, zero, jnp.ones(A, bool)), data,
                                                  pack_inputs=False)       # as in closed_loop_rollout
@@ -146,22 +102,20 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
     lqg = merged_if_undelayed(lqg)
 
-    # The linear closed loop only (costs come after), on y = [xi, pending] with the pending
-    # commands circular as in closed_loop_rollout: one product for eta, one for xi_{k+1}.
-    def step(y, data):
-        j, Z, I, LM = data
-        eta = I + matmul(LM, y)
-        eta_d = jax.lax.dynamic_slice_in_dim(y, nx + j, nd) if l > 0 else jnp.zeros_like(eta)
-        xi_new = matmul(Z, jnp.concatenate([y[:nx], eta, eta_d]))
-        y_new = jnp.concatenate([xi_new, y[nx:]])
-        if l > 0:
-            y_new = jax.lax.dynamic_update_slice_in_dim(y_new, eta, nx + j, 0)
-        return y_new, (y[:nx], eta, eta_d)
+    # The linear closed loop only (costs come after), on y = [xi, pending] in the slot frame:
+    # one product for eta, one for xi_{k+1}.
+    def step(y, row):
+        slot, Z, gains = row
 
-    I, LM = gains
+        def plant(xi, eta, eta_d):
+            eta_d = jnp.zeros_like(eta) if eta_d is None else eta_d
+            return matmul(Z, jnp.concatenate([xi, eta, eta_d])), eta, (xi, eta, eta_d)
+
+        return closed_loop_step(y, slot, gains, plant, nx)
+
     K = lqg.horizon
-    Z = stacked_dynamics(lqg)
-    y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), Z, I, LM))
+    y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd),
+                                      (slot_offsets(K, l, nd), stacked_dynamics(lqg), gains))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]

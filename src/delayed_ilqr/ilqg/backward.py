@@ -1,0 +1,68 @@
+"""One iteration's backward pass: linearise the problem at the nominal and solve the delayed LQG
+(Theorem 1, or augmentation with ``Options(method="augmented")``), with the solver's gain rules.
+"""
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from ..lqg import (SlotGains, augmented_scan, boxed_gains, structured_slot_scan, to_slots, unconstrained_gains,
+                   unregularized_feedback)
+from ..problem import Problem
+from .line_search import predicted_change
+from .linearize import linearize, step_models
+
+__all__ = ["BackwardPass", "backward"]
+
+
+class BackwardPass(NamedTuple):
+    """The LQG solved at a nominal.
+
+    Attributes:
+        gains: the law (6) in the slot frame.
+        S: [K+1, n, n] value Hessians (None without noise in the structured pass, where nothing uses them).
+        expected_cost: s_tilde_0 = J(0) of the regularised LQG.
+        positive_definite: [] bool, every H_k + lambda I was positive definite.
+        predicted: (a, b), the model's merit change alpha a + alpha^2 b for the step size alpha.
+    """
+
+    gains: SlotGains
+    S: jax.Array | None
+    expected_cost: jax.Array
+    positive_definite: jax.Array
+    predicted: tuple
+
+
+def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) -> BackwardPass:
+    """Linearise (eq. 3-4) at the nominal (xs [K+1, n], us [K, d]) and solve the LQG with H + reg I.
+
+    The structured pass linearises each step as it reaches it (``linearize.step_models``: the model
+    is never stored) and predicts (a, b) as it goes. The augmented reference linearises into a
+    stored model and predicts by ``line_search.predicted_change``.
+
+    With control limits the feedforward of each step solves a box QP with bounds on du_k
+    (u_min - u_k, u_max - u_k), and clamped commands get no feedback (``lqg.boxed_gains``, margin
+    ``limit_margin``). With noise, lambda regularises the feedforward only
+    (``lqg.unregularized_feedback``).
+    """
+    kw = dict(gains_fn=unconstrained_gains)
+    if problem.has_limits:
+        kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))
+    if problem.noise is not None:
+        kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
+    if method == "augmented":
+        lqg = linearize(problem, xs, us)
+        gains, value = augmented_scan(lqg, reg, **kw)
+        gains = to_slots(gains)
+        return BackwardPass(gains, value.S, value.s_tilde[0], value.positive_definite,
+                            predicted_change(lqg, gains, value.S))
+    noisy = problem.noise is not None
+    models = step_models(problem, xs, us)
+    gains, (s_tilde, *s_and_S), ok, predicted = structured_slot_scan(models, reg, store_value=False, predict=True,
+                                                                     store_S=noisy, **kw)
+    # S enters the merit and the line search only through the noise terms
+    S = jnp.concatenate([s_and_S[1], models.terminal[2][None]]) if noisy else None
+    return BackwardPass(gains, S, s_tilde[0], ok, predicted)

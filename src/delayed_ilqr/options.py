@@ -1,0 +1,64 @@
+"""Solver settings: :class:`Options`, immutable and validated when built."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from . import _validate
+
+__all__ = ["Options"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Options:
+    """Solver settings (immutable, validated when built; defaults follow Tassa's iLQG.m where sensible).
+
+    Attributes:
+        method: "structured" (Theorem 1, the default) or "augmented" (state-augmentation reference).
+        max_iterations: iteration limit (rejected steps count).
+        tol_cost: stop when an accepted step would reduce the merit by less than
+            tol_cost * |merit| (relative: costs of motor tasks are often ~1e-4, where an absolute
+            test stops early). Without noise that last step is not taken, so the returned policy
+            is the one of the last backward pass, with no extra pass for the returned nominal; and
+            when the backward pass's model predicts less than that for every alpha, the solve
+            stops before the line search.
+        tol_grad: stop when mean_k max_i |I_k,i| / (|u_k,i| + 1) < tol_grad (and lambda < 1e-5).
+        alphas: line-search step sizes, tried in parallel (default 10^linspace(0, -3, 11)).
+        reg_init: initial lambda. 0 tries the exact Newton (LQG) step first, which makes a
+            linear-quadratic problem converge in one step; Tassa uses 1.
+        reg_min, reg_max, reg_factor: Tassa's schedule (lambda below reg_min is set to 0; the
+            solve stops when lambda exceeds reg_max).
+        z_min: minimal accepted ratio of actual to expected reduction.
+        limit_margin: with control limits, commands whose nominal lies at a bound or within
+            limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.boxed_gains``).
+    """
+
+    method: str = "structured"
+    max_iterations: int = 100
+    tol_cost: float = 1e-10
+    tol_grad: float = 1e-7
+    alphas: tuple = tuple(float(a) for a in 10.0 ** np.linspace(0.0, -3.0, 11))
+    reg_init: float = 0.0
+    reg_min: float = 1e-6
+    reg_max: float = 1e10
+    reg_factor: float = 1.6
+    z_min: float = 0.0
+    limit_margin: float = 1e-5
+
+    def __post_init__(self):
+        if self.method not in ("structured", "augmented"):
+            raise ValueError(f"method must be 'structured' or 'augmented'; got {self.method!r}")
+        _validate.positive_int(self.max_iterations, "max_iterations")
+        if not (np.isfinite(self.limit_margin) and 0 <= self.limit_margin < 0.5):
+            raise ValueError(f"limit_margin must be a number in [0, 0.5); got {self.limit_margin!r}")
+        for name in ("tol_cost", "tol_grad", "reg_min", "reg_max"):
+            _validate.positive_float(getattr(self, name), name)
+        if not (np.isfinite(self.reg_init) and self.reg_init >= 0):
+            raise ValueError(f"reg_init must be a finite number >= 0; got {self.reg_init!r}")
+        if not float(self.reg_factor) > 1:
+            raise ValueError(f"reg_factor must be greater than 1; got {self.reg_factor!r}")
+        alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
+        if not alphas or not all(0 < a <= 1 for a in alphas):
+            raise ValueError(f"alphas must be a non-empty sequence of step sizes in (0, 1]; got {self.alphas!r}")
+        object.__setattr__(self, "alphas", alphas)
