@@ -1,4 +1,4 @@
-"""``_dense``: ``matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
+"""``_kernels.dense``: ``matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
 broadcast-and-sum for small products, a library dot for large ones), and ``cholesky_solve`` the
 solution of the system on both of its paths (unrolled, LAPACK): against NumPy."""
 import jax
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from delayed_ilqr._dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_solve, matmul, matmul_t
+from delayed_ilqr._kernels.dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_solve, matmul, matmul_t
 
 dims = st.integers(min_value=1, max_value=40)
 

@@ -18,10 +18,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._dense import matmul
-from ._scan import packed_scan
+from ._kernels.dense import matmul
+from ._kernels.scan import packed_scan
 from .linearize import delayed_commands, noise_columns, trajectory_cost
-from .lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
+from .lqg.frame import SlotGains, slot_offsets
+from .lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from .problem import Problem
 
 __all__ = ["closed_loop_rollout", "candidate_scores", "merit", "predicted_change", "LineSearch", "line_search",

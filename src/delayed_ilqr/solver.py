@@ -30,8 +30,11 @@ import numpy as np
 from . import _validate, _xla_options
 from .forward import line_search, merit, no_step, predicted_change
 from .linearize import linearize, rollout, step_models, trajectory_cost
-from .lqg import (_DEFER_MIN_LD, SlotGains, augmented_scan, boxed_gains, from_slots, structured_slot_scan,
-                  to_slots, unconstrained_gains, unregularized_feedback)
+from .lqg.augmented import augmented_scan
+from .lqg.frame import SlotGains, from_slots, to_slots
+from .lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
+from .lqg.r_update import DEFER_MIN_LD as _DEFER_MIN_LD
+from .lqg.structured import structured_slot_scan
 from .problem import Problem
 from .solution import Policy, Solution, Status, Trace
 

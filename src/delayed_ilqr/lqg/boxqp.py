@@ -57,7 +57,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ._dense import cholesky_solve
+from .._kernels.dense import cholesky_solve
 
 __all__ = [
     "BoxQPResult",
@@ -101,9 +101,8 @@ class BoxQPResult(NamedTuple):
     iterations: jax.Array
 
 
-# The factorisation is unrolled for d <= 4 (see ``_dense``), LAPACK above. Measured on whole
-# control-limited solves (means of two runs each): unrolled at d = 2 (P2 with |u| <= 0.5) 14.3 ->
-# 13.0 ms; at d = 6 (the six-muscle arm) unrolled was slower, 138 -> 194 ms.
+# The box QP's factorisations are unrolled up to this d, LAPACK above: its loops refactor at every
+# iteration, so its break-even is lower than the recursion's (docs/performance.md#boxqp-_unrolled_max).
 _UNROLLED_MAX = 4
 
 
