@@ -111,8 +111,8 @@ def add_symmetric_product(R, M, W):
     return R
 
 
-# Up to this d the factorisation is unrolled: a LAPACK call per time step costs more than the
-# arithmetic for the d of motor-control problems.
+# Up to this d the factorisation is unrolled: a LAPACK call per step against fused elementwise work
+# (docs/performance.md#unrolled_cholesky_max).
 UNROLLED_CHOLESKY_MAX = 8
 
 
