@@ -41,7 +41,8 @@ import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr.ilqg.linearize import linearize, rollout
-from delayed_ilqr.lqg import augmented_scan, structured_slot_scan
+from delayed_ilqr.lqg.augmented import augmented_scan
+from delayed_ilqr.lqg.structured import structured_slot_scan
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.ilqg.solver import compiled_solver
 

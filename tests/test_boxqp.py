@@ -1,4 +1,4 @@
-"""Tests for :mod:`delayed_ilqr.boxqp` (projected-Newton box QP, Tassa et al. 2014).
+"""Tests for :mod:`delayed_ilqr.lqg.boxqp` (projected-Newton box QP, Tassa et al. 2014).
 
 Independent references:
 
@@ -25,7 +25,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 
-from delayed_ilqr.boxqp import STATUS_MESSAGES, BoxQPResult, box_qp, free_solve  # noqa: E402
+from delayed_ilqr.lqg.boxqp import STATUS_MESSAGES, BoxQPResult, box_qp, free_solve  # noqa: E402
 
 SETTINGS = settings(deadline=None, max_examples=30, derandomize=True)
 PAD = 8  # enumeration tests

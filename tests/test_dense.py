@@ -1,4 +1,4 @@
-"""``_dense``: ``matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
+"""``_kernels.dense``: ``matmul`` / ``matmul_t`` equal the matrix product on both of their paths (fused
 broadcast-and-sum for small products, a library dot for large ones), and ``cholesky_solve`` the
 solution of the system on both of its paths (unrolled, LAPACK): against NumPy."""
 import jax
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from delayed_ilqr._dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_solve, matmul, matmul_t
+from delayed_ilqr._kernels.dense import FUSED_MAX, FUSED_MAX_COLUMNS, _fused, cholesky_solve, matmul, matmul_t
 
 dims = st.integers(min_value=1, max_value=40)
 
@@ -76,3 +76,21 @@ def test_products_under_vmap(batch):
                 xi, yi = x[i if a_axis == 0 else 0], y[i if b_axis == 0 else 0]
                 want = (xi.T if fn is matmul_t else xi) @ yi
                 np.testing.assert_allclose(got[i], want, rtol=1e-13, atol=1e-13)
+
+
+def test_switch_back_to_library_calls(monkeypatch):
+    """FUSED_MAX = 0 and UNROLLED_CHOLESKY_MAX = 0, read at trace time, give library calls with the
+    same results: the kernels' switch for comparisons."""
+    from delayed_ilqr._kernels import dense
+    rng = np.random.default_rng(2)
+    a, b = rng.normal(size=(8, 4)), rng.normal(size=(4, 25))
+    X = rng.normal(size=(3, 3))
+    H, rhs = X @ X.T + np.eye(3), rng.normal(size=(3, 2))
+    monkeypatch.setattr(dense, "FUSED_MAX", 0)
+    monkeypatch.setattr(dense, "UNROLLED_CHOLESKY_MAX", 0)
+    product = jax.jit(lambda x, y: matmul(x, y))           # new functions: jit caches traces per function
+    solve = jax.jit(lambda x, y: cholesky_solve(x, y))
+    assert "dot_general" in product.lower(a, b).as_text()
+    np.testing.assert_allclose(product(a, b), a @ b, rtol=1e-13, atol=1e-13)
+    assert "cholesky" in solve.lower(H, rhs).as_text().lower()
+    np.testing.assert_allclose(solve(H, rhs)[1], np.linalg.solve(H, rhs), rtol=1e-10)

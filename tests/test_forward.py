@@ -12,7 +12,8 @@ from delayed_ilqr.ilqg.candidates import closed_loop_rollout
 from delayed_ilqr.ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_law
 from delayed_ilqr.ilqg.line_search import candidate_scores, merit
 from delayed_ilqr.ilqg.linearize import rollout
-from delayed_ilqr.lqg import Gains, to_slots
+from delayed_ilqr.lqg import Gains
+from delayed_ilqr.lqg.frame import to_slots
 from delayed_ilqr.models import arm2
 
 

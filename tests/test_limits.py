@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.lqg import (DelayedLQG, augmented_scan, boxed_gains, policy_cost, structured_scan, unconstrained_gains,
-                              unregularized_feedback)
+from delayed_ilqr.lqg import DelayedLQG, policy_cost
+from delayed_ilqr.lqg.augmented import augmented_scan
+from delayed_ilqr.lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
+from delayed_ilqr.lqg.structured import structured_scan
 from delayed_ilqr.models import arm2, point_mass
 
 from direct import direct_optimum   # tests/direct.py

@@ -9,7 +9,8 @@ import pytest
 
 import delayed_ilqr as di
 from delayed_ilqr.ilqg.linearize import delayed_commands, linearize, rollout, step_models, trajectory_cost
-from delayed_ilqr.lqg import boxed_gains, structured_slot_scan
+from delayed_ilqr.lqg.gains import boxed_gains
+from delayed_ilqr.lqg.structured import structured_slot_scan
 from delayed_ilqr.models import arm2, cart_pole, point_mass
 
 

@@ -19,6 +19,9 @@ from hypothesis import strategies as st
 from delayed_ilqr import lqg as _lqg
 from delayed_ilqr.ilqg.line_search import predicted_change
 from delayed_ilqr.lqg import DelayedLQG, Gains, policy_cost, simulate_lqg
+from delayed_ilqr.lqg.frame import from_slots, to_slots
+from delayed_ilqr.lqg.gains import unconstrained_gains
+from delayed_ilqr.lqg.structured import structured_scan, structured_slot_scan
 
 RTOL = 1e-9
 GAIN_FIELDS = ("feedforward", "state_feedback", "delay_feedback")
@@ -175,7 +178,7 @@ def test_blocked_pass_matches_augmentation(shape, block, case):
     horizons that are not a multiple of q (padded) and l >= K."""
     seed, opts, reg = case
     lqg = random_lqg(seed, *shape, **opts)
-    scan = jax.jit(lambda q, reg: _lqg.structured_scan(q, reg, store_value=True, block=block))
+    scan = jax.jit(lambda q, reg: structured_scan(q, reg, store_value=True, block=block))
     gains, out, ok = scan(lqg, float(reg))
     ga, va = augmented_backward_pass(lqg, reg)
     assert bool(ok)
@@ -306,30 +309,30 @@ def test_value_is_exact_cost_to_go_of_any_gains():
     lqg = random_lqg(42, 12, 3, 2, 2, 3, mult_noise=0.5)
 
     def detuned(H, reg, g, G, bounds=None, warm=None):
-        ok, I, K = _lqg.unconstrained_gains(H, reg, g, G)
+        ok, I, K = unconstrained_gains(H, reg, g, G)
         return ok, 0.6 * I + 0.05, 0.5 * K
 
-    gains, out, ok = jax.jit(lambda q: _lqg.structured_scan(q, 0.0, store_value=True, gains_fn=detuned))(lqg)
+    gains, out, ok = jax.jit(lambda q: structured_scan(q, 0.0, store_value=True, gains_fn=detuned))(lqg)
     assert bool(ok)
     assert rel_err(out[0][0], policy_cost(lqg, gains)) <= RTOL
 
 
 def _detuned(H, reg, g, G, bounds=None, warm=None):
-    ok, I, K = _lqg.unconstrained_gains(H, reg, g, G)
+    ok, I, K = unconstrained_gains(H, reg, g, G)
     return ok, 0.6 * I + 0.05, 0.5 * K
 
 
 @pytest.mark.parametrize("shape", [SHAPES[i] for i in (2, 4, 5, 8)], ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s))
-@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.0), (_lqg.unconstrained_gains, 0.5),
+@pytest.mark.parametrize("gains_fn, reg", [(unconstrained_gains, 0.0), (unconstrained_gains, 0.5),
                                            (_detuned, 0.0)], ids=["optimal", "regularised", "detuned"])
 def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gains_fn, reg):
     """The line search's model (forward.predicted_change: J(0; alpha) - J(0; 0) = alpha a + alpha^2 b,
     from a linear rollout) against the exact expected cost (second moments) of the policy with
     feedforward alpha I and the same feedback, at alpha = 1/2 and 1 (two equations fix a and b)."""
     lqg = random_lqg(43, *shape, mult_noise=0.5)
-    gains, out, _ = jax.jit(lambda q: _lqg.structured_scan(q, reg, store_value=False, gains_fn=gains_fn))(lqg)
+    gains, out, _ = jax.jit(lambda q: structured_scan(q, reg, store_value=False, gains_fn=gains_fn))(lqg)
     S = jnp.concatenate([out[2], lqg.D[-1:]])
-    got_a, got_b = predicted_change(lqg, _lqg.to_slots(gains), S)
+    got_a, got_b = predicted_change(lqg, to_slots(gains), S)
     cost = lambda alpha: float(policy_cost(lqg, gains._replace(feedforward=alpha * gains.feedforward)))
     full, half = cost(1.0) - cost(0.0), cost(0.5) - cost(0.0)
     b = 2 * full - 4 * half
@@ -344,13 +347,13 @@ def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gai
 @pytest.mark.parametrize("shape, block", [(SHAPES[0], 1), (SHAPES[2], 1), (SHAPES[4], 1), (SHAPES[5], 1),
                                           (SHAPES[8], 1), (SHAPES[8], 3)],
                          ids=lambda s: "K{}-n{}-d{}-p{}-l{}".format(*s) if isinstance(s, tuple) else f"block{s}")
-@pytest.mark.parametrize("gains_fn, reg", [(_lqg.unconstrained_gains, 0.5), (_detuned, 0.0)],
+@pytest.mark.parametrize("gains_fn, reg", [(unconstrained_gains, 0.5), (_detuned, 0.0)],
                          ids=["regularised", "detuned"])
 def test_backward_pass_predicts_what_the_forward_pass_predicts(shape, block, gains_fn, reg):
     """(a, b) accumulated by the structured pass (``predict=True``, derivation §12) == the forward
     pass ``predicted_change``, which the test above checks against exact expected costs."""
     lqg = random_lqg(44, *shape, mult_noise=0.5)
-    gains, out, _, (a, b) = jax.jit(lambda q: _lqg.structured_slot_scan(
+    gains, out, _, (a, b) = jax.jit(lambda q: structured_slot_scan(
         q, reg, store_value=False, gains_fn=gains_fn, block=block, predict=True))(lqg)
     want_a, want_b = predicted_change(lqg, gains, jnp.concatenate([out[2], lqg.D[-1:]]))
     scale = abs(float(out[0][0])) + abs(float(want_a)) + abs(float(want_b))
@@ -363,14 +366,14 @@ def test_leaving_S_out_changes_nothing_else(block):
     """``store_S=False`` (the solver without noise) drops s and S from the outputs; the gains,
     s_tilde, the flag and the line search's model must be the same numbers."""
     lqg = random_lqg(45, *SHAPES[8])
-    full = _lqg.structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True)
-    lean = _lqg.structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True, store_S=False)
+    full = structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True)
+    lean = structured_slot_scan(lqg, 0.1, store_value=False, block=block, predict=True, store_S=False)
     assert len(full[1]) == 3 and len(lean[1]) == 1
     for got, want in [(lean[0], full[0]), (lean[1][0], full[1][0]), (lean[2], full[2]), (lean[3], full[3])]:
         for g, w in zip(jax.tree_util.tree_leaves(got), jax.tree_util.tree_leaves(want)):
             np.testing.assert_array_equal(np.asarray(g), np.asarray(w))
     with pytest.raises(ValueError, match="store_S=False needs store_value=False"):
-        _lqg.structured_slot_scan(lqg, store_value=True, store_S=False)
+        structured_slot_scan(lqg, store_value=True, store_S=False)
 
 
 def test_negative_definite_E_is_flagged_not_raised():
@@ -579,20 +582,20 @@ def test_slot_gains_round_trip(K, l):
     n, d = 3, 2
     gains = Gains(jnp.asarray(rng.normal(size=(K, d))), jnp.asarray(rng.normal(size=(K, d, n))),
                   jnp.asarray(rng.normal(size=(K, l, d, d))))
-    slots = _lqg.to_slots(gains)
+    slots = to_slots(gains)
     assert slots.feedback.shape == (K, d, n + l * d)
     for k in range(K):
         for i in range(l):
             s = (k + i) % l
             np.testing.assert_array_equal(slots.feedback[k, :, n + s * d:n + (s + 1) * d], gains.delay_feedback[k, i])
-    for got, want in zip(_lqg.from_slots(slots, n), gains):
+    for got, want in zip(from_slots(slots, n), gains):
         np.testing.assert_array_equal(got, want)
 
 
 def test_blocked_pass_under_vmap_matches_separate_passes():
     """The blocked pass is a scan over blocks of a scan over steps (no lax.cond), so it batches."""
     lqgs = [random_lqg(seed, 10, 3, 2, 1, 4) for seed in (31, 32)]
-    scan = lambda q: _lqg.structured_scan(q, 0.0, store_value=False, block=3)
+    scan = lambda q: structured_scan(q, 0.0, store_value=False, block=3)
     stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *lqgs)
     batched = jax.jit(jax.vmap(scan))(stacked)
     for i, lqg in enumerate(lqgs):

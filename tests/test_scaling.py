@@ -11,7 +11,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import delayed_ilqr as di
-from delayed_ilqr.lqg import DelayedLQG, augmented_scan, structured_scan
+from delayed_ilqr.lqg import DelayedLQG
+from delayed_ilqr.lqg.augmented import augmented_scan
+from delayed_ilqr.lqg.structured import structured_scan
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.ilqg.solver import compiled_solver
 

@@ -1,10 +1,10 @@
-"""``_scan.packed_scan`` is ``lax.scan`` with packed inputs and outputs: same results, bit for bit."""
+"""``_kernels.scan.packed_scan`` is ``lax.scan`` with packed inputs and outputs: same results, bit for bit."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from delayed_ilqr._scan import _PACK_MAX, packed_scan
+from delayed_ilqr._kernels.scan import _PACK_MAX, Blocks, packed_scan
 
 K = 12
 BIG = _PACK_MAX + 72          # per-step leaves above _PACK_MAX are passed unpacked
@@ -53,10 +53,10 @@ def test_blocks_apply_flush_after_every_block(reverse):
             carry = flush(carry)
     outs = outs[::-1] if reverse else outs
     want = carry, jax.tree_util.tree_map(lambda *ys: jnp.stack(ys), *outs)
-    got = jax.jit(lambda i, d: packed_scan(_step, i, d, reverse=reverse, block=4, flush=flush))(init, data)
+    got = jax.jit(lambda i, d: packed_scan(_step, i, d, reverse=reverse, blocks=Blocks(4, flush)))(init, data)
     _assert_same(got, want)
 
 
 def test_block_must_divide_the_length():
-    with pytest.raises(ValueError, match=r"the scan length \(12\) must be a multiple of block \(5\)"):
-        packed_scan(_step, (jnp.ones(3), jnp.asarray(0)), _data(), block=5, flush=lambda c: c)
+    with pytest.raises(ValueError, match=r"the scan length \(12\) must be a multiple of the block size \(5\)"):
+        packed_scan(_step, (jnp.ones(3), jnp.asarray(0)), _data(), blocks=Blocks(5, lambda c: c))

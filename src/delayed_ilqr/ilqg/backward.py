@@ -9,8 +9,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from ..lqg import (SlotGains, augmented_scan, boxed_gains, structured_slot_scan, to_slots, unconstrained_gains,
-                   unregularized_feedback)
+from ..lqg.augmented import augmented_scan
+from ..lqg.frame import SlotGains, to_slots
+from ..lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
+from ..lqg.structured import structured_slot_scan
 from ..problem import Problem
 from .line_search import predicted_change
 from .linearize import linearize, step_models

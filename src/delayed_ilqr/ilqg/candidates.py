@@ -13,8 +13,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._scan import packed_scan
-from ..lqg import SlotGains, slot_offsets
+from .._kernels.scan import packed_scan
+from ..lqg.frame import SlotGains, slot_offsets
 from ..problem import Problem
 from .closed_loop import closed_loop_step
 from .linearize import delayed_commands

@@ -30,10 +30,11 @@ from typing import TYPE_CHECKING, Callable
 import jax
 import jax.numpy as jnp
 
-from .._dense import matmul
+from .._kernels.dense import matmul
 
 if TYPE_CHECKING:       # annotations only: the LQG layer (policy cost, linear Monte Carlo) imports this module
-    from ..lqg import Gains, SlotGains
+    from ..lqg.frame import SlotGains
+    from ..lqg.model import Gains
 
 __all__ = ["delayed_law", "read_slot", "write_slot", "closed_loop_step", "augmented_feedback", "closed_loop_affine"]
 

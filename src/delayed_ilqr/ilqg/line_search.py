@@ -17,9 +17,10 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from .._dense import matmul
-from .._scan import packed_scan
-from ..lqg import DelayedLQG, SlotGains, merged_if_undelayed, slot_offsets, stacked_dynamics
+from .._kernels.dense import matmul
+from .._kernels.scan import packed_scan
+from ..lqg.frame import SlotGains, slot_offsets
+from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..problem import Problem
 from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
 from .closed_loop import closed_loop_step

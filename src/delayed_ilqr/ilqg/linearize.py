@@ -19,8 +19,8 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from .._scan import packed_scan
-from ..lqg import DelayedLQG, StepModels
+from .._kernels.scan import packed_scan
+from ..lqg.model import DelayedLQG, StepModels
 from ..problem import Problem
 
 __all__ = ["delayed_commands", "rollout", "trajectory_cost", "noise_columns", "step_models", "linearize"]

@@ -27,7 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _cpu, _precision, _validate
-from ..lqg import _DEFER_MIN_LD, SlotGains, from_slots
+from ..lqg.frame import SlotGains, from_slots
+from ..lqg.r_update import DEFER_MIN_LD
 from ..options import Options
 from ..problem import Problem
 from ..solution import Policy, Solution, Status, Trace
@@ -174,7 +175,7 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
 
 # Two compilations of one solver. configure_cpu turns YNNPACK's single dots off for the process
 # (``_cpu``), so that XLA compiles each scan of a small problem as one function; from
-# l d = _DEFER_MIN_LD on, where the backward pass defers the R update to large products (and the
+# l d = DEFER_MIN_LD on, where the backward pass defers the R update to large products (and the
 # augmented reference's are larger still), those run faster through YNNPACK, and this compilation
 # turns it back on (docs/performance.md#_solve_large).
 _solve = jax.jit(_solve_body, static_argnames=("options",))
@@ -184,7 +185,7 @@ _solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_optio
 def compiled_solver(problem: Problem):
     """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``
     outside JAX transformations."""
-    return _solve_large if problem.delay_steps * problem.n_controls >= _DEFER_MIN_LD else _solve
+    return _solve_large if problem.delay_steps * problem.n_controls >= DEFER_MIN_LD else _solve
 
 
 @cache

@@ -52,12 +52,13 @@ get ``-H_ff^{-1} rhs_f`` (e.g. the feedback gains of control-limited DDP).
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from ._dense import cholesky_solve
+from .._kernels.dense import cholesky_solve
 
 __all__ = [
     "BoxQPResult",
@@ -101,9 +102,8 @@ class BoxQPResult(NamedTuple):
     iterations: jax.Array
 
 
-# The factorisation is unrolled for d <= 4 (see ``_dense``), LAPACK above. Measured on whole
-# control-limited solves (means of two runs each): unrolled at d = 2 (P2 with |u| <= 0.5) 14.3 ->
-# 13.0 ms; at d = 6 (the six-muscle arm) unrolled was slower, 138 -> 194 ms.
+# The box QP's factorisations are unrolled up to this d, LAPACK above: its loops refactor at every
+# iteration, so its break-even is lower than the recursion's (docs/performance.md#boxqp-_unrolled_max).
 _UNROLLED_MAX = 4
 
 
@@ -150,6 +150,101 @@ def free_solve(H: jax.Array, free: jax.Array, rhs: jax.Array) -> jax.Array:
     fmask = free if rhs.ndim == 1 else free[:, None]
     _, sol = _masked_solve(H, free, jnp.where(fmask, rhs, 0.0))
     return jnp.where(fmask, -sol, 0.0)
+
+
+class _Problem(NamedTuple):
+    H: jax.Array
+    g: jax.Array
+    lower: jax.Array
+    upper: jax.Array
+
+
+class _Settings(NamedTuple):
+    max_iter: jax.Array
+    min_grad: jax.Array
+    min_rel_improve: jax.Array
+    step_dec: jax.Array
+    min_step: jax.Array
+    armijo: jax.Array
+
+
+class _State(NamedTuple):
+    """The projected Newton loop's state; ``it`` counts accepted steps."""
+
+    it: jax.Array
+    x: jax.Array
+    value: jax.Array
+    oldvalue: jax.Array
+    status: jax.Array
+    done: jax.Array
+
+
+def _newton_iteration(qp: _Problem, opt: _Settings, state: _State) -> _State:
+    """One iteration of the module docstring's algorithm: stop tests, then a projected Newton step."""
+    H, g, lower, upper = qp
+    it, x, value, oldvalue, _, _ = state
+
+    small_improve = (it > 0) & ((oldvalue - value) < opt.min_rel_improve * jnp.abs(oldvalue))
+    oldvalue = value
+
+    grad = g + H @ x
+    clamped = _clamped(x, grad, lower, upper)
+    free = ~clamped
+    all_clamped = jnp.all(clamped)
+
+    gnorm = jnp.linalg.norm(jnp.where(free, grad, 0.0))
+    small_grad = gnorm < opt.min_grad
+
+    x_clamped = jnp.where(clamped, x, 0.0)
+    grad_clamped = g + H @ x_clamped
+    pd, newton = _masked_solve(H, free, -jnp.where(free, grad_clamped, 0.0))
+    not_pd = ~pd
+    search = jnp.where(free, newton - x, 0.0)
+    sdotg = search @ grad
+    no_descent = ~(sdotg < 0)  # also catches NaN
+
+    # Same priority as boxQP.m: 4, then 6, then -1, then 5, then 0.
+    status = jnp.select(
+        [small_improve, all_clamped, not_pd, small_grad, no_descent],
+        [4, 6, -1, 5, 0],
+        default=-2,  # -2: keep going (internal only)
+    ).astype(jnp.int32)
+    go = status == -2
+    xc, vc, ls_failed = _line_search(qp, opt, x, oldvalue, search, sdotg, go)
+
+    status = jnp.where(go & ls_failed, 2, status).astype(jnp.int32)
+    x = jnp.where(go, xc, x)
+    value = jnp.where(go, vc, value)
+    it = it + go.astype(it.dtype)
+    done = ~go | ls_failed
+    return _State(it, x, value, oldvalue, status, done)
+
+
+def _line_search(qp: _Problem, opt: _Settings, x, oldvalue, search, sdotg, go):
+    """Projected Armijo back-tracking from step 1: (x, value, failed) at the accepted (or last) step.
+    Inactive lanes (``go`` False) do no work: ``go`` gates the loop."""
+    H, g, lower, upper = qp
+    safe_sdotg = jnp.where(go, sdotg, -1.0)
+
+    def trial(step):
+        xc = jnp.clip(x + step * search, lower, upper)
+        return xc, _objective(H, g, xc)
+
+    def ls_cond(ls):
+        step, _, vc, failed = ls
+        insufficient = ~((vc - oldvalue) / (step * safe_sdotg) >= opt.armijo)
+        return go & (~failed) & insufficient
+
+    def ls_body(ls):
+        step, _, _, _ = ls
+        step = step * opt.step_dec
+        xc, vc = trial(step)
+        return step, xc, vc, step < opt.min_step
+
+    one = jnp.ones((), x.dtype)
+    xc1, vc1 = trial(one)
+    _, xc, vc, ls_failed = jax.lax.while_loop(ls_cond, ls_body, (one, xc1, vc1, jnp.zeros((), bool)))
+    return xc, vc, ls_failed
 
 
 @jax.jit
@@ -218,81 +313,11 @@ def box_qp(
     full_pd, x_newton = cholesky_solve(H, -g, _UNROLLED_MAX)
 
     # --- projected Newton loop -----------------------------------------------------------------
-    # state: (it, x, value, oldvalue, status, done); `it` counts accepted steps.
-    def cond(state):
-        it, _, _, _, _, done = state
-        return (~done) & (it < max_iter)
-
-    def body(state):
-        it, x, value, oldvalue, _, _ = state
-
-        small_improve = (it > 0) & ((oldvalue - value) < min_rel_improve * jnp.abs(oldvalue))
-        oldvalue = value
-
-        grad = g + H @ x
-        clamped = _clamped(x, grad, lower, upper)
-        free = ~clamped
-        all_clamped = jnp.all(clamped)
-
-        gnorm = jnp.linalg.norm(jnp.where(free, grad, 0.0))
-        small_grad = gnorm < min_grad
-
-        x_clamped = jnp.where(clamped, x, 0.0)
-        grad_clamped = g + H @ x_clamped
-        pd, newton = _masked_solve(H, free, -jnp.where(free, grad_clamped, 0.0))
-        not_pd = ~pd
-        search = jnp.where(free, newton - x, 0.0)
-        sdotg = search @ grad
-        no_descent = ~(sdotg < 0)  # also catches NaN
-
-        # Same priority as boxQP.m: 4, then 6, then -1, then 5, then 0.
-        status = jnp.select(
-            [small_improve, all_clamped, not_pd, small_grad, no_descent],
-            [4, 6, -1, 5, 0],
-            default=-2,  # -2: keep going (internal only)
-        ).astype(jnp.int32)
-        go = status == -2
-
-        # Projected Armijo line search (inactive lanes do no work: `go` gates the loop).
-        safe_sdotg = jnp.where(go, sdotg, -1.0)
-
-        def trial(step):
-            xc = jnp.clip(x + step * search, lower, upper)
-            return xc, _objective(H, g, xc)
-
-        def ls_cond(ls):
-            step, _, vc, failed = ls
-            insufficient = ~((vc - oldvalue) / (step * safe_sdotg) >= armijo)
-            return go & (~failed) & insufficient
-
-        def ls_body(ls):
-            step, _, _, _ = ls
-            step = step * step_dec
-            xc, vc = trial(step)
-            return step, xc, vc, step < min_step
-
-        one = jnp.ones((), dtype)
-        xc1, vc1 = trial(one)
-        _, xc, vc, ls_failed = jax.lax.while_loop(
-            ls_cond, ls_body, (one, xc1, vc1, jnp.zeros((), bool))
-        )
-
-        status = jnp.where(go & ls_failed, 2, status).astype(jnp.int32)
-        x = jnp.where(go, xc, x)
-        value = jnp.where(go, vc, value)
-        it = it + go.astype(it.dtype)
-        done = ~go | ls_failed
-        return it, x, value, oldvalue, status, done
-
-    init = (
-        jnp.zeros((), jnp.int32),
-        x0,
-        value0,
-        value0,
-        jnp.asarray(3, jnp.int32),
-        no_bounds,
-    )
-    it, x, _, _, status, done = jax.lax.while_loop(cond, body, init)
+    problem = _Problem(H, g, lower, upper)
+    settings = _Settings(max_iter, min_grad, min_rel_improve, step_dec, min_step, armijo)
+    cond = lambda state: (~state.done) & (state.it < max_iter)
+    init = _State(jnp.zeros((), jnp.int32), x0, value0, value0, jnp.asarray(3, jnp.int32), no_bounds)
+    it, x, _, _, status, done = jax.lax.while_loop(cond, partial(_newton_iteration, problem, settings), init)
     status = jnp.where(done, status, 1).astype(jnp.int32)  # loop ran out of iterations
 
     # no-bounds branch

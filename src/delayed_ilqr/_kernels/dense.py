@@ -1,16 +1,19 @@
-"""Small dense linear algebra written for XLA on CPU: products (``matmul``, ``matmul_t``) and the
-Cholesky solve (``cholesky_solve``) of the d x d systems of one time step.
+"""Small dense linear algebra written for XLA on CPU: the products of one time step (``matmul``,
+``matmul_t``, ``add_symmetric_product``) and its d x d Cholesky solve (``cholesky_solve``).
 
-Products. On CPU, XLA runs a ``dot`` as a call into its matrix library, one thunk per product and per
-step of a loop, which costs about 0.3 us even for a [2, 2] x [2, 25] product. The same product as a
-broadcast multiply and a sum is plain elementwise work that XLA fuses with the operations around
-it. Measured in a 600-step ``lax.scan`` on the 2-core CI machine (us per step, dot / fused):
-[8, 4] x [4, 25] 0.43 / 0.16, [5, 6] x [6, 104] 0.46 / 0.12, [8, 4] x [4, 105] 0.54 / 0.32,
-but [8, 8] x [8, 105] 0.75 / 3.2 and [5, 6] x [6, 404] 0.90 / 5.8: past a few thousand
-multiply-adds the library wins, so larger products stay dots.
+Products. On CPU, XLA runs a ``dot`` as a call into its matrix library, one thunk per product and
+per step of a loop, which costs more than the arithmetic for the small operands of motor-control
+problems. The same product as a broadcast multiply and a sum is plain elementwise work that XLA
+fuses with the operations around it; past a few thousand multiply-adds the library wins, so larger
+products stay dots (see docs/performance.md#fused_max).
 
-Cholesky. For d <= 8 the factorisation and the two triangular solves are unrolled into elementwise
-operations that XLA fuses, instead of a LAPACK call per time step (and per iteration of the box QP).
+Cholesky. For d <= ``UNROLLED_CHOLESKY_MAX`` the factorisation and the two triangular solves are
+unrolled into elementwise operations that XLA fuses, instead of a LAPACK call per time step (and
+per iteration of the box QP).
+
+Switch back to library calls: the three thresholds below are read when a function is traced, so
+setting ``FUSED_MAX = 0`` (every product a library dot) and ``UNROLLED_CHOLESKY_MAX = 0`` (every
+Cholesky LAPACK's) before tracing gives the same mathematics without the kernels, for comparisons.
 """
 from __future__ import annotations
 
@@ -20,12 +23,10 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
-__all__ = ["cholesky_solve", "matmul", "matmul_t"]
+__all__ = ["add_symmetric_product", "cholesky_solve", "matmul", "matmul_t"]
 
-# Products with at most this many multiply-adds and columns are fused (see the measurements
-# above). The column limit: a fused product is recomputed inside each fusion that consumes it, and
-# at l d = 200 fusing H [I, K] ([2, 2] x [2, 205], whose result the value update and the R update
-# both read) made the backward pass 3-5 % slower.
+# Products with at most this many multiply-adds, and this many columns, are fused: one library call
+# against elementwise work that XLA fuses but recomputes in each consumer (docs/performance.md#fused_max).
 FUSED_MAX = 4096
 FUSED_MAX_COLUMNS = 128
 
@@ -79,11 +80,11 @@ def _dot_matmul_t(a, b):
 
 def _batchable(fused, dot):
     """``fused`` as a function whose vmap stays fused while the whole batch is small (the line
-    search's 11 step sizes) and becomes one batched ``dot`` above: a batched dot is one library
-    call for the whole batch, where the fused form would be one large elementwise loop (64 P2
-    solves in one vmap took 2.67 ms per problem fused, 1.58 ms with dots). Nested vmaps (64
-    problems of 11 step sizes each) count every batch axis: the batched product is again such a
-    function, with the batch axis leading both operands."""
+    search's 11 step sizes) and becomes one batched ``dot`` above ``FUSED_MAX`` multiply-adds: a
+    batched dot is one library call for the whole batch, where the fused form would be one large
+    elementwise loop (docs/performance.md#the-cpu-batching-rule). Nested vmaps (64 problems of 11
+    step sizes each) count every batch axis: the batched product is again such a function, with
+    the batch axis leading both operands."""
     @jax.custom_batching.custom_vmap
     def product(a, b):
         return fused(a, b)
@@ -102,17 +103,25 @@ _fused_matmat = _batchable(_sum_matmat, _dot_matmat)
 _fused_matmul_t = _batchable(_sum_matmul_t, _dot_matmul_t)
 
 
-# Below this size the factorisation is unrolled into elementwise operations that XLA fuses; a
-# LAPACK call per time step costs more than the arithmetic for the d of motor-control problems.
-_UNROLLED_CHOLESKY_MAX = 8
+def add_symmetric_product(R, M, W):
+    """R + M'W + W'M for R [m, m] and M, W [d, m], as d rank-one updates: elementwise work that XLA
+    fuses into one loop over R, run in place (a dot would write a second [m, m] array)."""
+    for a in range(M.shape[0]):
+        R = R + M[a][:, None] * W[a][None, :] + W[a][:, None] * M[a][None, :]
+    return R
 
 
-def cholesky_solve(H, rhs, unrolled_max: int = _UNROLLED_CHOLESKY_MAX):
+# Up to this d the factorisation is unrolled: a LAPACK call per step against fused elementwise work
+# (docs/performance.md#unrolled_cholesky_max).
+UNROLLED_CHOLESKY_MAX = 8
+
+
+def cholesky_solve(H, rhs, unrolled_max: int | None = None):
     """(ok, H^{-1} rhs) for symmetric H [d, d] and rhs [d] or [d, m] by Cholesky; ok is False (and
     the result non-finite) when H is not numerically positive definite. Unrolled for d <=
-    ``unrolled_max``."""
+    ``unrolled_max`` (default ``UNROLLED_CHOLESKY_MAX``)."""
     nd = H.shape[0]
-    if nd > unrolled_max:
+    if nd > (UNROLLED_CHOLESKY_MAX if unrolled_max is None else unrolled_max):
         chol = jnp.linalg.cholesky(H)
         return jnp.all(jnp.isfinite(chol)), cho_solve((chol, True), rhs)
     low = [[None] * nd for _ in range(nd)]

@@ -1,21 +1,22 @@
-"""``packed_scan``: ``lax.scan`` with its per-step inputs and outputs packed into one array per dtype.
+"""``packed_scan``: ``lax.scan`` with its per-step inputs and outputs packed into one array per dtype,
+optionally run in blocks of steps with deferred work flushed after each block.
 
-Why: on CPU, XLA runs every operation of a loop body as a separate thunk, at roughly 0.1 to 0.2 us
-each, and the steps of motor-control problems are small (n = 4, d = 2), so the count of operations
-per step, not the arithmetic, sets the time. A scan slices each input array once per step and
-writes each output array once per step: a backward pass with 13 inputs and 6 outputs spends 19
-thunks a step on bookkeeping alone. Packed, that is one slice per dtype in and one update per
-dtype out; the static slices that unpack a row fuse into the operations that consume them.
-Measured on the predicted-change scan of P3 (K = 250, l = 50): 0.96 ms -> 0.43 ms.
+Why packing: on CPU, XLA runs every operation of a loop body as a separate thunk, and the steps of
+motor-control problems are small (n = 4, d = 2), so the count of operations per step, not the
+arithmetic, sets the time. A scan slices each input array once per step and writes each output
+array once per step: a backward pass with 13 inputs and 6 outputs spends 19 thunks a step on
+bookkeeping alone. Packed, that is one slice per dtype in and one update per dtype out; the static
+slices that unpack a row fuse into the operations that consume them (docs/performance.md#packed_scan).
 """
 from __future__ import annotations
 
 import math
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-__all__ = ["packed_scan"]
+__all__ = ["Blocks", "packed_scan"]
 
 
 def _layout(shapes_dtypes):
@@ -44,27 +45,31 @@ def _unpack(packed, layout, lead=()):
 
 
 # Leaves with more numbers per step than this are not packed: their own slice or update per step
-# costs nothing next to their size, and packing them would copy them (at l = 200 the delay gains
-# are 3.8 MB per copy).
+# costs nothing next to their size, and packing them would copy them (docs/performance.md#_pack_max).
 _PACK_MAX = 128
 
 
-def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, pack_outputs: bool = True,
+class Blocks(NamedTuple):
+    """Run the steps in blocks of ``size`` (which must divide the length), as a scan over blocks of
+    a scan over steps, and apply ``flush(carry)`` after each block: work deferred by the steps is
+    done once per block, without a ``lax.cond`` (which ``vmap`` would turn into doing it at every
+    step)."""
+
+    size: int
+    flush: Callable
+
+
+def packed_scan(f, init, xs, reverse: bool = False, blocks: Blocks | None = None, pack_outputs: bool = True,
                 pack_inputs: bool = True):
     """Same result as ``jax.lax.scan(f, init, xs, reverse=reverse)``; ``xs`` must be non-empty.
 
     Only the per-step inputs and outputs with at most ``_PACK_MAX`` numbers per step are packed,
     and not at all with ``pack_inputs=False`` / ``pack_outputs=False``: a packed copy is held
-    beside the arrays it copies (packed and sliced apart, the backward pass's outputs were both
-    live; the line search's packed inputs, the gains and the nominal, were 1.3 times the gains
-    at l = 1), which costs more memory than it saves time where the loop is compiled as one
-    function (see ``_cpu``) and its slices cost nothing. The carry is passed as it is
-    (its large members, such as the value matrix of the backward pass, are updated in place).
-
-    With ``block`` > 1 the steps run in blocks of that many (the length must be a multiple of it),
-    as a scan over blocks of a scan over steps, and ``flush(carry)`` is applied after each block:
-    work deferred by the steps is done once per block, without a ``lax.cond`` (which ``vmap``
-    would turn into doing it at every step).
+    beside the arrays it copies, which costs more memory than it saves time where the loop is
+    compiled as one function (see ``_cpu``) and its slices cost nothing
+    (docs/performance.md#pack_inputs-and-pack_outputs). The carry is passed as it is (its large
+    members, such as the value matrix of the backward pass, are updated in place). ``blocks``:
+    see :class:`Blocks`.
     """
     leaves, in_tree = jax.tree_util.tree_flatten(xs)
     K = leaves[0].shape[0]
@@ -86,18 +91,19 @@ def packed_scan(f, init, xs, reverse: bool = False, block: int = 1, flush=None, 
 
     rows = (_pack([x for x, s in zip(leaves, in_small) if s], in_dtypes, (K,)),
             tuple(x for x, s in zip(leaves, in_small) if not s))
-    if block == 1:
+    if blocks is None or blocks.size == 1:
         carry, (packed, big) = jax.lax.scan(body, init, rows, reverse=reverse)
     else:
+        block = blocks.size
         if K % block:
-            raise ValueError(f"the scan length ({K}) must be a multiple of block ({block})")
+            raise ValueError(f"the scan length ({K}) must be a multiple of the block size ({block})")
 
         def block_body(carry, rows):
             carry, ys = jax.lax.scan(body, carry, rows, reverse=reverse)
-            return flush(carry), ys
+            return blocks.flush(carry), ys
 
-        blocks = jax.tree_util.tree_map(lambda x: x.reshape((K // block, block) + x.shape[1:]), rows)
-        carry, ys = jax.lax.scan(block_body, init, blocks, reverse=reverse)
+        by_block = jax.tree_util.tree_map(lambda x: x.reshape((K // block, block) + x.shape[1:]), rows)
+        carry, ys = jax.lax.scan(block_body, init, by_block, reverse=reverse)
         packed, big = jax.tree_util.tree_map(lambda y: y.reshape((K,) + y.shape[2:]), ys)
     out_tree, out_layout, out_small = out_spec
     small_leaves, big_leaves = iter(_unpack(packed, out_layout, (K,))), iter(big)

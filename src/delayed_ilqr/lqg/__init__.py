@@ -1,0 +1,50 @@
+"""The delayed LQG problem of eq. (3)-(5) and its exact solutions: the public API.
+
+The system, in deviations from a nominal trajectory (time-major arrays, k = 0..K-1)::
+
+    dx_{k+1} = A_k dx_k + B0_k du_k + B1_k du_{k-l} + sum_j xi_{k,j} (c_{k,j} + C0_{k,j} du_k + C1_{k,j} du_{k-l})
+    cost_k   = d_tilde_k + 2 dx_k'd_k + dx_k'D_k dx_k + 2 du_k'e_k + du_k'E_k du_k + 2 du_k'N_k dx_k
+    cost_K   = d_tilde_K + 2 dx_K'd_K + dx_K'D_K dx_K
+
+Three solutions of the same problem:
+
+* :func:`backward_pass`: Theorem 1 (eq. 6-8), the structured recursion on the value function (7),
+  with the corrections of ``docs/derivation.md``. Per step it costs O(l^2 d^3 + l n^2 d + n^3).
+* :func:`augmented_backward_pass`: the independent reference, a plain Riccati recursion on the
+  augmented state z_k = [dx_k, du_{k-l}, ..., du_{k-1}]; per step O((n + l d)^3).
+* :func:`policy_cost`: the exact expected cost of *any* affine delayed policy, by propagating the
+  mean and second moment of z_k (no sampling); :func:`simulate_lqg` estimates it by Monte Carlo.
+
+Both backward passes accept a Levenberg-Marquardt shift ``reg`` (the solver's lambda): the gains
+use H + reg I, and the value function is the exact cost-to-go of the quadratic model under those
+gains (see ``docs/derivation.md`` §4), so that J(0) is always the true cost of the returned policy.
+
+Modules (the solver's internals are imported from them, not from here):
+
+=============  ==================================================================================
+model          :class:`DelayedLQG`, the per-step :class:`~.model.Stage`, ``StepModels``, Gains, Value
+frame          the circular slot frame of the pending commands (``SlotGains``, conversions)
+stage          one step of Theorem 1 as readable mathematics (the statement the fused step obeys)
+gains          gain rules: unconstrained, box-constrained, unregularised feedback
+boxqp          the box-constrained QP of the control-limited gain rule
+r_update       the strategies that update the [l d, l d] block R
+structured     the reverse scan with the fused step (:func:`backward_pass`)
+augmented      the augmented-state reference (:func:`augmented_backward_pass`)
+exact          :func:`policy_cost`, :func:`simulate_lqg`
+=============  ==================================================================================
+"""
+from .augmented import augmented_backward_pass
+from .exact import LQGRuns, policy_cost, simulate_lqg
+from .model import DelayedLQG, Gains, Value
+from .structured import backward_pass
+
+__all__ = [
+    "DelayedLQG",
+    "Gains",
+    "Value",
+    "LQGRuns",
+    "backward_pass",
+    "augmented_backward_pass",
+    "policy_cost",
+    "simulate_lqg",
+]

@@ -1,0 +1,85 @@
+"""The circular slot frame of the pending commands: the only code that knows it.
+
+At step k the pending commands are du_{k-l}, ..., du_{k-1} (eq. 6's order i = 0..l-1: du_{k+i-l}).
+The structured recursion and the rollouts store them in a flat [l d] vector in which du_j lives in
+*slot* j mod l, components (j mod l) d ... (j mod l) d + d. The command that stops being pending at
+step k (du_{k-l}, acting now) and the one that becomes pending (du_k) share slot k mod l, so one
+step writes one slot and no block ever moves: the backward pass updates its value blocks in place
+and a rollout writes one slot per step instead of shifting a buffer.
+
+Eq. (6)'s order and the slot order differ by a rotation that depends on k: :func:`pending_order`
+gives the permutation, :func:`to_slots` / :func:`from_slots` convert gains and
+:func:`value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
+slot offset is 0.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .model import Gains
+
+__all__ = ["SlotGains", "slot_offsets", "to_slots", "from_slots", "pending_order", "value_blocks"]
+
+
+class SlotGains(NamedTuple):
+    """The law (6) in the slot frame, as the recursion makes it and the rollouts use it.
+
+    du_k = I_k + F_k [dx_k; pending_k], with pending_k the flat [l d] vector in slot order.
+
+    Attributes:
+        feedforward: [K, d] I_k.
+        feedback: [K, d, n + l d] F_k = [L_k, M_k by slot].
+    """
+
+    feedforward: jax.Array
+    feedback: jax.Array
+
+
+def slot_offsets(K: int, l: int, nd: int):
+    """(k mod l) d for k = 0..K-1: where du_k sits in the flat pending vector (0 when l = 0)."""
+    return (jnp.arange(K) % max(l, 1)) * nd
+
+
+def pending_order(k, l: int, nd: int):
+    """Positions in the slot-ordered pending axis of du_{k-l}, ..., du_{k-1} (eq. 6's order i = 0..l-1):
+    [l d] indices into the flattened (slot, component) axis."""
+    slots = (k + jnp.arange(l)) % l
+    return (slots[:, None] * nd + jnp.arange(nd)).reshape(-1)
+
+
+def to_slots(gains: Gains) -> SlotGains:
+    """:class:`Gains` -> :class:`SlotGains`: M_k^i multiplies du_{k+i-l}, which is in slot (k+i) mod l."""
+    I, L, M = gains
+    K, l, nd = M.shape[:3]
+    i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l           # [K, l]
+    by_slot = jnp.take_along_axis(M, i_of_slot[:, :, None, None], axis=1)       # [K, slot, d, d]
+    return SlotGains(I, jnp.concatenate([L, jnp.swapaxes(by_slot, 1, 2).reshape(K, nd, l * nd)], axis=2))
+
+
+def from_slots(gains: SlotGains, n_states: int) -> Gains:
+    """:class:`SlotGains` -> :class:`Gains` (one gather over all steps)."""
+    I, F = gains
+    K, nd = I.shape
+    l = (F.shape[2] - n_states) // nd
+    if l == 0:
+        return Gains(I, F[:, :, :n_states], jnp.zeros((K, 0, nd, nd), F.dtype))
+    slot_of_i = (jnp.arange(K)[:, None] + jnp.arange(l)[None, :]) % l          # [K, l]
+    by_slot = F[:, :, n_states:].reshape(K, nd, l, nd)
+    M = jnp.moveaxis(jnp.take_along_axis(by_slot, slot_of_i[:, None, :, None], axis=2), 2, 1)
+    return Gains(I, F[:, :, :n_states], M)
+
+
+def value_blocks(r, Rt, R, k, l: int, nd: int):
+    """J(k)'s pending blocks from slot order (r [l d], Rt [n, l d], R [l d, l d], exact) to eq. 7's
+    order: r [l, d], Rt [l, n, d], R [l, l, d, d]."""
+    if l == 0:
+        nx = Rt.shape[0]
+        return (jnp.zeros((0, nd)), jnp.zeros((0, nx, nd)), jnp.zeros((0, 0, nd, nd)))
+    order = pending_order(k, l, nd)
+    nx = Rt.shape[0]
+    return (r[order].reshape(l, nd),
+            jnp.moveaxis(Rt[:, order].reshape(nx, l, nd), 1, 0),
+            jnp.moveaxis(R[order][:, order].reshape(l, nd, l, nd), 2, 1))
