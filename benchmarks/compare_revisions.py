@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import delayed_ilqr
 
 ROOT = Path(__file__).resolve().parents[1]
-# name -> (model, keyword arguments): the benchmark problems of benchmark_problems.md and two variants
+# name -> (model, keyword arguments): the benchmark problems of docs/models.md §2 and two variants
 PROBLEMS = {
     "P1": ("point_mass", dict(delay=0.1)),
     "P2": ("arm2", dict(delay=0.1)),

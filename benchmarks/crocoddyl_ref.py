@@ -1,7 +1,7 @@
 """Crocoddyl (C++ DDP) on P1 and P4 by state augmentation, timed in this process.
 
 Gives ``make bench`` a crocoddyl time measured on the same machine in the same run, instead of a
-figure quoted from another one. Problems as in ``benchmark_problems.md`` (P1: dt = 0.01, K = 60;
+figure quoted from another one. Problems as in ``docs/models.md`` §2 (P1: dt = 0.01, K = 60;
 P4: dt = 0.001, K = 600; point mass m = 1, b = 0.5, x0 = 0, target [0.2, 0.1, 0, 0],
 Q = 1e-4 I2, P_f = diag(1e3, 1e3, 1e1, 1e1)), written here from the spec, not from delayed_ilqr.
 
@@ -15,7 +15,7 @@ is 0.5 [z,u]'[Q N; N' R][z,u] + q'z + r'u (no constant term):
 * running (K of them): A = Az, B = Bz, R = 2 dt Q (so 0.5 u'Ru = dt u'Qu), nothing on z;
 * terminal (nu = 0): Q = 2 P_f on the e block, so its cost is (x_K - x_target)'P_f(x_K - x_target).
 
-crocoddyl's cost is then J of ``benchmark_problems.md`` itself. In x coordinates instead
+crocoddyl's cost is then J of ``docs/models.md`` itself. In x coordinates instead
 (q = -2 P_f x_target) it misses the constant x_target'P_f x_target = 50 and comes out as
 -50 + J; adding 50 back loses 1e-11 of J (~5e-4) to rounding.
 
@@ -107,7 +107,7 @@ def _median_time(fn, repeats=7, slow_repeats=3, slow_s=2.0, fill_s=0.5) -> float
 def crocoddyl_solve_times(cases=CASES, solvers=("DDP", "FDDP"), threads: int = 1, repeats: int = 7):
     """{(problem, K, l, solver): (median seconds, iterations, cost)} for (name, dt, l) in cases.
 
-    The cost is crocoddyl's final ``solver.cost``: J of ``benchmark_problems.md``, directly
+    The cost is crocoddyl's final ``solver.cost``: J of ``docs/models.md``, directly
     comparable with ``delayed_ilqr.solve(...).cost``.
     ``threads`` sets OpenMP's thread count for this (the calling) thread, for good; ``repeats``
     is the least number of timed solves (3 when one takes over 2 s).

@@ -2,7 +2,7 @@
 
 Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU. What it measures:
 
-1. Full solves of P1 to P4 (``benchmark_problems.md``) with both methods of ``delayed_ilqr.solve``,
+1. Full solves of P1 to P4 (``docs/models.md`` §2) with both methods of ``delayed_ilqr.solve``,
    structured (Theorem 1) and augmented (Riccati on the augmented state), in the same run. "First
    call" is the first ``solve`` of that problem and method in this process (compilation included);
    "median" is the median of the solves after it (at least 7, more until 0.5 s are spent, 3 when a

@@ -326,7 +326,7 @@ def _detuned(H, reg, g, G, bounds=None, warm=None):
 @pytest.mark.parametrize("gains_fn, reg", [(unconstrained_gains, 0.0), (unconstrained_gains, 0.5),
                                            (_detuned, 0.0)], ids=["optimal", "regularised", "detuned"])
 def test_predicted_change_is_the_exact_cost_of_the_scaled_feedforward(shape, gains_fn, reg):
-    """The line search's model (forward.predicted_change: J(0; alpha) - J(0; 0) = alpha a + alpha^2 b,
+    """The line search's model (ilqg.line_search.predicted_change: J(0; alpha) - J(0; 0) = alpha a + alpha^2 b,
     from a linear rollout) against the exact expected cost (second moments) of the policy with
     feedforward alpha I and the same feedback, at alpha = 1/2 and 1 (two equations fix a and b)."""
     lqg = random_lqg(43, *shape, mult_noise=0.5)

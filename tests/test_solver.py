@@ -152,7 +152,7 @@ def test_noise_aware_policy_beats_the_deterministic_one_in_noise(delay):
 
 
 def test_noisy_point_mass_expected_cost_matches_the_independent_value():
-    """paper_errata.md E7 reports 11.61 for the stochastic point mass at tau = 0.03, computed by an
+    """docs/derivation.md §10 (E7) reports 11.61 for the stochastic point mass at tau = 0.03, computed by an
     independent implementation with the sqrt(dt) noise scaling."""
     sol = di.solve(point_mass(delay=0.03, noise=True))
     assert round(float(sol.expected_cost), 2) == 11.61
@@ -201,7 +201,7 @@ def test_vmap_over_initial_states_matches_separate_solves():
 
 
 def test_vmap_batches_agree_with_separate_solves_in_every_field():
-    # on CPU a vmap of solve runs the problems one after another (solver._one_after_another): each
+    # on CPU a vmap of solve runs the problems one after another (ilqg.solver._one_after_another): each
     # must stop where its own solve stops, batched or not, under jit and nested vmaps alike
     problems = [arm2(delay=0.03, x_target=(np.pi / 2 + a, np.pi / 3, 0.0, 0.0)) for a in (0.0, 0.2)]
     u_inits = np.stack([np.zeros((50, 2)), np.full((50, 2), 0.05)])

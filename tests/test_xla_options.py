@@ -102,7 +102,7 @@ def test_solve_inside_jit_compiles_with_the_outer_options():
 
 
 def test_vmap_on_cpu_solves_one_problem_after_another():
-    # the batching rule of solver._one_after_another: one scan over the problems, each solved by
+    # the batching rule of ilqg.solver._one_after_another: one scan over the problems, each solved by
     # the unbatched solver (whose scans XLA compiles as one function), not one batched while loop
     problems = [point_mass(delay=0.1, x0=(0.0, x, 0.0, 0.0)) for x in (0.0, 0.1, 0.2)]
     stacked = jax.tree_util.tree_map(lambda *leaves: jax.numpy.stack(leaves), *problems)

@@ -14,7 +14,7 @@ docs/performance.md#configure_cpu):
   docs/performance.md#xla_cpu_small_while_loop_byte_threshold.
 * ``--xla_cpu_experimental_ynn_fusion_type=-individual_dot``: trades YNNPACK's single dots, fast
   on large products, for loops that can be compiled as one function (a loop that holds one
-  never is); ``solver.compiled_solver`` turns them back on for long delays
+  never is); ``ilqg.solver.compiled_solver`` turns them back on for long delays
   (:data:`LIBRARY_DOTS`); see docs/performance.md#xla_cpu_experimental_ynn_fusion_type.
 
 Both are process-wide, and only ``XLA_FLAGS`` sets the threshold (``jax.jit``'s

@@ -31,7 +31,7 @@ class Options:
             solve stops when lambda exceeds reg_max).
         z_min: minimal accepted ratio of actual to expected reduction.
         limit_margin: with control limits, commands whose nominal lies at a bound or within
-            limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.boxed_gains``).
+            limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.gains.boxed_gains``).
     """
 
     method: str = "structured"

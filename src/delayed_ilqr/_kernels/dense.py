@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
-__all__ = ["add_symmetric_product", "cholesky_solve", "matmul", "matmul_t"]
+__all__ = ["add_symmetric_product", "cholesky_solve", "matmul", "matmul_t", "small_matvec"]
 
 # Products with at most this many multiply-adds, and this many columns, are fused: one library call
 # against elementwise work that XLA fuses but recomputes in each consumer (docs/performance.md#fused_max).
@@ -50,6 +50,13 @@ def matmul_t(a, b):
     times slower on CPU for the small matrices of a step. Fused, the transpose is only indexing."""
     k, m = a.shape
     return (_fused_matmul_t if _fused(m, k, b.shape[1]) else _dot_matmul_t)(a, b)
+
+
+def small_matvec(a, x):
+    """a @ x over leading axes, for a [..., m, k] and x [..., k] with m, k a handful (the models'
+    2 x 2 and 2 x 6 products): always fused, never a library dot, so that a model's dynamics stay
+    elementwise work that XLA fuses with the rest of the step."""
+    return _sum_matvec(a, x)
 
 
 # The fused forms broadcast over leading batch axes, so they serve unbatched and batched operands.

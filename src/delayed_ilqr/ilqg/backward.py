@@ -41,14 +41,14 @@ class BackwardPass(NamedTuple):
 def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) -> BackwardPass:
     """Linearise (eq. 3-4) at the nominal (xs [K+1, n], us [K, d]) and solve the LQG with H + reg I.
 
-    The structured pass linearises each step as it reaches it (``linearize.step_models``: the model
+    The structured pass linearises each step as it reaches it (``ilqg.linearize.step_models``: the model
     is never stored) and predicts (a, b) as it goes. The augmented reference linearises into a
     stored model and predicts by ``line_search.predicted_change``.
 
     With control limits the feedforward of each step solves a box QP with bounds on du_k
-    (u_min - u_k, u_max - u_k), and clamped commands get no feedback (``lqg.boxed_gains``, margin
+    (u_min - u_k, u_max - u_k), and clamped commands get no feedback (``lqg.gains.boxed_gains``, margin
     ``limit_margin``). With noise, lambda regularises the feedforward only
-    (``lqg.unregularized_feedback``).
+    (``lqg.gains.unregularized_feedback``).
     """
     kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:

@@ -6,7 +6,7 @@
 part lists the commands already sent but not yet acting in the order of the feedback's columns;
 the law itself does not know that order. Two orders are in use:
 
-* the slot frame of the backward recursion (:class:`~delayed_ilqr.lqg.SlotGains`): du_j sits in
+* the slot frame of the backward recursion (:class:`~delayed_ilqr.lqg.frame.SlotGains`): du_j sits in
   slot j mod l of the flat [l d] pending vector. Step k reads slot k mod l (du_{k-l}, the command
   that starts acting) and writes du_k into it, so a closed loop never shifts a buffer;
 * time order (:class:`~delayed_ilqr.lqg.Gains` and the augmented state of ``lqg.augment``):
@@ -69,7 +69,7 @@ def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, 
     Args:
         y: [n + l d] the state x_k and the pending deviations (du_j in slot j mod l); l = 0 allowed.
         slot: (k mod l) d, the offset of du_{k-l} in pending, where du_k is written (0 for l = 0).
-        gains: row k of :class:`~delayed_ilqr.lqg.SlotGains`: feedforward [d], feedback [d, n + l d].
+        gains: row k of :class:`~delayed_ilqr.lqg.frame.SlotGains`: feedforward [d], feedback [d, n + l d].
         plant: ``plant(x, du, du_delayed) -> (x_new, du_sent, out)``, the plant's step under the
             command deviation du_k, with du_delayed = du_{k-l} [d] (None for l = 0); du_sent is the
             deviation the frame keeps for step k (after clipping, say); ``out`` comes back as is.

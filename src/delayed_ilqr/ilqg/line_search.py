@@ -149,7 +149,7 @@ def no_step(xs, us, cost, merit_now) -> LineSearch:
 def line_search(problem: Problem, gains: SlotGains, S, xs, us, merit_now, alphas, z_min, predicted):
     """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min.
 
-    ``predicted``: the model's (a, b) of the backward pass (``lqg.structured_slot_scan`` with
+    ``predicted``: the model's (a, b) of the backward pass (``lqg.structured.structured_slot_scan`` with
     ``predict=True``, or :func:`predicted_change`). The candidates are scored as they run
     (:func:`candidate_scores`) and the best one is rolled out again: the line search stores one
     trajectory, not one per alpha.

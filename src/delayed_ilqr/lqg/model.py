@@ -216,7 +216,7 @@ class StepModels(NamedTuple):
     ``model(row)`` returns step k's :class:`Stage` (or the same twelve arrays as a plain tuple),
     from row k of ``rows`` (a time-major pytree of K rows); ``terminal`` is (d_tilde_K, d_K, D_K).
     :func:`stored_models` makes one from a :class:`DelayedLQG` (its rows are the model's arrays);
-    ``linearize.step_models`` makes one whose rows are the nominal (x_k, u_k, u_{k-l}), linearised
+    ``ilqg.linearize.step_models`` makes one whose rows are the nominal (x_k, u_k, u_{k-l}), linearised
     inside the pass, so that the solver never stores the model (docs/performance.md#stepmodels).
     """
 

@@ -370,7 +370,7 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
 
     ``predict=True`` also returns (a, b) of :class:`Prediction`: under the LQG, the expected cost
     of the returned policy with its feedforward scaled by alpha, minus that at alpha = 0, is
-    alpha a + alpha^2 b. That is the line search's model, which ``forward.predicted_change``
+    alpha a + alpha^2 b. That is the line search's model, which ``ilqg.line_search.predicted_change``
     computes by a forward pass; here it costs two columns in products the step makes anyway.
     """
     models = stored_models(lqg) if isinstance(lqg, DelayedLQG) else lqg

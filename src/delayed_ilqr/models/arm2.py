@@ -26,6 +26,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
+from .._kernels.dense import small_matvec
 from ..problem import Problem
 from . import _common
 from .metadata import ModelMetadata, TaskSpace
@@ -122,11 +123,8 @@ def coriolis(q, dq, params: Arm2Params = ARM2_PARAMS):
 
 def joint_acceleration(q, dq, tau, params: Arm2Params = ARM2_PARAMS):
     """ddq = M(q)^{-1} (tau - C(q, dq) - B dq) [..., 2] for joint torques tau [..., 2]."""
-    # 2 x 2 products as elementwise sums, which XLA fuses (a dot per product and step costs more
-    # than the arithmetic; see delayed_ilqr._dense)
-    friction = jnp.sum(jnp.asarray(params.B) * dq[..., None, :], axis=-1)
-    rhs = tau - coriolis(q, dq, params) - friction
-    return jnp.sum(mass_matrix_inverse(q, params) * rhs[..., None, :], axis=-1)
+    rhs = tau - coriolis(q, dq, params) - small_matvec(jnp.asarray(params.B), dq)
+    return small_matvec(mass_matrix_inverse(q, params), rhs)
 
 
 def hand_position(q, params: Arm2Params = ARM2_PARAMS):

@@ -76,6 +76,8 @@ from dataclasses import dataclass
 
 import jax.numpy as jnp
 
+from .._kernels.dense import small_matvec
+
 __all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "A_EPS", "L_MIN", "L_MAX_NF",
            "activation_time_constant", "activation_rate", "n_f", "force_length", "force_velocity",
            "passive_force", "activation_force", "tension", "AngleDependentGeometry", "ConstantGeometry",
@@ -272,5 +274,4 @@ def joint_torques(q, dq, a, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
     """tau = d(q) (F_max * T(a, l(q), v(q, dq))) [..., 2] in N m, for q, dq [..., 2] and a [..., 6]."""
     T = tension(a, geometry.lengths(q), geometry.velocities(q, dq))
     force = jnp.asarray(f_max) * T
-    # small products as elementwise sums, which XLA fuses (see delayed_ilqr._dense)
-    return jnp.sum(geometry.moment_arms(q) * force[..., None, :], axis=-1)
+    return small_matvec(geometry.moment_arms(q), force)
