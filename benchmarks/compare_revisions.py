@@ -25,18 +25,24 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 import delayed_ilqr
 
 ROOT = Path(__file__).resolve().parents[1]
-# name -> (model, keyword arguments): the benchmark problems of docs/models.md §2 and two variants
+# name -> (model, keyword arguments): the benchmark problems of docs/models.md §2, variants, the
+# six-muscle arm, and "P2-vmap64": 64 P2 targets in one jax.jit(jax.vmap(solve)) call (its time is
+# that of the whole batch)
 PROBLEMS = {
     "P1": ("point_mass", dict(delay=0.1)),
     "P2": ("arm2", dict(delay=0.1)),
     "P2-noisy": ("arm2", dict(delay=0.1, noise=True)),
     "P3": ("arm2", dict(delay=0.1, dt=0.002)),
     **{f"P4-{l}": ("point_mass", dict(dt=0.001, delay=l * 0.001)) for l in (1, 10, 100, 200)},
+    "muscle": ("arm2_muscle6", dict(delay=0.05)),
+    "P2-vmap64": ("arm2", dict(delay=0.1)),
 }
+VMAP_OFFSETS = [(a, b) for a in np.linspace(-0.2, 0.2, 8) for b in np.linspace(-0.2, 0.2, 8)]   # rad
 
 
 def import_revision(rev: str, where: Path):
@@ -57,6 +63,8 @@ def compiled_solve(package, name: str):
     solver = importlib.import_module(f"{package.__name__}.{layout}")
     model, kwargs = PROBLEMS[name]
     problem = getattr(models, model)(**kwargs)
+    if name == "P2-vmap64":
+        return _batched_solve(package, problem, getattr(models, model), kwargs)
     run = solver.compiled_solver(problem)
     u_init = jnp.zeros((problem.horizon, problem.n_controls))
     options = package.Options()
@@ -64,10 +72,20 @@ def compiled_solve(package, name: str):
     return lambda: jax.block_until_ready(run(problem, u_init, options)), cost
 
 
+def _batched_solve(package, problem, factory, kwargs):
+    """(one compiled vmapped solve of 64 targets around ``problem``'s, the sum of their costs)."""
+    target = np.asarray(problem.cost.x_target)
+    problems = [factory(**kwargs, x_target=target + [a, b, 0.0, 0.0]) for a, b in VMAP_OFFSETS]
+    stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
+    run = jax.jit(jax.vmap(package.solve))
+    cost = float(jnp.sum(jax.block_until_ready(run(stacked)).cost))
+    return lambda: jax.block_until_ready(run(stacked)), cost
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("revision", help="git revision to compare the working tree against, e.g. HEAD~1")
-    parser.add_argument("--problems", default="P1,P2,P2-noisy,P3,P4-1,P4-10,P4-100,P4-200",
+    parser.add_argument("--problems", default=",".join(PROBLEMS),
                         help=f"comma-separated, from {', '.join(PROBLEMS)}")
     parser.add_argument("--rounds", type=int, default=30, help="timed solves of each version per problem")
     args = parser.parse_args(argv)
