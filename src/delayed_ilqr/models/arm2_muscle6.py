@@ -26,7 +26,7 @@ isometric force variability in humans, whose standard deviation grows in proport
 force (signal-dependent noise: Jones, Hamilton & Wolpert 2002 [V abstract]; the per-cent size [R];
 the coefficient of variation of joint torque falls with strength, Hamilton, Jones & Wolpert 2004
 [V abstract]). Measured with it (``docs/models.md`` §4.5 has the table): 10 cm center-out reaches
-of the noise-aware design have a 1-sigma endpoint spread of 0.06 mm at no delay and 9 mm at
+of the noise-aware design have a 1-sigma endpoint spread of 0.05 mm at no delay and 9 mm at
 100 ms. Human reaches without vision of the hand scatter by millimetres (endpoint ellipses
 elongated along the movement, Gordon, Ghilardi & Ghez 1994; van Beers, Haggard & Wolpert 2004
 [V abstract]; the millimetre size [R]); the model reaches that only with a feedback delay, because
