@@ -127,7 +127,8 @@ def test_demo_writes_the_report(tmp_path):
     assert "| delay [s] |" in report and "![" in report
     data = json.loads((out / "report.json").read_text())
     assert data["settings"]["model"] == "arm2" and data["settings"]["noise"] is True
-    assert [r["delay"] for r in data["results"]] == [0.0, 0.0, 0.05, 0.05, 0.1, 0.1]
+    assert data["settings"]["sigma_u"] == 0.01                      # human-level noise, not P2-noisy's 0.2
+    assert [r["delay"] for r in data["results"]] == [0.0, 0.0, 0.05, 0.05, 0.1, 0.1, 0.15, 0.15]
     assert all(r["n_trials"] == 300 for r in data["results"])
     for png in ("cost_vs_delay.png", "hand_paths.png", "convergence.png"):
         assert (out / png).exists()

@@ -3,6 +3,7 @@
 The inputs are synthetic (no solve, no compilation): the plot functions only read arrays.
 """
 import dataclasses
+import math
 import subprocess
 import sys
 from types import SimpleNamespace
@@ -18,7 +19,8 @@ from delayed_ilqr import plot
 from delayed_ilqr.experiments.delay_study import ControllerResult
 from delayed_ilqr.experiments.engine import endpoint_error
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.simulate import Runs, sample_stats, summarize
+from delayed_ilqr.simulate import Runs
+from delayed_ilqr.statistics import sample_stats, summarize
 
 N_TRIALS = 40
 
@@ -53,8 +55,9 @@ def fake_result(tau, controller, spread, diverged=0):
     return ControllerResult(
         model="arm2", delay=tau, delay_steps=problem.delay_steps, noise=True, controller=controller, converged=True,
         status="CONVERGED_COST", message="", iterations=5, solve_time=0.01, first_solve_time=1.0,
-        nominal_cost=1.0, predicted_cost=1.0 + spread, cost=sample_stats(cost), endpoint_error=sample_stats(errors),
-        endpoint_label="hand position error", endpoint_unit="m", summary=summarize(cost, runs.x[:, -1]),
+        nominal_cost=1.0, predicted_cost=1.0 + spread, cost=sample_stats(cost),
+        endpoint_error=sample_stats(errors, ~np.isfinite(cost)),
+        divergence_bound=np.inf, endpoint_label="hand position error", endpoint_unit="m", summary=summarize(cost, runs.x[:, -1]),
         n_trials=N_TRIALS, seed=0, substeps=1, problem=problem, solution=SimpleNamespace(x=x), runs=runs)
 
 
@@ -132,9 +135,14 @@ def test_delay_study_has_cost_and_endpoint_axes_with_error_bars(tmp_path, result
     assert ax_err.get_ylabel() == "hand position error [mm]"
     labels = [t.get_text() for t in ax_cost.get_legend().get_texts()]
     assert "delay-aware: Monte Carlo mean, 95% CI" in labels
-    assert "delay-ignorant: median, 95% CI (mean infinite)" in labels    # 3 diverged trials at 50 ms
+    assert "delay-ignorant: Monte Carlo mean, 95% CI" in labels    # over the 37 trials that did not diverge
     assert "delay-ignorant: its own predicted E[J]" in labels
-    assert any("3/40 diverged" in t.get_text() for t in ax_cost.texts)
+    # one definition of a diverged trial: both panels count the same 3 of 40 at 50 ms
+    for ax in (ax_cost, ax_err):
+        assert [t.get_text() for t in ax.texts] == ["3/40 diverged"]
+    ignorant_bar = [c for c in ax_cost.containers if c.get_label() == "delay-ignorant: Monte Carlo mean, 95% CI"][0]
+    np.testing.assert_allclose(ignorant_bar.lines[0].get_ydata(), [results[1].cost.mean, results[3].cost.mean])
+    assert math.isfinite(results[1].cost.mean) and results[1].cost.n_diverged == 3
     # the aware means are drawn where they are, in the error-bar containers
     aware_bar = [c for c in ax_cost.containers if c.get_label() == "delay-aware: Monte Carlo mean, 95% CI"][0]
     np.testing.assert_allclose(aware_bar.lines[0].get_ydata(), [results[0].cost.mean, results[2].cost.mean])

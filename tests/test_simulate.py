@@ -14,7 +14,7 @@ from delayed_ilqr.experiments.designs import design as design_problem
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.lqg import Gains, policy_cost
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.simulate import sample_stats
+from delayed_ilqr.statistics import sample_stats
 
 
 @pytest.fixture(scope="module")
@@ -165,9 +165,11 @@ def test_monte_carlo_mean_agrees_with_the_exact_expected_cost_on_the_linear_poin
     assert abs(summary.mean_cost - exact) < 4 * summary.standard_error, (summary.mean_cost, exact)
     # the noise matters: the deterministic cost lies many standard errors away
     assert abs(summary.mean_cost - float(sol.cost)) > 5 * summary.standard_error     # measured 9.3
+    # the bootstrap interval of a well-behaved sample is the normal one (half widths within 10 %)
     lo, hi = summary.ci95
-    np.testing.assert_allclose([lo, hi], [summary.mean_cost - 1.959964 * summary.standard_error,
-                                          summary.mean_cost + 1.959964 * summary.standard_error], rtol=1e-6)
+    assert lo < summary.mean_cost < hi
+    np.testing.assert_allclose([summary.mean_cost - lo, hi - summary.mean_cost],
+                               1.959964 * summary.standard_error, rtol=0.1)
 
 
 def test_same_seed_same_trials_different_seed_different(noisy_point_mass):
@@ -185,14 +187,16 @@ def test_sample_stats_counts_diverged_trials_and_keeps_a_robust_median():
     values = np.concatenate([np.arange(1.0, 100.0), [np.nan, np.inf]])
     s = sample_stats(values)
     assert s.n == 101 and s.n_diverged == 2
-    assert math.isinf(s.mean) and math.isinf(s.ci95[0])
+    assert s.mean == 50.0                                         # over the 99 trials that did not diverge
+    assert s.ci95[0] < 50.0 < s.ci95[1]
     assert s.median == 51.0                                       # NaN ranks last, like inf
     assert s.median_ci95[0] <= s.median <= s.median_ci95[1]
     finite = sample_stats(np.arange(10.0))
     assert finite.n_diverged == 0 and finite.mean == 4.5
     np.testing.assert_allclose(finite.standard_error, np.std(np.arange(10.0), ddof=1) / math.sqrt(10))
     assert finite.to_dict()["ci95"][0] < 4.5
-    assert s.to_dict()["mean"] is None                           # strict JSON: no inf
+    everything = sample_stats([np.inf, np.nan])
+    assert everything.n_diverged == 2 and everything.to_dict()["mean"] is None     # strict JSON: no inf, NaN
 
 
 @pytest.fixture(scope="module")

@@ -99,7 +99,12 @@ class Problem:
         horizon: K, the number of control steps (final time K dt).
         delay_steps: l >= 0, the input delay in steps (tau = l dt).
         cost: a :class:`QuadraticCost` or :class:`GeneralCost`.
-        noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1).
+        noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1),
+            dx = f dt + F dw: one step adds ``sqrt(dt) F xi``, xi ~ N(0, I_p), so its covariance is
+            ``dt F F'``. A per-step relative noise sigma as in Todorov's discrete-time code
+            (covariance ``dt^2 sigma^2 ...``) is ``F`` with sigma_u = sigma sqrt(dt):
+            :func:`delayed_ilqr.models.per_step_noise_to_diffusion`. Entered unconverted, it is
+            ``1 / sqrt(dt)`` times too large (10x at dt = 10 ms).
         u_min, u_max: optional [d] box limits on the commands (``-inf``/``inf`` for none).
         n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
         name: a label for reports.

@@ -39,123 +39,9 @@ from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
 from .problem import Problem
 from .solution import Policy
+from .statistics import Summary, summarize
 
-__all__ = ["simulate", "Runs", "Summary", "SampleStats", "sample_stats", "summarize"]
-
-_Z95 = 1.959963984540054  # the 97.5 % quantile of the standard normal
-
-
-class SampleStats(NamedTuple):
-    """Statistics of one per-trial quantity (a cost, an endpoint error) over N trials.
-
-    Trials whose value is not finite (the closed loop blew up: inf or NaN) count as +inf: they are
-    counted in ``n_diverged``, they make the mean, standard deviation, standard error and 95 %
-    interval infinite (an expectation dominated by blow-ups is not finite in floating point), and
-    they rank last for the median, which stays informative while fewer than half the trials diverge.
-    Costs of controllers that are nearly unstable are heavy-tailed: prefer the median and its
-    interval to compare them.
-
-    Attributes:
-        n: N.
-        n_diverged: number of non-finite trials.
-        mean: sample mean.
-        std: sample standard deviation (ddof = 1; NaN for N = 1).
-        standard_error: std / sqrt(N).
-        ci95: (low, high), the normal-approximation 95 % confidence interval of the mean,
-            mean -/+ 1.96 standard_error.
-        median: sample median.
-        median_ci95: (low, high), the distribution-free 95 % confidence interval of the median
-            (order statistics of ranks N/2 -/+ 1.96 sqrt(N)/2, clipped to the sample).
-    """
-
-    n: int
-    n_diverged: int
-    mean: float
-    std: float
-    standard_error: float
-    ci95: tuple
-    median: float
-    median_ci95: tuple
-
-    def to_dict(self) -> dict:
-        """Plain Python types; non-finite numbers become ``None`` (strict JSON has no inf or NaN)."""
-        return dict(n=int(self.n), n_diverged=int(self.n_diverged), mean=_json_float(self.mean),
-                    std=_json_float(self.std), standard_error=_json_float(self.standard_error),
-                    ci95=[_json_float(v) for v in self.ci95], median=_json_float(self.median),
-                    median_ci95=[_json_float(v) for v in self.median_ci95])
-
-
-def _json_float(value):
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def sample_stats(values) -> SampleStats:
-    """The :class:`SampleStats` of a 1-D sample [N] (non-finite entries count as +inf)."""
-    v = np.asarray(values, dtype=np.float64).ravel()
-    n = v.shape[0]
-    if n == 0:
-        raise ValueError("values must hold at least one trial; got an empty array")
-    finite = np.isfinite(v)
-    n_diverged = int(n - np.count_nonzero(finite))
-    v = np.where(finite, v, np.inf)
-    if n_diverged:
-        mean = std = se = math.inf
-        ci = (math.inf, math.inf)
-    else:
-        mean = float(np.mean(v))
-        with np.errstate(over="ignore", invalid="ignore"):
-            std = float(np.std(v, ddof=1)) if n > 1 else math.nan
-        se = std / math.sqrt(n)
-        ci = (mean - _Z95 * se, mean + _Z95 * se)
-    ordered = np.sort(v)
-    half_width = _Z95 * math.sqrt(n) / 2
-    lo = min(max(int(math.floor(n / 2 - half_width)), 1), n)     # 1-based ranks
-    hi = min(max(int(math.ceil(n / 2 + half_width)), 1), n)
-    return SampleStats(n=n, n_diverged=n_diverged, mean=mean, std=std, standard_error=se, ci95=ci,
-                       median=float(np.median(v)), median_ci95=(float(ordered[lo - 1]), float(ordered[hi - 1])))
-
-
-class Summary(NamedTuple):
-    """Sample statistics of a Monte Carlo run (see :meth:`Runs.summary`).
-
-    Attributes:
-        n_trials: N.
-        n_diverged: trials whose cost is not finite (the closed loop blew up).
-        mean_cost: the sample mean of the per-trial cost (eq. 2), an estimate of E[J] (inf when
-            some trial diverged).
-        std_cost: the sample standard deviation (ddof = 1; NaN for N = 1).
-        standard_error: std_cost / sqrt(N), the standard error of ``mean_cost``.
-        ci95: (low, high), the normal-approximation 95 % confidence interval of E[J],
-            mean_cost -/+ 1.96 standard_error.
-        median_cost, median_ci95: the median cost and its distribution-free 95 % interval (robust
-            to the heavy tails of nearly unstable closed loops; see :class:`SampleStats`).
-        final_state_mean: [n] sample mean of x_K over the trials whose x_K is finite.
-        final_state_cov: [n, n] sample covariance of x_K (ddof = 1) over the same trials.
-    """
-
-    n_trials: int
-    n_diverged: int
-    mean_cost: float
-    std_cost: float
-    standard_error: float
-    ci95: tuple
-    median_cost: float
-    median_ci95: tuple
-    final_state_mean: np.ndarray
-    final_state_cov: np.ndarray
-
-    def to_dict(self) -> dict:
-        """Plain Python types (floats, nested lists; non-finite numbers as ``None``), ready for ``json.dump``."""
-        def matrix(a):
-            return [_json_float(v) for v in a] if np.ndim(a) == 1 else [matrix(row) for row in a]
-        return dict(n_trials=int(self.n_trials), n_diverged=int(self.n_diverged),
-                    mean_cost=_json_float(self.mean_cost), std_cost=_json_float(self.std_cost),
-                    standard_error=_json_float(self.standard_error), ci95=[_json_float(v) for v in self.ci95],
-                    median_cost=_json_float(self.median_cost),
-                    median_ci95=[_json_float(v) for v in self.median_ci95],
-                    final_state_mean=matrix(np.asarray(self.final_state_mean)),
-                    final_state_cov=matrix(np.asarray(self.final_state_cov)))
+__all__ = ["simulate", "Runs"]
 
 
 class Runs(NamedTuple):
@@ -172,23 +58,10 @@ class Runs(NamedTuple):
     cost: jax.Array
 
     def summary(self) -> Summary:
-        """Mean and median cost with 95 % confidence intervals; mean and covariance of x_K."""
+        """Mean and median cost with 95 % intervals; mean and covariance of x_K (only non-finite
+        costs count as diverged here; studies pass the plant's bound to
+        :func:`~delayed_ilqr.statistics.summarize`)."""
         return summarize(self.cost, self.x[:, -1])
-
-
-def summarize(cost, final_state) -> Summary:
-    """The :class:`Summary` of per-trial costs [N] and final states [N, n]."""
-    stats = sample_stats(cost)
-    final_state = np.asarray(final_state, dtype=np.float64)
-    final_state = final_state[np.all(np.isfinite(final_state), axis=1)]
-    nx = final_state.shape[1]
-    mean = np.mean(final_state, axis=0) if final_state.shape[0] else np.full(nx, np.nan)
-    with np.errstate(over="ignore", invalid="ignore"):      # finite but huge states of near blow-ups
-        cov = np.atleast_2d(np.cov(final_state, rowvar=False, ddof=1)) if final_state.shape[0] > 1 \
-            else np.full((nx, nx), np.nan)
-    return Summary(n_trials=stats.n, n_diverged=stats.n_diverged, mean_cost=stats.mean, std_cost=stats.std,
-                   standard_error=stats.standard_error, ci95=stats.ci95, median_cost=stats.median,
-                   median_ci95=stats.median_ci95, final_state_mean=mean, final_state_cov=cov)
 
 
 def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):

@@ -26,6 +26,8 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .. import Options, Policy, Problem, Solution, Status
+from ..statistics import SampleStats, divergence_bound, diverged_trials, sample_stats
+from ..models.arm2 import hand_velocity
 from ..models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets
 from ..models.metadata import task_position, task_target
 from . import designs
@@ -52,9 +54,13 @@ class TargetResult:
         predicted_cost: the design's expected cost J(0) of its last LQG (for the deterministic
             design, the noise-free cost: it does not know the noise).
         hand_error: distance of the nominal's final hand position from the target.
+        hand_speed: the nominal's final hand speed (m/s).
         endpoints: [N, 2] final hand positions of the noisy trials.
         mc_error: [N] their distances from the target.
         mc_cost: [N] eq. (2) of each noisy trial.
+        diverged: [N] bool, the trials that diverged (:func:`~delayed_ilqr.statistics.diverged_trials`
+            with the plant's :func:`~delayed_ilqr.statistics.divergence_bound`); every statistic
+            below leaves them out of its mean and spread.
     """
 
     target: np.ndarray
@@ -63,18 +69,30 @@ class TargetResult:
     cost: float
     predicted_cost: float
     hand_error: float
+    hand_speed: float
     endpoints: np.ndarray
     mc_error: np.ndarray
     mc_cost: np.ndarray
+    diverged: np.ndarray
 
     @property
     def converged(self) -> bool:
         return Status[self.status].converged
 
     @property
+    def cost_stats(self) -> SampleStats:
+        """Statistics of the Monte Carlo cost (mean over the trials that did not diverge)."""
+        return sample_stats(self.mc_cost, self.diverged)
+
+    @property
+    def error_stats(self) -> SampleStats:
+        """Statistics of the hand error over the same trials."""
+        return sample_stats(self.mc_error, self.diverged)
+
+    @property
     def endpoint_cov(self) -> np.ndarray:
-        """[2, 2] covariance of the final hand positions."""
-        return np.cov(self.endpoints, rowvar=False)
+        """[2, 2] covariance of the final hand positions of the trials that did not diverge."""
+        return np.cov(self.endpoints[~self.diverged], rowvar=False)
 
     @property
     def spread(self) -> float:
@@ -134,7 +152,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
             design meets the same noise).
         options: solver options (default :data:`DEFAULT_OPTIONS`).
         geometry: muscle moment arms, "angle_dependent" (default) or "constant".
-        sigma_u: excitation noise of the plant (the model's default 0.1); the noise-aware design
+        sigma_u: excitation noise of the plant (the model's default 0.01, calibrated to human force
+            variability, ``docs/models.md`` §4.5); the noise-aware design
             is made for it.
         designs: a non-empty selection of :data:`DESIGNS`.
     """
@@ -162,11 +181,14 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
         target = task_target(plant)
         nominal_end = task_position(plant, sols.x[j, -1])
+        mc_cost = np.asarray(trials.runs.cost)
         per_target.append(TargetResult(
             target=target, status=Status(int(sols.status[j])).name, iterations=int(sols.iterations[j]),
             cost=float(sols.cost[j]), predicted_cost=float(sols.expected_cost[j]),
-            hand_error=float(np.linalg.norm(nominal_end - target)), endpoints=trials.endpoints,
-            mc_error=trials.errors, mc_cost=np.asarray(trials.runs.cost)))
+            hand_error=float(np.linalg.norm(nominal_end - target)),
+            hand_speed=float(np.linalg.norm(hand_velocity(sols.x[j, -1, :2], sols.x[j, -1, 2:4]))), endpoints=trials.endpoints,
+            mc_error=trials.errors, mc_cost=mc_cost,
+            diverged=diverged_trials(mc_cost, divergence_bound(plant))))
         runs.append(trials.runs)
     return DelayResult(delay=delay, delay_steps=problems[0].delay_steps, dt=problems[0].dt, design=name,
                        solve_time=solve_time, first_call=first, targets=per_target, solutions=sols, runs=runs,

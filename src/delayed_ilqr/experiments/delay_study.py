@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import Options, Problem, Runs, Solution, Status
 from ..models.metadata import default_u_init
-from ..simulate import SampleStats, Summary, sample_stats
+from ..statistics import SampleStats, Summary, divergence_bound, diverged_trials, sample_stats, summarize
 from . import designs
 from .engine import endpoint_description, monte_carlo, timed_solve
 
@@ -55,10 +55,14 @@ class ControllerResult:
         nominal_cost: eq. (2) on the controller's nominal, noise-free trajectory (on the plant it was
             designed for).
         predicted_cost: ``Solution.expected_cost``, the controller's own prediction of E[J].
-        cost: :class:`~delayed_ilqr.simulate.SampleStats` of the Monte Carlo cost on the delayed plant.
-        endpoint_error: SampleStats of the final endpoint error (see :func:`.engine.endpoint_error`).
+        cost: :class:`~delayed_ilqr.statistics.SampleStats` of the Monte Carlo cost on the delayed
+            plant (mean over the trials that did not diverge, their count, median and IQR).
+        endpoint_error: SampleStats of the final endpoint error (see :func:`.engine.endpoint_error`)
+            over the same trials (the diverged ones are those of ``cost``).
+        divergence_bound: the cost above which a trial diverged
+            (:func:`~delayed_ilqr.statistics.divergence_bound` of the plant; inf: only non-finite).
         endpoint_label, endpoint_unit: what the endpoint error measures, and in which unit.
-        summary: the :class:`~delayed_ilqr.simulate.Summary` of the runs (final-state statistics).
+        summary: the :class:`~delayed_ilqr.statistics.Summary` of the runs (final-state statistics).
         n_trials, seed, substeps: the Monte Carlo settings.
         problem, solution, runs: the plant, the :class:`~delayed_ilqr.Solution` and the
             :class:`~delayed_ilqr.Runs` (for figures and files; left out of :meth:`to_dict`).
@@ -79,6 +83,7 @@ class ControllerResult:
     predicted_cost: float
     cost: SampleStats
     endpoint_error: SampleStats
+    divergence_bound: float
     endpoint_label: str
     endpoint_unit: str
     summary: Summary
@@ -135,13 +140,15 @@ def evaluate(problem: Problem, controller: str = "aware", n_trials: int = 1000, 
     trials = monte_carlo(problem, sol.policy, n_trials, seed, substeps)
     label, unit = endpoint_description(problem)
     status = Status(int(sol.status))
+    bound = divergence_bound(problem)
+    diverged = diverged_trials(trials.runs.cost, bound)
     return ControllerResult(
         model=problem.name, delay=problem.delay, delay_steps=problem.delay_steps, noise=problem.noise is not None,
         controller=controller, converged=bool(status.converged), status=status.name, message=status.message,
         iterations=int(sol.iterations), solve_time=solve_time, first_solve_time=first,
-        nominal_cost=float(sol.cost), predicted_cost=float(sol.expected_cost), cost=sample_stats(trials.runs.cost),
-        endpoint_error=sample_stats(trials.errors), endpoint_label=label, endpoint_unit=unit,
-        summary=trials.runs.summary(), n_trials=int(n_trials), seed=int(seed), substeps=int(substeps),
+        nominal_cost=float(sol.cost), predicted_cost=float(sol.expected_cost), cost=sample_stats(trials.runs.cost, diverged),
+        endpoint_error=sample_stats(trials.errors, diverged), divergence_bound=bound, endpoint_label=label,
+        endpoint_unit=unit, summary=summarize(trials.runs.cost, trials.runs.x[:, -1], bound), n_trials=int(n_trials), seed=int(seed), substeps=int(substeps),
         problem=problem, solution=sol, runs=trials.runs)
 
 

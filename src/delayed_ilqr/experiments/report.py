@@ -34,6 +34,10 @@ def _json_float(value) -> Optional[float]:
     return value if math.isfinite(value) else None
 
 
+def _json_list(values) -> list:
+    return [_json_float(v) for v in values]
+
+
 def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
     """Saves ``{file name: Figure}`` into ``out``; returns the file names."""
     for name, fig in figures.items():
@@ -63,11 +67,10 @@ def center_out_records(results: Sequence) -> list[dict]:
     return [dict(delay=r.delay, delay_steps=r.delay_steps, dt=r.dt, design=r.design, solve_time=r.solve_time,
                  first_call=r.first_call,
                  targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
-                               predicted_cost=t.predicted_cost, mc_cost_mean=float(t.mc_cost.mean()),
-                               hand_error=t.hand_error, mc_error_mean=float(t.mc_error.mean()),
-                               mc_error_median=float(np.median(t.mc_error)),
-                               endpoint_mean=t.endpoints.mean(axis=0).tolist(),
-                               endpoint_cov=t.endpoint_cov.tolist(), spread=t.spread)
+                               predicted_cost=t.predicted_cost, mc_cost=t.cost_stats.to_dict(),
+                               hand_error=t.hand_error, hand_speed=t.hand_speed, mc_error=t.error_stats.to_dict(),
+                               endpoint_mean=_json_list(t.endpoints[~t.diverged].mean(axis=0)),
+                               endpoint_cov=[_json_list(row) for row in t.endpoint_cov], spread=_json_float(t.spread))
                           for t in r.targets])
             for r in results]
 
@@ -120,13 +123,15 @@ Columns:
 - **predicted E[J]**: the controller's own LQG prediction of its expected cost (`Solution.expected_cost`)
   for the plant it was designed for. The delay-ignorant controller is designed for a plant without delay,
   so it predicts the same cost at every delay.
-- **MC mean J [95% CI]**: Monte Carlo mean of the cost (eq. 2) on the delayed noisy plant, with its
-  normal-approximation 95 % confidence interval. It is `inf` when some trials diverged (the closed
-  loop blew up); then compare the medians.
-- **MC median J**: the median cost, robust to the heavy tails of nearly unstable closed loops.
-- **diverged**: trials whose cost is not finite.
-- **hand position error**: distance of the final hand position from the target, mean +- 1.96 standard
-  errors (or the median when some trials diverged).
+- **MC mean J [95% CI]**: Monte Carlo mean of the cost (eq. 2) on the delayed noisy plant over the
+  trials that did not diverge, with its seeded bootstrap 95 % interval (never below the smallest cost).
+- **MC median J [IQR]**: the median cost over all trials (a diverged trial ranks last) and its
+  inter-quartile range, robust to the heavy tails of nearly unstable closed loops.
+- **diverged**: trials whose cost is not finite or above 100 times the cost of not moving at all
+  (all commands zero): the closed loop lost control. One definition (`delayed_ilqr.statistics`)
+  for this table, both panels of the figures and the JSON.
+- **hand position error**: distance of the final hand position from the target, over the same
+  trials: mean [95 % interval] and median [IQR].
 - **solve [ms]**: one compiled solve; **iter**: iterations; **converged**: the solver's status.
 
 All controllers at one delay see the same noise samples (common random numbers), so their
@@ -157,7 +162,8 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
     lines = [
         "# Reaching with delayed commands: delay-aware vs delay-ignorant iLQG",
         "",
-        f"Model: `arm2` with noise (P2-noisy): {description}; signal-dependent torque noise.",
+        f"Model: `arm2` (the P2 reach): {description}; signal-dependent torque noise at the human level "
+        "(sigma_u = 0.01, calibrated to human force variability, docs/models.md §4.5).",
         f"Delays: {', '.join(f'{1e3 * d:g} ms' for d in delays)}. {trials} noisy trials per controller and "
         f"delay (seed {seed}). Study time {elapsed:.1f} s (compilation included).",
         "",

@@ -35,46 +35,65 @@ def unit_scale(unit: str) -> tuple[float, str]:
     return (1e3, "mm") if unit == "m" else (1.0, unit)
 
 
+def _mean_ci(st, scale: float = 1.0, digits: int = 4) -> str:
+    """Mean over the trials that did not diverge with its bootstrap 95 % interval."""
+    if not math.isfinite(st.mean):
+        return "none (all diverged)"
+    return f"{num(scale * st.mean, digits)} [{num(scale * st.ci95[0], digits)}, {num(scale * st.ci95[1], digits)}]"
+
+
+def _median_iqr(st, scale: float = 1.0, digits: int = 4) -> str:
+    """Median over all trials (diverged as +inf) with the inter-quartile range."""
+    return f"{num(scale * st.median, digits)} [{num(scale * st.iqr[0], digits)}, {num(scale * st.iqr[1], digits)}]"
+
+
 def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
-    """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs,
-    diverged trials and the endpoint error (mean +- 1.96 standard errors, or the median)."""
+    """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs
+    (mean over the trials that did not diverge with its bootstrap 95 % interval; median and
+    inter-quartile range), diverged trials (one definition, :mod:`delayed_ilqr.statistics`) and
+    the endpoint error likewise."""
     scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
     label = results[0].endpoint_label if results else "endpoint error"
+    unit_text = f" [{unit}]" if unit else ""
     header = ["delay [s]", "controller", "converged", "iter", "solve [ms]", "predicted E[J]",
-              "MC mean J [95% CI]", "MC median J", "diverged", f"{label}" + (f" [{unit}]" if unit else "")]
+              "MC mean J [95% CI]", "MC median J [IQR]", "diverged", f"{label}{unit_text}: mean [95% CI]",
+              f"{label}{unit_text}: median [IQR]"]
     rows = []
     for r in results:
         c, e = r.cost, r.endpoint_error
-        mean = f"{num(c.mean)} [{num(c.ci95[0])}, {num(c.ci95[1])}]" if math.isfinite(c.mean) else num(c.mean)
-        err = f"{num(scale * e.mean, 3)} +- {num(1.96 * scale * e.standard_error, 2)}" \
-            if math.isfinite(e.mean) else f"median {num(scale * e.median, 3)}"
         rows.append([f"{r.delay:g}", r.controller, "yes" if r.converged else "NO", str(r.iterations),
-                     f"{1e3 * r.solve_time:.1f}", num(r.predicted_cost), mean, num(c.median),
-                     f"{c.n_diverged}/{c.n}", err])
+                     f"{1e3 * r.solve_time:.1f}", num(r.predicted_cost), _mean_ci(c), _median_iqr(c),
+                     f"{c.n_diverged}/{c.n}", _mean_ci(e, scale, 3), _median_iqr(e, scale, 3)])
     return header, rows
 
 
 _CENTER_OUT_HEADER = ["delay", "design", "converged", "iterations median [range]", "solve time per target",
-                      "nominal hand error (max)", "predicted E[J] (mean)", "MC mean J (mean)",
-                      "MC hand error (mean)", "MC hand error (median, mean over targets)",
-                      "MC endpoint spread (1-sigma major axis, mean)"]
+                      "nominal hand error (max)", "nominal final hand speed (max)", "predicted E[J] (mean)",
+                      "MC mean J (mean)", "diverged", "MC hand error (mean)", "MC hand error (median)",
+                      "MC endpoint spread (1-sigma major axis, mean [range])"]
 
 
 def _center_out_row(r) -> list[str]:
     its = [t.iterations for t in r.targets]
     n = len(r.targets)
+    spreads = [1e3 * t.spread for t in r.targets]
+    n_div = sum(int(np.count_nonzero(t.diverged)) for t in r.targets)
+    n_all = sum(t.diverged.shape[0] for t in r.targets)
     return [f"{1e3 * r.delay:g} ms", r.design, f"{sum(t.converged for t in r.targets)}/{n}",
             f"{int(np.median(its))} [{min(its)}-{max(its)}]", f"{1e3 * r.solve_time / n:.0f} ms",
             f"{1e3 * max(t.hand_error for t in r.targets):.2f} mm",
+            f"{1e2 * max(t.hand_speed for t in r.targets):.2f} cm/s",
             f"{np.mean([t.predicted_cost for t in r.targets]):.3g}",
-            f"{np.mean([t.mc_cost.mean() for t in r.targets]):.3g}",
-            f"{1e3 * np.mean([t.mc_error.mean() for t in r.targets]):.1f} mm",
-            f"{1e3 * np.mean([np.median(t.mc_error) for t in r.targets]):.1f} mm",
-            f"{1e3 * np.mean([t.spread for t in r.targets]):.1f} mm"]
+            f"{np.mean([t.cost_stats.mean for t in r.targets]):.3g}", f"{n_div}/{n_all}",
+            f"{1e3 * np.mean([t.error_stats.mean for t in r.targets]):.2f} mm",
+            f"{1e3 * np.mean([t.error_stats.median for t in r.targets]):.2f} mm",
+            f"{np.mean(spreads):.2f} mm [{min(spreads):.2f}-{max(spreads):.2f}]"]
 
 
 def center_out_rows(results: Sequence) -> Table:
-    """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`)."""
+    """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`):
+    Monte Carlo means and spreads over the trials that did not diverge, and how many did (per
+    target, then averaged over the targets)."""
     return list(_CENTER_OUT_HEADER), [_center_out_row(r) for r in results]
 
 
@@ -134,23 +153,21 @@ def solve_summary(problem, description: str, noise: bool, method: str, timed, en
 def _endpoint_text(result: ControllerResult) -> str:
     scale, unit = unit_scale(result.endpoint_unit)
     e = result.endpoint_error
-    if math.isfinite(e.mean):
-        return f"{num(scale * e.mean)} {unit} (95% CI {num(scale * e.ci95[0])} to {num(scale * e.ci95[1])})"
-    return f"median {num(scale * e.median)} {unit} (mean infinite: {e.n_diverged} trials diverged)"
+    return (f"mean {_mean_ci(e, scale)} {unit}, median {_median_iqr(e, scale)} {unit} "
+            f"(mean over the {e.n - e.n_diverged} trials that did not diverge)")
 
 
 def simulate_summary(r: ControllerResult, description: str) -> list[tuple[str, str]]:
     """The ``simulate`` command's summary rows of one evaluated controller."""
     c = r.cost
-    mean = f"{num(c.mean)} (95% CI {num(c.ci95[0])} to {num(c.ci95[1])})" if math.isfinite(c.mean) \
-        else f"infinite ({c.n_diverged} of {c.n} trials diverged)"
     return _problem_rows(r.problem, description, r.noise) + [
         ("controller", f"{r.controller}: {REGISTRY[r.controller].description}"),
         ("solve", f"{r.status} after {r.iterations} iterations, {1e3 * r.solve_time:.1f} ms"),
         ("predicted E[J]", num(r.predicted_cost)),
         ("trials", f"{c.n} (seed {r.seed}, {r.substeps} substep(s) per step)"),
-        ("Monte Carlo mean J", mean),
-        ("Monte Carlo median J", f"{num(c.median)} (95% CI {num(c.median_ci95[0])} to {num(c.median_ci95[1])})"),
+        ("diverged", f"{c.n_diverged} of {c.n} (cost not finite or above {num(r.divergence_bound)})"),
+        ("Monte Carlo mean J [95% CI]", _mean_ci(c) + " (trials that did not diverge; bootstrap interval)"),
+        ("Monte Carlo median J [IQR]", _median_iqr(c)),
         (f"final {r.endpoint_label}", _endpoint_text(r)),
         ("mean final state", np.array2string(np.asarray(r.summary.final_state_mean), precision=4)),
     ]

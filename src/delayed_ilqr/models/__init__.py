@@ -6,7 +6,9 @@ over dt). Dynamics and noise callables are frozen dataclasses compared and hashe
 problems built with the same arguments share one compiled solver. Each factory attaches a
 :class:`ModelMetadata` (``Problem.metadata``: state and control labels with units, the task space
 such as the hand position, the default initial commands), which studies and figures read; the
-equations, parameters and their sources are in ``docs/models.md``.
+equations, parameters and their sources are in ``docs/models.md``. Noise is a continuous-time
+diffusion (``sqrt(dt) F xi`` per step); :func:`per_step_noise_to_diffusion` converts the per-step
+sigma of Todorov's and Li's discrete-time code (:mod:`.noise`).
 
 =============  ==========================================================================
 point_mass     P1 / P1-noisy / P4 of ``docs/models.md`` (damped planar point mass)
@@ -27,11 +29,13 @@ from .arm2 import (ARM2_PARAMS, ARM2_PARAMS_ARM_DYN, Arm2Params, arm2, coriolis,
 from .arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
 from .cart_pole import cart_pole
 from .metadata import ModelMetadata, TaskSpace
+from .noise import diffusion_to_per_step, per_step_noise_to_diffusion
 from .pendulum import pendulum
 from .point_mass import point_mass
 
 __all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole",
-           "REGISTRY", "ModelInfo", "ModelMetadata", "TaskSpace", "delay_to_steps",
+           "REGISTRY", "ModelInfo", "ModelMetadata", "TaskSpace", "delay_to_steps", "per_step_noise_to_diffusion",
+           "diffusion_to_per_step",
            "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
            "joint_acceleration", "hand_position", "hand_jacobian", "hand_velocity"]
 

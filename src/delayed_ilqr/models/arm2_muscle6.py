@@ -15,18 +15,26 @@ Todorov & Li (2005) describe for their 6-muscle arm ([V] abstract: dx = f dt + F
 control-dependent F; "acts multiplicatively on the muscle excitations" is [R]). The excitation
 acting on muscle i is ud_i (1 + sigma_u w_i) with white w_i, filtered by the activation dynamics at
 the time constant of the noise-free command, so F [10, 6] is zero except
-F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i). sigma_u = 0.1 is the default of the same construction on
-torques in Li's thesis arm (``nioc`` NonlinearReaching, §4.5 [V2]); its magnitude for the muscle arm
-is not verified. In this continuous-time form a held excitation gives an activation whose
-stationary coefficient of variation is sigma_u / sqrt(2 t) = 2.8 to 3.2 sigma_u (t = 66 to 50 ms),
-28-32 % at 0.1. At 0.1 the noise term dominates the expected cost, and the noise-aware nominal
-stops short of the target at long delays (by up to 9.5 mm at 100 ms) to keep the excitations, and
-with them the noise, small. The linearised prediction of the expected cost then underestimates the
-Monte Carlo mean by two orders of magnitude, most of it from a heavy tail of trials that leave the
-neighbourhood of the nominal where the linearisation holds (the center-out study in the README;
-the prediction holds at sigma_u = 1e-3, ``tests/test_muscle.py``). The noise-aware
-iteration converged for 23 of the 24 center-out reaches at 0.1 (``Options(max_iterations=300)``;
-docs/derivation.md §12 has the counts at other noise levels); without noise all 24 converge.
+F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i). F is a continuous-time diffusion
+(:mod:`delayed_ilqr.models.noise`; a per-step sigma of Todorov's convention is
+``per_step_noise_to_diffusion(sigma, dt)``).
+
+Noise level, calibrated to human data (``docs/models.md`` §4.5): a held excitation gives an
+activation whose stationary coefficient of variation is sigma_u / sqrt(2 t) = 2.8 to 3.2 sigma_u
+(t = 66 to 50 ms). The default :data:`SIGMA_U` = 0.01 makes it 2.8-3.2 %, the few per cent of
+isometric force variability in humans, whose standard deviation grows in proportion to the mean
+force (signal-dependent noise: Jones, Hamilton & Wolpert 2002 [V abstract]; the per-cent size [R];
+the coefficient of variation of joint torque falls with strength, Hamilton, Jones & Wolpert 2004
+[V abstract]). Measured with it (``docs/models.md`` §4.5 has the table): 10 cm center-out reaches
+of the noise-aware design have a 1-sigma endpoint spread of 0.05 mm at no delay and 9 mm at
+100 ms. Human reaches without vision of the hand scatter by millimetres (endpoint ellipses
+elongated along the movement, Gordon, Ghilardi & Ghez 1994; van Beers, Haggard & Wolpert 2004
+[V abstract]; the millimetre size [R]); the model reaches that only with a feedback delay, because
+at no delay its feedback sees the exact state at once (no sensory noise, no sensory delay), and
+motor noise alone large enough for millimetres at no delay (sigma_u >= 0.05) lies outside the
+range where the linearisation holds (Monte Carlo mean 150x the prediction, half the noise-aware
+reaches unconverged). The former default 0.1 (Li's torque-arm value, §4.5 [V2]) gave activations a
+28-32 % coefficient of variation. Other levels: the ``sigma_u`` argument.
 
 Cost (a :class:`~delayed_ilqr.GeneralCost`; the running cost is multiplied by dt, the final cost
 is not, as in Todorov's ``ilqg_det.m``, §4.6 [V])::
@@ -55,7 +63,7 @@ r              1e-4                   [D] within §4.6's range (1e-3 thesis torq
 w_p            1 (1/m^2)              §4.6 Li 2006 thesis final position weight [V2]
 w_v            0.1 (s^2/m^2)          [D] (thesis: 1e-2 on a torque arm); 0.1 stops the hand
 w_a            0                      [D] optional final activation penalty
-sigma_u        0.1                    §4.5 (see above)
+sigma_u        0.01                   §4.5, calibrated to human force variability (see above)
 =============  =====================  ==========================================================
 
 Rest activation (:data:`A_REST` = 0.05, [D]): the force A(a, l) ~ (a / (0.56 N_f))^N_f has zero
@@ -87,7 +95,7 @@ __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", 
            "GEOMETRIES"]
 
 FINAL_TIME = 0.5  # s
-SIGMA_U = 0.1
+SIGMA_U = 0.01  # excitation noise calibrated to human force variability (module docstring)
 A_REST = 0.05
 Q0 = (math.pi / 4, math.pi / 2)  # rad, Li 2006 thesis start posture
 TARGET = (0.05, 0.5)  # m, Li 2006 thesis hand target
@@ -214,7 +222,8 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         geometry: "angle_dependent" (variant B, default), "constant" (variant A) or a geometry object
             from :mod:`delayed_ilqr.models.muscle`.
         x0: [10] initial state; default q = (pi/4, pi/2), dq = 0, a = A_REST (0.05) for all muscles.
-        sigma_u: excitation noise scale (used when ``noise``).
+        sigma_u: excitation noise, a diffusion scale (used when ``noise``); default 0.01, calibrated
+            to human force variability (module docstring).
         r, w_p, w_v, w_a: cost weights (effort per unit time, final hand position, final hand
             velocity, final activation); stored in ``cost.params``.
         arm: rigid-body parameters (:class:`~delayed_ilqr.models.arm2.Arm2Params`).

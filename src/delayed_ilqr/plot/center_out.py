@@ -22,7 +22,7 @@ def _reaches_panel(ax, r, n_paths: int, colors):
             ax.plot(path[:, 0], path[:, 1], color=color, lw=0.5, alpha=0.5)
         ax.plot(nominal[j, :, 0], nominal[j, :, 1], color=color, lw=2.0)
         ax.scatter([t.target[0]], [t.target[1]], marker="*", s=120, color=color, edgecolor="k", zorder=6)
-        ellipse(ax, t.endpoints[np.all(np.isfinite(t.endpoints), axis=1)], color)
+        ellipse(ax, t.endpoints[~t.diverged & np.all(np.isfinite(t.endpoints), axis=1)], color)
     start = nominal[0, 0]
     ax.scatter([start[0]], [start[1]], marker="o", s=50, color="k", zorder=7, label="start")
     radius = float(np.max(np.linalg.norm(np.stack([t.target for t in r.targets]) - start, axis=1)))

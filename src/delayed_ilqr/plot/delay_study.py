@@ -8,6 +8,7 @@ import numpy as np
 
 from ..experiments.tables import unit_scale
 from ..models.metadata import task_position, task_space, task_target
+from ..statistics import diverged_trials
 from ._common import COLORS, controller_label, ellipse, figure
 from .solution import plot_convergence
 
@@ -23,7 +24,7 @@ def draws_paths(problem) -> bool:
 def _paths_panel(ax, group, n_paths: int):
     """Per controller: its nominal (thick) and ``n_paths`` trials (thin) in the task space, start and
     target, viewed around the nominal paths. Returns (per controller (result, endpoints relative to
-    the target in display units, finite mask, colour), trials drawn)."""
+    the target in display units, mask of the trials that did not diverge, colour), trials drawn)."""
     zoom, nominals = [], []
     for r in group:
         if not draws_paths(r.problem):
@@ -38,7 +39,8 @@ def _paths_panel(ax, group, n_paths: int):
         nominals.append(nominal)
         target = task_target(r.problem)
         ends = unit_scale(task_space(r.problem).unit)[0] * (paths[:, -1] - target)
-        zoom.append((r, ends, np.all(np.isfinite(ends), axis=1), color))
+        kept = ~diverged_trials(r.runs.cost, r.divergence_bound) & np.all(np.isfinite(ends), axis=1)
+        zoom.append((r, ends, kept, color))
     start = task_position(group[0].problem, group[0].runs.x[0, 0])
     ax.scatter([start[0]], [start[1]], marker="o", s=60, color="k", zorder=6, label="start")
     ax.scatter([target[0]], [target[1]], marker="*", s=180, color="tab:orange", zorder=6, label="target")
@@ -53,8 +55,8 @@ def _paths_panel(ax, group, n_paths: int):
 
 
 def _endpoints_panel(ax, zoom, unit: str):
-    """Every trial's endpoint relative to the target with the 2-sigma ellipse of the finite ones; the
-    view is set by the tightest controller and legends count the endpoints outside it."""
+    """Every trial's endpoint relative to the target with the 2-sigma ellipse of the trials that did
+    not diverge; the view is set by the tightest controller and legends count the endpoints outside it."""
     # wide enough for the tightest controller's endpoints (99th percentile), at least 5 display units
     spans = [np.percentile(np.abs(e[f]), 99) for _, e, f, _ in zoom if np.any(f)]
     half = max(5.0, 1.3 * min(spans)) if spans else 5.0
@@ -86,7 +88,7 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
         the origin; per controller its nominal, thick, and ``n_paths`` trials, thin), start and
         target, viewed around the nominal paths (trials that wander off are clipped). Bottom: every
         trial's endpoint relative to the target (mm) with the 2-sigma covariance ellipse of the
-        finite endpoints; the view is set by the tightest controller and legends count the
+        trials that did not diverge; the view is set by the tightest controller and legends count the
         endpoints outside it.
 
     Raises:
@@ -118,25 +120,23 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
 
 
 def _series(ax, tau, stats, scale, color, c, ci):
-    """One controller's values against the delay: means with 95 % intervals where finite, else
-    medians with theirs (triangles, with the diverged count written next to them)."""
-    mean_ok = np.array([math.isfinite(st.mean) and math.isfinite(st.ci95[0]) for st in stats])
-    val = np.array([scale * (st.mean if ok else st.median) for st, ok in zip(stats, mean_ok)])
-    lo = np.array([scale * (st.ci95[0] if ok else st.median_ci95[0]) for st, ok in zip(stats, mean_ok)])
-    hi = np.array([scale * (st.ci95[1] if ok else st.median_ci95[1]) for st, ok in zip(stats, mean_ok)])
+    """One controller's values against the delay: the mean over the trials that did not diverge with
+    its bootstrap 95 % interval, and the diverged count (:mod:`delayed_ilqr.statistics`, the same
+    trials in both panels) written next to every point that has some."""
+    ok = np.array([math.isfinite(st.mean) for st in stats])
+    val = np.array([scale * st.mean for st in stats])
+    lo = np.array([scale * st.ci95[0] for st in stats])
+    hi = np.array([scale * st.ci95[1] for st in stats])
     yerr = np.vstack([np.clip(val - lo, 0, None), np.clip(hi - val, 0, None)])
     yerr = np.where(np.isfinite(yerr), yerr, 0.0)
-    ax.plot(tau, val, color=color, lw=1.5, alpha=0.7)
-    if np.any(mean_ok):
-        ax.errorbar(tau[mean_ok], val[mean_ok], yerr=yerr[:, mean_ok], fmt="o", color=color, capsize=4,
-                    ms=7, label=f"{controller_label(c)}: Monte Carlo mean, 95% CI")
-    if np.any(~mean_ok):
-        ax.errorbar(tau[~mean_ok], val[~mean_ok], yerr=yerr[:, ~mean_ok], fmt="^", color=color, capsize=4,
-                    ms=8, label=f"{controller_label(c)}: median, 95% CI (mean infinite)")
-        for t, v, st, ok in zip(tau, val, stats, mean_ok):
-            if not ok and st.n_diverged and math.isfinite(v):
-                ax.annotate(f"{st.n_diverged}/{st.n} diverged", (t, v), textcoords="offset points",
-                            xytext=(8, 6 - 14 * ci), fontsize=8, color=color)
+    ax.plot(tau[ok], val[ok], color=color, lw=1.5, alpha=0.7)
+    if np.any(ok):
+        ax.errorbar(tau[ok], val[ok], yerr=yerr[:, ok], fmt="o", color=color, capsize=4, ms=7,
+                    label=f"{controller_label(c)}: Monte Carlo mean, 95% CI")
+    for t, v, st, good in zip(tau, val, stats, ok):
+        if st.n_diverged and good:
+            ax.annotate(f"{st.n_diverged}/{st.n} diverged", (t, v), textcoords="offset points",
+                        xytext=(8, 6 - 14 * ci), fontsize=8, color=color)
 
 
 def _finish(ax, ylabel: str, title: str):
@@ -155,11 +155,11 @@ def plot_delay_study(results: Sequence):
         results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects (several delays).
 
     Returns:
-        A Figure with two axes. Left: Monte Carlo mean cost with 95 % confidence intervals (filled
-        markers, log scale) and the controller's own predicted E[J] (open markers, dashed). Where a
-        mean is infinite (some trials diverged) the median and its 95 % interval are drawn instead
-        with a triangle marker and the diverged count is written next to it. Right: the endpoint
-        error (mm for lengths in metres), mean with 95 % interval, or median likewise.
+        A Figure with two axes. Left: Monte Carlo mean cost over the trials that did not diverge with
+        its bootstrap 95 % interval (filled markers, log scale) and the controller's own predicted
+        E[J] (open markers, dashed); the number of diverged trials (one definition,
+        :mod:`delayed_ilqr.statistics`) is written next to a point that has some. Right: the
+        endpoint error (mm for lengths in metres) over the same trials, likewise.
     """
     results = list(results)
     if not results:
