@@ -42,6 +42,7 @@ class Augmented:
         self.l, self.ls = l, ls = lqg.delay_steps, obs.delay_steps
         if l == 0:
             a["B0"], a["B1"] = a["B0"] + a["B1"], 0 * a["B1"]
+            a["C0"], a["C1"] = a["C0"] + a["C1"], 0 * a["C1"]
         self.a = a
         self.K, self.n, self.d = K, n, d = lqg.horizon, lqg.n_states, lqg.n_controls
         self.N = N = n * (ls + 1) + l * d
@@ -123,10 +124,35 @@ class Augmented:
             V = 0.5 * (V + V.T)
         return Kh, V[N, N]
 
+    def transport(self, k, i):
+        """Phi(k - i, k - l_s) = A_{k-i-1} ... A_{k-l_s} (identity before time 0)."""
+        Phi = np.eye(self.n)
+        for j in range(k - self.ls, k - i):
+            Phi = (self.a["A"][j] if j >= 0 else np.eye(self.n)) @ Phi
+        return Phi
+
+    def policy(self, gains, delayed_gain):
+        """The library's law ``gains`` on [Z_hat; 1] (Kh), and the filter whose innovation gain on
+        dx_{k-i} is Phi(k-i, k-l_s) Kd_k for every i = 0..l_s (Lz): the family of estimators that
+        predict every state after k - l_s from the delayed estimate. Returns (Kh, Lz, Kc)."""
+        K, n, N, ls = self.K, self.n, self.N, self.ls
+        I, L, M = (np.asarray(g) for g in gains)
+        Kd = np.asarray(delayed_gain)
+        Kh = np.zeros((K, self.d, N + 1))
+        Lz = np.zeros((K, N, Kd.shape[2]))
+        for k in range(K):
+            Kh[k, :, :n], Kh[k, :, N] = L[k], I[k]
+            for i in range(self.l):
+                Kh[k, :, n * (ls + 1) + i * self.d:n * (ls + 1) + (i + 1) * self.d] = M[k, i]
+            if k >= ls:
+                for i in range(ls + 1):
+                    Lz[k, self.block(i)] = self.transport(k, i) @ Kd[k]
+        return Kh, Lz, Lz[:, self.block(0)]
+
     def output_feedback_cost(self, Kh, Lz):
         """Exact E[cost] of du_k = Kh_k [Z_hat_k; 1] with the filter gains Lz, by the second
-        moment of xi = [Z; Z_hat; 1] (additive noise)."""
-        N, d = self.N, self.d
+        moment of xi = [Z; Z_hat; 1], with the motor noise columns c_j + C0_j du_k + C1_j du_{k-l}."""
+        N, d, n, a = self.N, self.d, self.n, self.a
         X = np.zeros((2 * N + 1, 2 * N + 1))
         X[-1, -1] = 1.0
         total = 0.0
@@ -142,12 +168,21 @@ class Augmented:
             Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
             Tc[N + 1:, Zh], Tc[N + 1:, -1] = Kh[k, :, :N], Kh[k, :, N]
             total += np.sum(self._stage_weight(k) * (Tc @ X @ Tc.T))
+            noise = np.zeros((n, n))
+            for j in range(a["c"].shape[1]):
+                Gj = np.zeros((n, 2 * N + 1))
+                Gj[:, -1] = a["c"][k, j]
+                Gj += a["C0"][k, j] @ Tc[N + 1:]
+                if self.l > 0:                                # du_{k-l}: the oldest command in flight
+                    xs = n * (self.ls + 1)
+                    Gj[:, xs:xs + d] += a["C1"][k, j]
+                noise += Gj @ X @ Gj.T
             T = np.zeros((2 * N + 1, 2 * N + 1))
             T[Z, Z], T[Zh, Zh], T[-1, -1] = self.Az[k], self.Az[k], 1.0
             T[Z] += self.Bz[k] @ Tc[N + 1:]
             T[Zh] += self.Bz[k] @ Tc[N + 1:]
             X = T @ X @ T.T
-            X[Z, Z] += self.Qz[k]
+            X[:n, :n] += noise
         Tc = np.zeros((N + 1, 2 * N + 1))
         Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
         return total + np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T))
