@@ -55,7 +55,8 @@ def main():
     di.configure_cpu()
     delays = [int(a) for a in sys.argv[1:]] or [10, 50, 100]
     K, n, d, m = 600, 4, 2, 4
-    print(f"{'l_s':>4} {'n (l_s+1)':>9} {'delayed filter':>15} {'augmented filter':>17} {'ratio':>7} {'max rel. diff':>14}")
+    print(f"{'l_s':>4} {'n (l_s+1)':>9} {'delayed filter':>15} {'augmented filter':>17} {'ratio':>7} "
+          f"{'max rel. diff':>14}")
     for ls in delays:
         model, obs = random_problem(0, K, n, d, m, m, 2, 5, ls)
         Q = jnp.einsum("kpn,kpm->knm", model.c, model.c)
