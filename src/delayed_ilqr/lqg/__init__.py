@@ -31,11 +31,19 @@ r_update       the strategies that update the [l d, l d] block R
 structured     the reverse scan with the fused step (:func:`backward_pass`)
 augmented      the augmented-state reference (:func:`augmented_backward_pass`)
 exact          :func:`policy_cost`, :func:`simulate_lqg`
+observation    :class:`DelayedObservation`: delayed, noisy sensors dy_k = H_k dx_{k-l_s} + G_k v_k
+estimator      :func:`delayed_kalman`: the delayed Kalman filter without augmentation, and its run
+output_feedback  :func:`separation_design`, :func:`output_feedback_cost` (exact, any pair),
+               :func:`separation_cost`, :func:`simulate_output_feedback`
 =============  ==================================================================================
 """
 from .augmented import augmented_backward_pass
 from .exact import LQGRuns, policy_cost, simulate_lqg
 from .model import DelayedLQG, Gains, Value
+from .observation import DelayedObservation
+from .estimator import FilterCovariances, FilterGains, delayed_kalman, filter_estimates
+from .output_feedback import (OutputFeedback, OutputFeedbackRuns, output_feedback_cost, separation_cost,
+                              separation_design, simulate_output_feedback)
 from .structured import backward_pass
 
 __all__ = [
@@ -47,4 +55,15 @@ __all__ = [
     "augmented_backward_pass",
     "policy_cost",
     "simulate_lqg",
+    "DelayedObservation",
+    "FilterGains",
+    "FilterCovariances",
+    "delayed_kalman",
+    "filter_estimates",
+    "OutputFeedback",
+    "OutputFeedbackRuns",
+    "separation_design",
+    "separation_cost",
+    "output_feedback_cost",
+    "simulate_output_feedback",
 ]
