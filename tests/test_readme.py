@@ -13,3 +13,19 @@ def test_readme_lqg_example_runs_and_agrees():
     expected, exact, monte_carlo = (float(v) for v in out.getvalue().split())
     assert abs(expected - exact) <= 1e-10 * abs(exact)
     assert abs(monte_carlo - exact) <= 0.02 * abs(exact)     # 10000 trials: a few standard errors
+
+
+def test_readme_sensor_example_runs_and_agrees():
+    """The README's delayed-sensor example, run after the LQG example it continues: the design's
+    expected cost, the exact cost of the pair and the Monte Carlo mean agree."""
+    text = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
+    first = text.split("## The LQG layer in ten lines")[1].split("```python")[1].split("```")[0]
+    second = text.split("### Delayed, noisy sensors: the estimator")[1].split("```python")[1].split("```")[0]
+    namespace, out = {}, io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()):
+        exec(compile(first, "README.md", "exec"), namespace)
+    with contextlib.redirect_stdout(out):
+        exec(compile(second, "README.md", "exec"), namespace)
+    expected, exact, monte_carlo = (float(v) for v in out.getvalue().split())
+    assert abs(expected - exact) <= 1e-10 * abs(exact)
+    assert abs(monte_carlo - exact) <= 0.02 * abs(exact)     # 10000 trials: a few standard errors

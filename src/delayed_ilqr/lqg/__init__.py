@@ -21,21 +21,21 @@ gains (see ``docs/derivation.md`` §4), so that J(0) is always the true cost of 
 
 Modules (the solver's internals are imported from them, not from here):
 
-=============  ==================================================================================
-model          :class:`DelayedLQG`, the per-step :class:`~.model.Stage`, ``StepModels``, Gains, Value
-frame          the circular slot frame of the pending commands (``SlotGains``, conversions)
-stage          one step of Theorem 1 as readable mathematics (the statement the fused step obeys)
-gains          gain rules: unconstrained, box-constrained, unregularised feedback
-boxqp          the box-constrained QP of the control-limited gain rule
-r_update       the strategies that update the [l d, l d] block R
-structured     the reverse scan with the fused step (:func:`backward_pass`)
-augmented      the augmented-state reference (:func:`augmented_backward_pass`)
-exact          :func:`policy_cost`, :func:`simulate_lqg`
-observation    :class:`DelayedObservation`: delayed, noisy sensors dy_k = H_k dx_{k-l_s} + G_k v_k
-estimator      :func:`delayed_kalman`: the delayed Kalman filter without augmentation, and its run
+===============  ================================================================================
+model            :class:`DelayedLQG`, the per-step :class:`~.model.Stage`, ``StepModels``, Gains, Value
+frame            the circular slot frame of the pending commands (``SlotGains``, conversions)
+stage            one step of Theorem 1 as readable mathematics (the statement the fused step obeys)
+gains            gain rules: unconstrained, box-constrained, unregularised feedback
+boxqp            the box-constrained QP of the control-limited gain rule
+r_update         the strategies that update the [l d, l d] block R
+structured       the reverse scan with the fused step (:func:`backward_pass`)
+augmented        the augmented-state reference (:func:`augmented_backward_pass`)
+exact            :func:`policy_cost`, :func:`simulate_lqg`
+observation      :class:`DelayedObservation`: delayed, noisy sensors dy_k = H_k dx_{k-l_s} + G_k v_k
+estimator        :func:`delayed_kalman`: the delayed Kalman filter without augmentation, and its run
 output_feedback  :func:`separation_design`, :func:`output_feedback_cost` (exact, any pair),
-               :func:`separation_cost`, :func:`simulate_output_feedback`
-=============  ==================================================================================
+                 :func:`separation_cost`, :func:`simulate_output_feedback`
+===============  ================================================================================
 """
 from .augmented import augmented_backward_pass
 from .exact import LQGRuns, policy_cost, simulate_lqg
