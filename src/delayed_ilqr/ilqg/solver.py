@@ -256,7 +256,8 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     else:
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
-        return compiled_solver(problem)(problem, u_init, options)
+        sol = compiled_solver(problem)(problem, u_init, options)
+        return sol._replace(status=Status(int(sol.status)))
     # inside jit or vmap: XLA's options are the outermost compilation's (JAX refuses them on a
     # nested jit, so not _solve_large), and on CPU a vmap runs the problems one after another
     if jax.default_backend() == "cpu":
