@@ -126,3 +126,22 @@ def test_status_prints_its_name_and_x0_is_named():
     assert sol.status == 0 and int(sol.status) == di.Status.CONVERGED_GRADIENT and sol.converged
     with pytest.raises(ValueError, match=r"x0 must have shape \(4,\).*got shape \(3,\)"):
         point_mass().replace(x0=np.zeros(3))
+
+
+def test_the_readme_batching_patterns_agree_and_replace_reuses_the_compilation():
+    """README "Batching and compilation": replace under vmap and jit, a stacked Problem (item 11);
+    replace reuses the compiled solver, a new lambda compiles again (item 12)."""
+    from delayed_ilqr.ilqg import solver
+    base = point_mass(delay=0.03)
+    x0s = jnp.stack([base.x0, base.x0 + 0.01, base.x0 - 0.01])
+    loop = np.array([float(di.solve(base.replace(x0=x)).cost) for x in x0s])
+    batch = jax.vmap(lambda x0: di.solve(base.replace(x0=x0)))(x0s)
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[base.replace(x0=x) for x in x0s])
+    np.testing.assert_allclose(np.asarray(batch.cost), loop, rtol=1e-10)
+    np.testing.assert_allclose(np.asarray(jax.vmap(di.solve)(stacked).cost), loop, rtol=1e-10)
+    size = solver._solve._cache_size()
+    di.solve(base.replace(x0=x0s[2] + 0.01))
+    assert solver._solve._cache_size() == size
+    fresh = base.replace(dynamics=lambda x, u, ud: base.dynamics(x, u, ud))
+    di.solve(fresh)
+    assert solver._solve._cache_size() == size + 1

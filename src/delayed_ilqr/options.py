@@ -65,7 +65,9 @@ class Options:
         if not self.reg_min < self.reg_max:
             raise ValueError(f"reg_min must be below reg_max; got reg_min={self.reg_min!r}, reg_max={self.reg_max!r}")
         factor = _validate.real(self.reg_factor, "reg_factor", "a finite number greater than 1")
-        if not (np.isfinite(factor) and factor > 1):
+        if not factor > 1:
+            raise ValueError(f"reg_factor must be greater than 1; got {self.reg_factor!r}")
+        if not np.isfinite(factor):
             raise ValueError(f"reg_factor must be a finite number greater than 1; got {self.reg_factor!r}")
         # actual / predicted reduction tends to 1 as alpha -> 0 on any smooth problem, so from
         # z_min = 1 on a step is accepted only where the model is wrong; below 0 a step that
