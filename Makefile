@@ -13,9 +13,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# Each command writes its folder atomically and replaces it whole with --overwrite: the demo
+# replaces out/ (the previous out/center_out with it), then center-out writes out/center_out.
 demo: $(STAMP)
-	$(BIN)/delayed-ilqr demo --out out
-	$(BIN)/delayed-ilqr center-out --allow-unconverged --out out/center_out
+	$(BIN)/delayed-ilqr demo --overwrite --out out
+	$(BIN)/delayed-ilqr center-out --allow-unconverged --overwrite --out out/center_out
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests

@@ -11,8 +11,17 @@ import jax
 import numpy as np
 
 
+def static(value, name: str):
+    """Refuses a traced value for a field that fixes the compiled program (sizes, dt, callables)."""
+    if isinstance(value, jax.core.Tracer):
+        raise ValueError(f"{name} cannot be traced (it is static: it fixes the compiled solver); under jit or vmap "
+                         "pass it as a Python number and batch only the arrays (x0, cost arrays or params, "
+                         "limits); got a traced value")
+
+
 def delay_steps(value, name: str = "delay_steps") -> int:
     """A non-negative whole number of steps (bools and non-integral floats are refused)."""
+    static(value, name)
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
         if isinstance(value, (numbers.Real, np.floating)) and float(value).is_integer() and not isinstance(value, bool):
             value = int(value)
@@ -24,19 +33,54 @@ def delay_steps(value, name: str = "delay_steps") -> int:
 
 
 def positive_int(value, name: str) -> int:
+    static(value, name)
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer; got {value!r}")
     return int(value)
 
 
-def positive_float(value, name: str) -> float:
+def real(value, name: str, rule: str) -> float:
+    """A real number as a Python float: ints, floats, NumPy scalars and 0-d arrays of them. Bools
+    and strings are refused (``dt=True`` would be 1.0, ``tol_cost='1e-3'`` would fail later)."""
+    static(value, name)
+    if isinstance(value, (np.ndarray, jax.Array)) and not isinstance(value, jax.core.Tracer) and value.ndim == 0:
+        value = np.asarray(value)[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Real, np.integer, np.floating)):
+        raise ValueError(f"{name} must be {rule}; got {value!r}")
     try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a positive finite number; got {value!r}") from None
+        return float(value)
+    except OverflowError:           # an int beyond the float range
+        raise ValueError(f"{name} must be {rule}; got {value!r}") from None
+
+
+def positive_float(value, name: str) -> float:
+    v = real(value, name, "a positive finite number")
     if not np.isfinite(v) or v <= 0:
         raise ValueError(f"{name} must be a positive finite number; got {value!r}")
     return v
+
+
+def non_negative_float(value, name: str) -> float:
+    v = real(value, name, "a finite number >= 0")
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"{name} must be a finite number >= 0; got {value!r}")
+    return v
+
+
+def seed(value, name: str = "seed") -> int:
+    """A seed for ``jax.random.PRNGKey``: an integer in [0, 2**63)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be a non-negative integer; got {value!r}")
+    if not 0 <= value < 2 ** 63:
+        raise ValueError(f"{name} must be a non-negative integer below 2**63; got {value!r}")
+    return int(value)
+
+
+def reg(value, name: str = "reg"):
+    """A regularisation lambda >= 0 (checked when concrete; a traced lambda passes as it is)."""
+    if isinstance(value, jax.core.Tracer):
+        return value
+    return non_negative_float(value, name)
 
 
 def _shape_text(shape: tuple) -> str:

@@ -4,14 +4,25 @@
 
 Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo`` and ``center-out``
 (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
-still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps, a
-non-positive trial count).
+still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
+not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
+that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
+in one line (``--debug`` shows the traceback).
+
+Outputs are atomic: a command writes into a hidden folder beside ``--out`` and renames it to
+``--out`` at the end, with a ``manifest.json`` listing the files, the command and the version; an
+interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty ``--out`` whole.
 """
 from __future__ import annotations
 
 import dataclasses
+import datetime
+import importlib.metadata
+import json
 import math
+import os
 import pathlib
+import shutil
 import sys
 import time
 from typing import Optional
@@ -22,6 +33,7 @@ import numpy as np
 
 from . import Options, Status
 from ._cpu import configure_cpu
+from .simulate import check_memory
 from .experiments import center_out, delay_study, engine, report, tables
 from .models import REGISTRY, arm2_muscle6
 from .models.arm2 import SIGMA_U_HUMAN
@@ -31,6 +43,7 @@ __all__ = ["main"]
 
 DEMO_DELAYS = (0.0, 0.05, 0.1, 0.15)
 _MODEL = click.Choice(sorted(REGISTRY))
+_SEED = click.IntRange(min=0, max=2 ** 63 - 1)       # what simulate accepts
 _OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
 
 
@@ -62,10 +75,75 @@ def _problem(model: str, delay: float, noise: bool, hint: str = "--delay"):
         raise click.BadParameter(str(exc), param_hint=f"'{hint}'") from exc
 
 
-def _out_dir(out: Optional[pathlib.Path]) -> Optional[pathlib.Path]:
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-    return out
+ERROR_EXIT = 3      # neither a usage error (2) nor a solve that did not converge (1)
+
+
+class _Output:
+    """An ``--out`` folder written atomically: :meth:`open` (before computing) checks it and
+    makes a hidden staging folder beside it; the command writes into ``staging``; :meth:`commit`
+    adds manifest.json and renames the staging folder to ``out``, replacing an old one whole."""
+
+    def __init__(self, out: Optional[pathlib.Path], overwrite: bool):
+        self.out, self.overwrite, self.staging = out, overwrite, None
+
+    def open(self) -> "_Output":
+        if self.out is None:
+            return self
+        out = self.out
+        if out.exists() and not out.is_dir():
+            raise click.BadParameter(f"{out} exists and is not a folder", param_hint="'--out'")
+        if out.is_dir() and any(out.iterdir()) and not self.overwrite:
+            raise click.BadParameter(f"{out} is not empty; pass --overwrite to replace it whole",
+                                     param_hint="'--out'")
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            self.staging = out.parent / f".{out.name}.partial-{os.getpid()}"
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging.mkdir()
+        except OSError as exc:
+            raise click.BadParameter(f"cannot create {out}: {exc.strerror or exc}", param_hint="'--out'") from None
+        return self
+
+    def commit(self, settings: dict) -> list[str]:
+        """Writes manifest.json, moves the staging folder to ``out``; returns the file names."""
+        files = sorted(str(f.relative_to(self.staging)) for f in self.staging.rglob("*") if f.is_file())
+        manifest = dict(command=["delayed-ilqr"] + sys.argv[1:], version=importlib.metadata.version("delayed-ilqr"),
+                        created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                        settings=settings, files={f: (self.staging / f).stat().st_size for f in files})
+        (self.staging / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
+        old = None
+        if self.out.exists():
+            old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
+            self.out.rename(old)
+        self.staging.rename(self.out)
+        self.staging = None
+        if old is not None:
+            shutil.rmtree(old)
+        return files + ["manifest.json"]
+
+    def __enter__(self) -> "_Output":
+        return self.open()
+
+    def __exit__(self, *exc_info):       # an error or an interrupt: the staging folder goes
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+
+
+def _out_option(**kwargs):
+    def decorate(f):
+        f = click.option("--overwrite", is_flag=True,
+                         help="Replace a non-empty --out folder whole (its old files are removed).")(f)
+        return click.option("--out", type=_OUT_TYPE, **kwargs)(f)
+    return decorate
+
+
+def _check_trials(problem, trials: int, substeps: int, runs: int = 1):
+    """The Monte Carlo's memory, checked before any solve (``simulate.check_memory``)."""
+    try:
+        check_memory(problem, trials * runs, substeps, what="--trials" if runs == 1 else f"{runs} runs x --trials")
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--trials'") from None
 
 
 def _warn_not_converged(results) -> bool:
@@ -80,13 +158,34 @@ def _settings(model, noise, trials, seed, substeps) -> dict:
     return dict(model=model, noise=bool(noise), trials=int(trials), seed=int(seed), substeps=int(substeps))
 
 
-@click.group(context_settings=dict(help_option_names=["-h", "--help"]))
+class _Main(click.Group):
+    """The command group: an error that is not click's becomes one line and exit code 3 (with
+    ``--debug``, the traceback); a staging folder left by it is removed by the command."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
+            raise
+        except Exception as exc:
+            if ctx.params.get("debug"):
+                raise
+            text = str(exc).strip().splitlines()
+            click.echo(f"error: {type(exc).__name__}: {text[0] if text else ''} (--debug shows the traceback)",
+                       err=True)
+            ctx.exit(ERROR_EXIT)
+
+
+@click.group(cls=_Main, context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
-def main():
+@click.option("--debug", is_flag=True, help="Show the traceback of an unexpected error.")
+def main(debug):
     """iLQG with control (input) delay: solve, Monte Carlo, delay studies and figures.
 
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
-    0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments.
+    0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments
+    (including an --out that cannot be created, or is not empty without --overwrite), 3 for any
+    other error.
     """
     # the process is the command's own: float64 and XLA's small-loop flags, before any computation
     jax.config.update("jax_enable_x64", True)
@@ -109,27 +208,27 @@ def models_command():
               help="Solve the stochastic problem (signal-dependent noise) or the deterministic one.")
 @click.option("--method", type=click.Choice(["structured", "augmented"]), default="structured", show_default=True,
               help="Backward pass: Theorem 1's structured recursion, or the state-augmentation reference.")
-@click.option("--out", type=_OUT_TYPE, default=None,
-              help="Folder for solution.json, solution.npz (trajectory, gains, trace) and figures.")
-def solve_command(model, delay, noise, method, out):
+@_out_option(default=None, help="Folder for solution.json, solution.npz (trajectory, gains, trace) and figures.")
+def solve_command(model, delay, noise, method, out, overwrite):
     """Solve MODEL with iLQG and report the nominal solution and its convergence.
 
     MODEL is one of the names that `delayed-ilqr models` lists.
     """
     problem = _problem(model, delay, noise)
-    timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
-    sol = timed[0]
-    label, unit = engine.endpoint_description(problem)
-    endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
-    click.echo(tables.pairs(tables.solve_summary(problem, REGISTRY[model].description, noise, method, timed,
-                                                 endpoint)))
-    out = _out_dir(out)
-    if out is not None:
-        from . import plot
-        written = report.write_solution(out, model, problem, method, timed, endpoint)
-        written += report.save_figures({"trajectories.png": plot.plot_trajectories(problem, sol),
-                                        "convergence.png": plot.plot_convergence({model: sol})}, out)
-        click.echo(f"wrote {', '.join(written)} to {out}")
+    with _Output(out, overwrite) as output:
+        timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
+        sol = timed[0]
+        label, unit = engine.endpoint_description(problem)
+        endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
+        click.echo(tables.pairs(tables.solve_summary(problem, REGISTRY[model].description, noise, method, timed,
+                                                     endpoint)))
+        if out is not None:
+            from . import plot
+            report.write_solution(output.staging, model, problem, method, timed, endpoint)
+            report.save_figures({"trajectories.png": plot.plot_trajectories(problem, sol),
+                                 "convergence.png": plot.plot_convergence({model: sol})}, output.staging)
+            written = output.commit(dict(model=model, delay=delay, noise=noise, method=method))
+            click.echo(f"wrote {', '.join(written)} to {out}")
     status = Status(int(sol.status))
     if not status.converged:
         click.echo(f"error: the solve did not converge ({status.name}): {status.message}", err=True)
@@ -142,7 +241,7 @@ def solve_command(model, delay, noise, method, out):
               help="Input delay tau in seconds (a whole number of the model's time steps).")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
               help="Number of Monte Carlo trials (a positive integer).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--seed", type=_SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise (the same seed gives the same trials).")
 @click.option("--noise/--no-noise", default=True, show_default=True,
               help="Simulate (and design for) the stochastic plant, or the deterministic one.")
@@ -151,33 +250,39 @@ def solve_command(model, delay, noise, method, out):
                    "plant; augmented: delay-aware by state augmentation.")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
               help="Euler-Maruyama sub-steps per control step.")
-@click.option("--out", type=_OUT_TYPE, default=None,
-              help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains) and figures.")
-def simulate_command(model, delay, trials, seed, noise, controller, substeps, out):
+@_out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains) and figures.")
+def simulate_command(model, delay, trials, seed, noise, controller, substeps, out, overwrite):
     """Solve MODEL and run its feedback policy on the (noisy, delayed) plant --trials times.
 
     MODEL is one of the names that `delayed-ilqr models` lists.
     """
     problem = _problem(model, delay, noise)
-    r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
-    click.echo(tables.pairs(tables.simulate_summary(r, REGISTRY[model].description)))
-    out = _out_dir(out)
-    if out is not None:
-        from . import plot
-        settings = dict(_settings(model, noise, trials, seed, substeps), delay=problem.delay, controller=controller)
-        written = report.write_runs(out, r, settings)
-        figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}
-        if plot.draws_paths(problem):
-            figures["hand_paths.png"] = plot.plot_hand_paths([r])
-        written += report.save_figures(figures, out)
-        click.echo(f"wrote {', '.join(written)} to {out}")
+    _check_trials(problem, trials, substeps)
+    with _Output(out, overwrite) as output:
+        r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
+        click.echo(tables.pairs(tables.simulate_summary(r, REGISTRY[model].description)))
+        if out is not None:
+            from . import plot
+            settings = dict(_settings(model, noise, trials, seed, substeps), delay=problem.delay,
+                            controller=controller)
+            report.write_runs(output.staging, r, settings)
+            figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}
+            if plot.draws_paths(problem):
+                figures["hand_paths.png"] = plot.plot_hand_paths([r])
+            report.save_figures(figures, output.staging)
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out}")
     if _warn_not_converged([r]):
         sys.exit(1)
 
 
+def _check_study(model, delays, trials, noise, controllers, substeps):
+    """Every delay and the memory of all the trials, checked before anything is solved."""
+    problems = [_problem(model, tau, noise, hint="--delays") for tau in delays]
+    _check_trials(problems[-1], trials, substeps, runs=len(delays) * len(controllers))
+
+
 def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None):
-    for tau in delays:                   # every delay checked before anything is solved
-        _problem(model, tau, noise, hint="--delays")
     return delay_study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
                                       substeps=substeps, model_kwargs=model_kwargs, progress=True)
 
@@ -195,7 +300,7 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Comma-separated input delays in seconds, each a whole number of the model's time steps.")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
               help="Monte Carlo trials per controller and delay (a positive integer).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--seed", type=_SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise; all controllers see the same noise samples.")
 @click.option("--noise/--no-noise", default=True, show_default=True,
               help="Design for and simulate the stochastic plant, or the deterministic one.")
@@ -203,36 +308,38 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Also evaluate the state-augmentation solution (delay-aware reference).")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
               help="Euler-Maruyama sub-steps per control step.")
-@click.option("--out", type=_OUT_TYPE, default=None,
-              help="Folder for compare.json, compare.md, compare_runs.npz and figures.")
-def compare_command(model, delays, trials, seed, noise, augmented, substeps, out):
+@_out_option(default=None, help="Folder for compare.json, compare.md, compare_runs.npz and figures.")
+def compare_command(model, delays, trials, seed, noise, augmented, substeps, out, overwrite):
     """Delay-aware vs delay-ignorant control of MODEL at several delays, by Monte Carlo.
 
     MODEL is one of the names that `delayed-ilqr models` lists. Prints one table row per delay and
     controller.
     """
     controllers = ["aware", "ignorant"] + (["augmented"] if augmented else [])
-    results = _run_study(model, delays, trials, seed, noise, controllers, substeps)
-    table = tables.delay_study_rows(results)
-    click.echo(tables.text_table(table))
-    out = _out_dir(out)
-    if out is not None:
-        settings = dict(_settings(model, noise, trials, seed, substeps), delays=list(delays), controllers=controllers)
-        written = _study_outputs(results, out, settings, "compare")
-        (out / "compare.md").write_text(tables.markdown_table(table) + "\n")
-        click.echo(f"wrote {', '.join(written + ['compare.md'])} to {out}")
+    _check_study(model, delays, trials, noise, controllers, substeps)
+    with _Output(out, overwrite) as output:
+        results = _run_study(model, delays, trials, seed, noise, controllers, substeps)
+        table = tables.delay_study_rows(results)
+        click.echo(tables.text_table(table))
+        if out is not None:
+            settings = dict(_settings(model, noise, trials, seed, substeps), delays=list(delays),
+                            controllers=controllers)
+            _study_outputs(results, output.staging, settings, "compare")
+            (output.staging / "compare.md").write_text(tables.markdown_table(table) + "\n")
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out}")
     if _warn_not_converged(results):
         sys.exit(1)
 
 
 @main.command("demo")
-@click.option("--out", type=_OUT_TYPE, default=pathlib.Path("out"), show_default=True,
-              help="Folder for the report (report.md, report.json, report_runs.npz, figures).")
+@_out_option(default=pathlib.Path("out"), show_default=True,
+             help="Folder for the report (report.md, report.json, report_runs.npz, figures).")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
               help="Monte Carlo trials per controller and delay (a positive integer).")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--seed", type=_SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise.")
-def demo_command(out, trials, seed):
+def demo_command(out, overwrite, trials, seed):
     """The arm reaching study: delay-aware vs delay-ignorant iLQG on the noisy two-link arm.
 
     The P2 reach with signal-dependent torque noise at the human level (models.arm2(noise=True,
@@ -240,17 +347,20 @@ def demo_command(out, trials, seed):
     0.2 is a numerical stress test), input delays 0, 50, 100 and 150 ms, --trials noisy trials per
     controller and delay. Prints the table and writes a markdown report with figures.
     """
-    start = time.perf_counter()
-    results = _run_study("arm2", list(DEMO_DELAYS), trials, seed, True, ["aware", "ignorant"], 1,
-                         dict(sigma_u=SIGMA_U_HUMAN))
-    elapsed = time.perf_counter() - start
-    click.echo(tables.text_table(tables.delay_study_rows(results)))
-    out = _out_dir(out)
-    settings = dict(_settings("arm2", True, trials, seed, 1), sigma_u=SIGMA_U_HUMAN, delays=list(DEMO_DELAYS),
-                    controllers=["aware", "ignorant"], elapsed_seconds=elapsed)
-    written = _study_outputs(results, out, settings, "report")
-    report.write_demo_report(out, results, REGISTRY["arm2"].description, DEMO_DELAYS, trials, seed, elapsed)
-    click.echo(f"wrote report.md, {', '.join(written)} to {out} ({elapsed:.1f} s)")
+    _check_study("arm2", list(DEMO_DELAYS), trials, True, ["aware", "ignorant"], 1)
+    with _Output(out, overwrite) as output:
+        start = time.perf_counter()
+        results = _run_study("arm2", list(DEMO_DELAYS), trials, seed, True, ["aware", "ignorant"], 1,
+                             dict(sigma_u=SIGMA_U_HUMAN))
+        elapsed = time.perf_counter() - start
+        click.echo(tables.text_table(tables.delay_study_rows(results)))
+        settings = dict(_settings("arm2", True, trials, seed, 1), sigma_u=SIGMA_U_HUMAN, delays=list(DEMO_DELAYS),
+                        controllers=["aware", "ignorant"], elapsed_seconds=elapsed)
+        _study_outputs(results, output.staging, settings, "report")
+        report.write_demo_report(output.staging, results, REGISTRY["arm2"].description, DEMO_DELAYS, trials, seed,
+                                 elapsed)
+        written = output.commit(settings)
+        click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
     if _warn_not_converged(results):
         sys.exit(1)
 
@@ -264,7 +374,7 @@ def demo_command(out, trials, seed):
               help="Circle radius in metres around the start hand position.")
 @click.option("--trials", type=click.IntRange(min=2), default=200, show_default=True,
               help="Noisy trials per target and delay.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Seed of the noise.")
+@click.option("--seed", type=_SEED, default=0, show_default=True, help="Seed of the noise.")
 @click.option("--sigma-u", type=click.FloatRange(min=0.0), default=center_out.SIGMA_U, show_default=True,
               help="Excitation noise of the plant the policies run on.")
 @click.option("--design", "designs", type=click.Choice(center_out.DESIGNS), multiple=True,
@@ -275,9 +385,9 @@ def demo_command(out, trials, seed):
               show_default=True, help="Iteration limit of each reach's solve.")
 @click.option("--allow-unconverged", is_flag=True,
               help="Exit 0 even when some reaches did not converge (they are flagged in the table and on stderr).")
-@click.option("--out", type=_OUT_TYPE, default=None, help="Folder for center_out.md/.json and the figures.")
+@_out_option(default=None, help="Folder for center_out.md/.json and the figures.")
 def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs, max_iterations, allow_unconverged,
-                       out):
+                       out, overwrite):
     """Center-out reaching with the six-muscle arm (arm2_muscle6) at several input delays.
 
     Per delay and design: one vectorised solve of the reaches to all targets (excitations limited
@@ -291,22 +401,23 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             arm2_muscle6(delay=d)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--delays'") from exc
-    start = time.perf_counter()
-    options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
-    results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
-                                    designs=designs)
-    elapsed = time.perf_counter() - start
-    table = tables.markdown_table(tables.center_out_rows(results))
-    click.echo(table)
-    if out is not None:
-        out = _out_dir(out)
-        from . import plot
-        figures = report.save_figures(plot.center_out_figures(results), out)
-        settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
-                        sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
-                        elapsed_seconds=elapsed)
-        written = report.write_center_out_report(out, results, settings, table, figures)
-        click.echo(f"wrote {', '.join(written + figures)} to {out} ({elapsed:.1f} s)")
+    with _Output(out, overwrite) as output:
+        start = time.perf_counter()
+        options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
+        results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
+                                        designs=designs)
+        elapsed = time.perf_counter() - start
+        table = tables.markdown_table(tables.center_out_rows(results))
+        click.echo(table)
+        if out is not None:
+            from . import plot
+            figures = report.save_figures(plot.center_out_figures(results), output.staging)
+            settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
+                            sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
+                            elapsed_seconds=elapsed)
+            report.write_center_out_report(output.staging, results, settings, table, figures)
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
     failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
     for delay, design, j in failed:
         click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)

@@ -29,9 +29,15 @@ class Options:
             linear-quadratic problem converge in one step; Tassa uses 1.
         reg_min, reg_max, reg_factor: Tassa's schedule (lambda below reg_min is set to 0; the
             solve stops when lambda exceeds reg_max).
-        z_min: minimal accepted ratio of actual to expected reduction.
+        z_min: minimal accepted ratio of actual to expected reduction, in [0, 1).
         limit_margin: with control limits, commands whose nominal lies at a bound or within
             limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.gains.boxed_gains``).
+
+    A convergence status (``Status.converged``) is reported only at a first-order point of the LQG
+    model: lambda < 1e-5 (the step is the Newton step, projected with the limits) and, for
+    ``CONVERGED_COST``, the full step promising a merit reduction g' H^-1 g / 2 below
+    tol_cost |merit| (``ilqg.solver.first_order``). Tiny ``alphas`` or a large ``reg_init``
+    cannot end a solve as converged.
     """
 
     method: str = "structured"
@@ -50,14 +56,25 @@ class Options:
         if self.method not in ("structured", "augmented"):
             raise ValueError(f"method must be 'structured' or 'augmented'; got {self.method!r}")
         _validate.positive_int(self.max_iterations, "max_iterations")
-        if not (np.isfinite(self.limit_margin) and 0 <= self.limit_margin < 0.5):
+        margin = _validate.real(self.limit_margin, "limit_margin", "a number in [0, 0.5)")
+        if not (np.isfinite(margin) and 0 <= margin < 0.5):
             raise ValueError(f"limit_margin must be a number in [0, 0.5); got {self.limit_margin!r}")
         for name in ("tol_cost", "tol_grad", "reg_min", "reg_max"):
             _validate.positive_float(getattr(self, name), name)
-        if not (np.isfinite(self.reg_init) and self.reg_init >= 0):
-            raise ValueError(f"reg_init must be a finite number >= 0; got {self.reg_init!r}")
-        if not float(self.reg_factor) > 1:
+        _validate.non_negative_float(self.reg_init, "reg_init")
+        if not self.reg_min < self.reg_max:
+            raise ValueError(f"reg_min must be below reg_max; got reg_min={self.reg_min!r}, reg_max={self.reg_max!r}")
+        factor = _validate.real(self.reg_factor, "reg_factor", "a finite number greater than 1")
+        if not factor > 1:
             raise ValueError(f"reg_factor must be greater than 1; got {self.reg_factor!r}")
+        if not np.isfinite(factor):
+            raise ValueError(f"reg_factor must be a finite number greater than 1; got {self.reg_factor!r}")
+        # actual / predicted reduction tends to 1 as alpha -> 0 on any smooth problem, so from
+        # z_min = 1 on a step is accepted only where the model is wrong; below 0 a step that
+        # raises the merit is accepted
+        z_min = _validate.real(self.z_min, "z_min", "a number in [0, 1)")
+        if not 0 <= z_min < 1:
+            raise ValueError(f"z_min must be a number in [0, 1); got {self.z_min!r}")
         alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
         if not alphas or not all(0 < a <= 1 for a in alphas):
             raise ValueError(f"alphas must be a non-empty sequence of step sizes in (0, 1]; got {self.alphas!r}")

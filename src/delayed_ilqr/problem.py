@@ -63,7 +63,7 @@ class GeneralCost:
         if not callable(final):
             raise TypeError(f"final must be callable as final(x, params); got {type(final).__name__}")
         self.running_fn, self.final_fn = running, final
-        self.params = jax.tree_util.tree_map(jnp.asarray, params)
+        self.params = jax.tree_util.tree_map(_param, params)
 
     def running(self, x, u):
         return jnp.asarray(self.running_fn(x, u, self.params), x.dtype)     # a constant may be a float
@@ -73,6 +73,16 @@ class GeneralCost:
 
     def __repr__(self):
         return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r})"
+
+
+def _param(leaf):
+    """A leaf of GeneralCost.params as an array of numbers (checked here, not inside the solver)."""
+    if isinstance(leaf, jax.core.Tracer):
+        return leaf
+    arr = np.asarray(leaf) if not isinstance(leaf, jax.Array) else leaf
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"GeneralCost params must be a pytree of numeric arrays; got a leaf {leaf!r} of dtype {arr.dtype}")
+    return jnp.asarray(leaf)
 
 
 jax.tree_util.register_pytree_node(
@@ -97,7 +107,9 @@ class Problem:
         x0: [n] initial state.
         dt: time step (s).
         horizon: K, the number of control steps (final time K dt).
-        delay_steps: l >= 0, the input delay in steps (tau = l dt).
+        delay_steps: 0 <= l < K, the input delay in steps (tau = l dt). l >= K is refused: no
+            command would act within the horizon (the LQG layer, ``lqg.DelayedLQG``, keeps
+            accepting it as the reference case of its tests).
         cost: a :class:`QuadraticCost` or :class:`GeneralCost`.
         noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1),
             dx = f dt + F dw: one step adds ``sqrt(dt) F xi``, xi ~ N(0, I_p), so its covariance is
@@ -130,10 +142,18 @@ class Problem:
         self.dt = _validate.positive_float(dt, "dt")
         self.horizon = _validate.positive_int(horizon, "horizon")
         self.delay_steps = _validate.delay_steps(delay_steps)
+        if self.delay_steps >= self.horizon:
+            raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
+                             f"l >= K no command ever acts; got delay_steps={self.delay_steps}, "
+                             f"horizon={self.horizon}")
         x0 = _validate.array(x0, "x0", (None,))
         nx = x0.shape[0]
         if isinstance(cost, QuadraticCost):
-            P = _validate.symmetric_psd(_validate.array(cost.P, "cost.P", (nx, nx)), "cost.P", definite=False)
+            P = _validate.array(cost.P, "cost.P", (None, None))
+            if P.shape != (nx, nx):
+                raise ValueError(f"cost.P must have shape ({nx}, {nx}) to match x0 of shape ({nx},); "
+                                 f"got shape {P.shape}")
+            P = _validate.symmetric_psd(P, "cost.P", definite=False)
             Q = _validate.array(cost.Q, "cost.Q", (None, None))
             nd_cost = Q.shape[0]
             Q = _validate.symmetric_psd(_validate.array(Q, "cost.Q", (nd_cost, nd_cost)), "cost.Q", definite=True)
@@ -148,8 +168,7 @@ class Problem:
         nd = _resolve_n_controls(n_controls, nd_cost, u_min, u_max)
         self.n_controls = nd
         self.x0, self.cost = jnp.asarray(x0), cost
-        self.u_min, self.u_max = _limits(u_min, u_max, nd)
-        self._has_limits = bool(np.any(np.isfinite(self.u_min)) or np.any(np.isfinite(self.u_max)))
+        self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
         self._check_callables()
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -181,6 +200,10 @@ class Problem:
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
                       metadata=self.metadata)
         fields.update(changes)
+        x0 = changes.get("x0")
+        if x0 is not None and "cost" not in changes and np.shape(x0) != (self.n_states,):
+            raise ValueError(f"x0 must have shape ({self.n_states},), the problem's state size; got shape "
+                             f"{np.shape(x0)}")
         return Problem(**fields)
 
     def _check_callables(self):
@@ -192,6 +215,9 @@ class Problem:
             raise ValueError(f"dynamics(x, u, ud) failed on x of shape ({nx},) and u, ud of shape ({nd},): {exc}") from exc
         if getattr(out, "shape", None) != (nx,):
             raise ValueError(f"dynamics(x, u, ud) must return shape ({nx},); got {getattr(out, 'shape', type(out))}")
+        if not jnp.issubdtype(out.dtype, jnp.floating):
+            raise ValueError(f"dynamics(x, u, ud) must return floating-point values (autodiff needs them); "
+                             f"got dtype {out.dtype}")
         if self.noise is not None:
             try:
                 out = jax.eval_shape(self.noise, x, u, u)
@@ -200,6 +226,8 @@ class Problem:
             shape = getattr(out, "shape", None)
             if shape is None or len(shape) != 2 or shape[0] != nx:
                 raise ValueError(f"noise(x, u, ud) must return shape ({nx}, p); got {shape}")
+            if not jnp.issubdtype(out.dtype, jnp.floating):
+                raise ValueError(f"noise(x, u, ud) must return floating-point values; got dtype {out.dtype}")
         for what, fn, args in (("cost.running(x, u)", self.cost.running, (x, u)), ("cost.final(x)", self.cost.final, (x,))):
             try:
                 out = jax.eval_shape(fn, *args)
@@ -229,17 +257,30 @@ def _resolve_n_controls(n_controls, nd_cost, u_min, u_max) -> int:
     return next(iter(candidates.values()))
 
 
+def _limit(value, name, nd, default):
+    """A limit as a [d] array: None, a scalar (every command) or shape (d,)."""
+    if value is None:
+        return np.full(nd, default)
+    shape = (nd,) if np.ndim(value) else ()
+    arr = _validate.array(value, name, shape, finite=False)
+    if isinstance(arr, jax.core.Tracer):
+        return jnp.broadcast_to(arr, (nd,))
+    return np.broadcast_to(arr, (nd,)).copy()
+
+
 def _limits(u_min, u_max, nd):
-    lo = np.full(nd, -np.inf) if u_min is None else np.broadcast_to(
-        _validate.array(u_min, "u_min", (None,) * np.ndim(u_min), finite=False), (nd,)).copy()
-    hi = np.full(nd, np.inf) if u_max is None else np.broadcast_to(
-        _validate.array(u_max, "u_max", (None,) * np.ndim(u_max), finite=False), (nd,)).copy()
+    """(u_min [d], u_max [d], has_limits). Concrete limits are checked here, in NumPy (under
+    ``jit`` a ``jnp`` array made from them is a tracer already); traced ones (a ``vmap`` over
+    limits) cannot be, and count as limits."""
+    lo, hi = _limit(u_min, "u_min", nd, -np.inf), _limit(u_max, "u_max", nd, np.inf)
+    if isinstance(lo, jax.core.Tracer) or isinstance(hi, jax.core.Tracer):
+        return jnp.asarray(lo), jnp.asarray(hi), True
     for name, lim in (("u_min", lo), ("u_max", hi)):
         if np.any(np.isnan(lim)):
             raise ValueError(f"{name} must not contain NaN; got {lim}")
     if np.any(lo >= hi):
         raise ValueError(f"u_min must be below u_max in every component; got u_min={lo}, u_max={hi}")
-    return jnp.asarray(lo), jnp.asarray(hi)
+    return jnp.asarray(lo), jnp.asarray(hi), bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
 
 
 def _problem_flatten(p: Problem):

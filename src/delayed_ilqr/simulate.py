@@ -25,7 +25,7 @@ smaller variance than either cost).
 from __future__ import annotations
 
 import math
-import numbers
+import os
 from functools import partial
 from typing import NamedTuple
 
@@ -41,7 +41,7 @@ from .problem import Problem
 from .solution import Policy
 from .statistics import Summary, summarize
 
-__all__ = ["simulate", "Runs"]
+__all__ = ["simulate", "memory_estimate", "check_memory", "Runs"]
 
 
 class Runs(NamedTuple):
@@ -134,6 +134,39 @@ def _check_policy(problem: Problem, policy) -> Policy:
     return Policy(*(jnp.asarray(a, jnp.float64) for a in checked))
 
 
+# The largest share of the machine's memory one Monte Carlo may plan to hold: the trials, their
+# noise samples and the copies the caller makes of them (np.asarray of the results) must fit.
+MEMORY_FRACTION = 0.5
+
+
+def memory_estimate(problem: Problem, n_trials: int, substeps: int = 1) -> int:
+    """Bytes :func:`simulate` holds for ``n_trials`` trials: states [N, K+1, n], commands [N, K, d],
+    costs [N] and the noise samples [N, K, substeps, p], in float64."""
+    K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
+    return 8 * int(n_trials) * ((K + 1) * nx + K * nd + 1 + K * int(substeps) * p)
+
+
+def _available_memory() -> int:
+    device = jax.devices()[0]
+    stats = device.memory_stats() if device.platform != "cpu" else None
+    if stats and stats.get("bytes_limit"):
+        return int(stats["bytes_limit"])
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str = "n_trials") -> None:
+    """Raises ValueError, with the figures, when ``n_trials`` trials would need more than
+    MEMORY_FRACTION of the memory of the machine (or of the accelerator)."""
+    need, have = memory_estimate(problem, n_trials, substeps), _available_memory()
+    if need > MEMORY_FRACTION * have:
+        per_trial = memory_estimate(problem, 1, substeps)
+        fit = max(1, int(MEMORY_FRACTION * have // per_trial))
+        raise ValueError(f"{what}={n_trials} trials would hold about {need / 1e9:.3g} GB of trajectories and noise "
+                         f"({per_trial} bytes per trial), more than {MEMORY_FRACTION:g} of the {have / 1e9:.3g} GB "
+                         f"of this machine; run at most {fit} trials per call (several calls with different "
+                         "seeds) and pool their statistics")
+
+
 def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1) -> Runs:
     """Monte Carlo of ``problem``'s stochastic plant under the delayed feedback law of ``policy``.
 
@@ -157,16 +190,15 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     Raises:
         TypeError, ValueError: naming the argument, for a wrong problem or policy type, a policy
             whose shapes do not match the problem, a non-positive ``n_trials`` / ``substeps``, or
-            a seed that is not a non-negative integer.
+            a seed that is not a non-negative integer; ValueError when the trials would not fit
+            in memory (:func:`check_memory`, before anything is computed).
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
     _precision.require_x64("simulate")
     n_trials = _validate.positive_int(n_trials, "n_trials")
     substeps = _validate.positive_int(substeps, "substeps")
-    if isinstance(seed, bool) or not isinstance(seed, (numbers.Integral, np.integer)):
-        raise TypeError(f"seed must be a non-negative integer; got {seed!r}")
-    if not 0 <= seed < 2 ** 63:
-        raise ValueError(f"seed must be a non-negative integer below 2**63; got {seed!r}")
+    seed = _validate.seed(seed)
     policy = _check_policy(problem, policy)
-    return _simulate(problem, policy, n_trials, substeps, jax.random.PRNGKey(int(seed)))
+    check_memory(problem, n_trials, substeps)
+    return _simulate(problem, policy, n_trials, substeps, jax.random.PRNGKey(seed))

@@ -43,6 +43,12 @@ class Status(enum.IntEnum):
     NON_FINITE_ROLLOUT = 4
     NON_FINITE_INITIAL = 5
 
+    def __str__(self) -> str:         # print(sol.status) and f"{status}" show the name, not the code
+        return self.name
+
+    def __format__(self, spec: str) -> str:
+        return format(self.name, spec)
+
     @property
     def converged(self) -> bool:
         return self in (Status.CONVERGED_GRADIENT, Status.CONVERGED_COST)
@@ -95,7 +101,8 @@ class Solution(NamedTuple):
         x: [K+1, n] nominal states; u: [K, d] nominal commands.
         cost: eq. (2) on the nominal, noise-free trajectory.
         expected_cost: J(0) of the last LQG approximation (noise terms included).
-        status: an integer :class:`Status` code (an array when the solve was vmapped).
+        status: the :class:`Status` (an IntEnum: prints as its name, compares as its code); an
+            int32 array of codes when the solve was traced (``jit``, ``vmap``).
         iterations: number of iterations run.
         policy: the :class:`Policy` (nominal trajectory and gains at the returned nominal).
         trace: the :class:`Trace`.

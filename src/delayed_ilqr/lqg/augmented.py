@@ -13,7 +13,7 @@ import jax.numpy as jnp
 
 from .. import _precision
 from .gains import unconstrained_gains
-from .model import DelayedLQG, Gains, Value, merged_if_undelayed
+from .model import DelayedLQG, Gains, Value, checked_entry, merged_if_undelayed
 
 __all__ = ["augment", "augmented_scan", "augmented_backward_pass"]
 
@@ -72,9 +72,13 @@ def _augmented_step(carry, data, *, reg, gains_fn):
     return carry, (I, Kz) + carry[:3]
 
 
-@jax.jit
 def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     """The state-augmentation reference: same problem, same return types as :func:`backward_pass`."""
+    return _augmented_backward_pass(lqg, checked_entry(lqg, reg, "lqg.augmented_backward_pass"))
+
+
+@jax.jit
+def _augmented_backward_pass(lqg: DelayedLQG, reg):
     _precision.require_x64("lqg.augmented_backward_pass")   # at tracing, which float32 always causes
     return augmented_scan(lqg, reg)
 

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from .. import _precision, _validate
 from ..ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_law
 from .augmented import augment
-from .model import DelayedLQG, Gains, merged_if_undelayed
+from .model import DelayedLQG, Gains, checked_entry, merged_if_undelayed
 
 __all__ = ["policy_cost", "simulate_lqg", "LQGRuns", "checked_gains"]
 
@@ -74,6 +74,7 @@ def policy_cost(lqg: DelayedLQG, gains: Gains) -> jax.Array:
     Cost O(K (n + l d)^3): a reference, not a hot path.
     """
     _precision.require_x64("lqg.policy_cost")
+    checked_entry(lqg, 0.0, "lqg.policy_cost")
     return _policy_cost(lqg, checked_gains(lqg, gains))
 
 
@@ -121,5 +122,7 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
 def simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, seed: int = 0) -> LQGRuns:
     """Monte Carlo of the linear delayed system (3) under ``gains``, vectorised over trials."""
     _precision.require_x64("lqg.simulate_lqg")
+    checked_entry(lqg, 0.0, "lqg.simulate_lqg")
     n_trials = _validate.positive_int(n_trials, "n_trials")
+    seed = _validate.seed(seed)
     return _simulate_lqg(lqg, checked_gains(lqg, gains), n_trials, jax.random.PRNGKey(seed))

@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import _precision, _validate
 
-__all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models", "merged_if_undelayed",
+__all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models", "merged_if_undelayed", "checked_entry",
            "stacked_dynamics", "idle_stage"]
 
 
@@ -250,3 +250,10 @@ def idle_stage(stage: Stage) -> Stage:
     return zero._replace(A=jnp.eye(stage.A.shape[0], dtype=stage.A.dtype),
                          E=jnp.eye(stage.E.shape[0], dtype=stage.E.dtype))
 
+
+def checked_entry(lqg, reg, where: str):
+    """The checks of the public LQG entry points: ``lqg`` a :class:`DelayedLQG`, ``reg`` a finite
+    lambda >= 0 (a traced one passes as it is); returns ``reg``."""
+    if not isinstance(lqg, DelayedLQG):
+        raise TypeError(f"{where}: lqg must be a delayed_ilqr.lqg.DelayedLQG; got {type(lqg).__name__}")
+    return _validate.reg(reg)

@@ -30,7 +30,7 @@ from .._kernels.scan import Blocks, packed_scan
 from . import r_update
 from .frame import SlotGains, from_slots, slot_offsets, value_blocks
 from .gains import unconstrained_gains
-from .model import DelayedLQG, Gains, Stage, StepModels, Value, idle_stage, stored_models
+from .model import DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, idle_stage, stored_models
 
 __all__ = ["ValueCarry", "Prediction", "structured_scan", "structured_slot_scan", "backward_pass"]
 
@@ -394,7 +394,6 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
     return SlotGains(*out[:2]), out[2:], value.ok
 
 
-@jax.jit
 def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
     """Theorem 1: the optimal delayed policy (6) and the value function (7), structured.
 
@@ -407,6 +406,11 @@ def backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
         (gains, value). ``value.expected_cost`` is J(0). If some H_k + reg I is not positive
         definite, ``value.positive_definite`` is False and the gains hold NaN from that step back.
     """
+    return _backward_pass(lqg, checked_entry(lqg, reg, "lqg.backward_pass"))
+
+
+@jax.jit
+def _backward_pass(lqg: DelayedLQG, reg):
     _precision.require_x64("lqg.backward_pass")   # at tracing, which float32 always causes
     gains, out, ok = structured_scan(lqg, reg, store_value=True)
     # out = (s_tilde, s, S, r, Rt, R) for k = 0..K-1; J(K) is the final cost, with no pending blocks

@@ -43,10 +43,14 @@ def delay_to_steps(delay, dt, name: str = "delay") -> int:
     if not math.isfinite(tau) or tau < 0:
         raise ValueError(f"{name} must be a non-negative finite number of seconds; got {delay!r}")
     steps = tau / dt
+    if not math.isfinite(steps):
+        raise ValueError(f"{name} must be a finite number of steps of dt={dt!r} s; got {tau!r} s")
     whole = round(steps)
-    if abs(steps - whole) > _STEP_RTOL * max(1.0, abs(steps)):
+    # a float32 delay carries its own rounding: 0.03 in float32 is 0.029999999329 (3 steps)
+    rtol = max(_STEP_RTOL, 4 * float(np.finfo(delay.dtype).eps)) if isinstance(delay, np.floating) else _STEP_RTOL
+    if abs(steps - whole) > rtol * max(1.0, abs(steps)):
         raise ValueError(f"{name} must be a whole number of steps of dt={dt!r} s; "
-                         f"got {tau!r} s ({steps:.6g} steps)")
+                         f"got {tau!r} s ({steps:.10g} steps)")
     return int(whole)
 
 
@@ -82,13 +86,7 @@ def positive(value, name: str) -> float:
 
 
 def non_negative(value, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a non-negative finite number; got {value!r}") from None
-    if isinstance(value, bool) or not math.isfinite(v) or v < 0:
-        raise ValueError(f"{name} must be a non-negative finite number; got {value!r}")
-    return v
+    return _validate.non_negative_float(value, name)
 
 
 def flag(value, name: str) -> bool:
