@@ -66,52 +66,29 @@ def grad_norm(gains: SlotGains, us):
     return jnp.mean(jnp.max(jnp.abs(gains.feedforward) / (jnp.abs(us) + 1.0), axis=1))
 
 
-# Below this lambda the regularised step is taken for the (projected) Newton step of the LQG
-# model: the gradient test and the cost tests count as convergence only there (Tassa's 1e-5).
-NEWTON_REG = 1e-5
-
-
-def first_order(o: Options, bp: BackwardPass, reg, merit_now):
-    """The first-order certificate every convergence status requires.
-
-    With lambda < NEWTON_REG the feedforward is the (box-projected) Newton step of the LQG model,
-    and its full step (alpha = 1) promises the merit reduction -(a + b) = g' H^-1 g / 2 (the
-    squared Newton decrement over two, projected with the limits): the model's first-order
-    optimality measure. The certificate is: H + lambda I positive definite, lambda < NEWTON_REG
-    and that promise below tol_cost |merit|. A large lambda or tiny step sizes make every promise
-    small, so neither can end a solve as converged (issue 22, item 8).
-    """
-    newton = -(bp.predicted[0] + bp.predicted[1])
-    return bp.positive_definite & (reg < NEWTON_REG) & (newton < o.tol_cost * jnp.abs(merit_now))
-
-
 class _Search(NamedTuple):
     searched: jax.Array          # bool: the line search ran
-    flat: jax.Array              # bool: the model predicts too little to search (and is certified)
-    promise_small: jax.Array     # bool: it predicts too little, certified or not
+    flat: jax.Array              # bool: the model predicts too little to search
     model_best: jax.Array        # the model's best reduction over the alphas
     outcome: LineSearch
 
 
-def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search,
-            certified) -> _Search:
+def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search) -> _Search:
     """The line search, where ``may_search`` and the model predicts enough; else :func:`no_step`.
 
     Without noise, a model that promises less than tol_cost |cost| for every alpha ends the solve
-    before the line search (crocoddyl's stopping test) when :func:`first_order` certifies it: the
-    step it would find is one the solver does not take (``small`` in :func:`_iteration`;
-    docs/performance.md#tol_cost).
+    before the line search (crocoddyl's stopping test): the step it would find is one the solver
+    does not take (``small`` in :func:`_iteration`; docs/performance.md#tol_cost).
     """
     alphas = jnp.asarray(o.alphas)
     model_best = jnp.max(-(alphas * bp.predicted[0] + alphas ** 2 * bp.predicted[1]))
-    promise_small = bp.positive_definite & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) \
+    flat = bp.positive_definite & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) \
         & (problem.noise is None)
-    flat = promise_small & certified
     search = may_search & ~flat
     ls = jax.lax.cond(search, lambda: line_search(problem, bp.gains, bp.S, st.xs, st.us, merit_now, o.alphas, o.z_min,
                                                       bp.predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
-    return _Search(search, flat, promise_small, model_best, ls)
+    return _Search(search, flat, model_best, ls)
 
 
 def _stop_status(o: Options, converged, small, accept, reg, all_non_finite, pd, it):
@@ -148,21 +125,15 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     pd = bp.positive_definite
     running = st.status == _RUNNING
     gnorm = grad_norm(bp.gains, st.us)
-    converged = pd & (gnorm < o.tol_grad) & (st.reg < NEWTON_REG)
+    converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, bp.S, st.xs)[1]
-    certified = first_order(o, bp, st.reg, merit_now)
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
-    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd, certified)
+    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd)
     ls = s.outcome
     accept = s.searched & ls.accepted
     reg, dreg = regularization.update(st.reg, st.dreg, accept, converged | s.flat, o)
-    small_step = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
-    small = small_step & certified
-    # a cost test met under a large lambda (a shortened gradient step, not a Newton step) is
-    # confirmed or refuted by the next pass at lambda = 0
-    confirm = (s.promise_small | small_step) & (st.reg >= NEWTON_REG)
-    reg, dreg = jnp.where(confirm, 0.0, reg), jnp.where(confirm, 1.0, dreg)
+    small = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
     # Without noise a step too small to count is not taken: the cost it would remove is below
     # tol_cost |cost|, the nominal keeps the policy of this iteration's backward pass, and the
     # solve needs no further pass for it. With noise the merit is flat along the cost/noise
