@@ -357,9 +357,10 @@ def test_reaches_a_target_10cm_away(delay, k):
 @pytest.mark.parametrize("k", [1, 5])
 def test_noise_aware_reach_converges_with_delay(k):
     # signal-dependent noise enters the backward pass; with lambda on the feedforward only and F
-    # frozen at the nominal's states, the merit (cost + sum c'S c) is one function per iteration
+    # frozen at the nominal's states, the merit (cost + sum c'S c) is one function per iteration.
+    # sigma_u = 0.1, ten times the calibrated default, so that the noise cost dominates the merit
     target = models.center_out_targets()[k]
-    p = models.arm2_muscle6(delay=0.05, target=target, noise=True)
+    p = models.arm2_muscle6(delay=0.05, target=target, noise=True, sigma_u=0.1)
     sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
     assert delayed_ilqr.Status(int(sol.status)).converged, delayed_ilqr.Status(int(sol.status)).message
     n = int(sol.iterations)
