@@ -16,7 +16,7 @@ from delayed_ilqr.problem import Problem
 __all__ = ["direct_optimum"]
 
 
-def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10) -> float:
+def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10, u_init=None) -> float:
     """The cost (2) of the best command sequence L-BFGS-B finds, within ``problem``'s limits.
 
     L-BFGS-B's ftol test has an absolute floor of 1, and motor-task costs are ~1e-4, so the
@@ -24,6 +24,7 @@ def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10
     restart improves the cost by less than ``rtol`` (relative) or ``max_restarts`` are used. With
     tight limits a single run stops early (its limited-memory Hessian is poor where the active
     set changes): on the arm at +-2 N m and 30 ms, 3 runs end 1% above the optimum, 10 at it.
+    ``u_init`` ([K, d], clipped into the limits; default zeros) is the first run's start.
     """
     import scipy.optimize  # lazy: SciPy is a test dependency
 
@@ -36,7 +37,7 @@ def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10
     fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
     lower, upper = (np.tile(np.asarray(b), K) for b in (problem.u_min, problem.u_max))
     bounds = list(zip(np.where(np.isfinite(lower), lower, None), np.where(np.isfinite(upper), upper, None)))
-    u = np.clip(np.zeros(K * nd), lower, upper)
+    u = np.clip(np.zeros(K * nd) if u_init is None else np.asarray(u_init, float).ravel(), lower, upper)
     best = float(fun(jnp.asarray(u)))
     for _ in range(max_restarts):
         scale = 1.0 / best
