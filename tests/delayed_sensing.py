@@ -187,13 +187,3 @@ class Augmented:
         Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
         return total + np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T))
 
-
-def rel_err(a, b) -> float:
-    """max |a - b| / max |b| (absolute when b is all zero); 0 for empty arrays."""
-    a, b = np.asarray(a), np.asarray(b)
-    assert a.shape == b.shape, (a.shape, b.shape)
-    if a.size == 0:
-        return 0.0
-    scale = float(np.max(np.abs(b)))
-    diff = float(np.max(np.abs(a - b)))
-    return diff / scale if scale > 0 else diff

@@ -6,7 +6,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from delayed_sensing import Augmented, random_problem, rel_err
+from comparisons import WorstDifference, rel_err
+from delayed_sensing import Augmented, random_problem
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,18 +15,8 @@ from delayed_ilqr.lqg import DelayedObservation, delayed_kalman, filter_estimate
 from delayed_ilqr.lqg.estimator import transition_windows
 
 RTOL = 1e-9
-_WORST = {"rel": 0.0, "where": ""}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _report_worst(pytestconfig):
-    yield
-    reporter = pytestconfig.pluginmanager.getplugin("terminalreporter")
-    capture = pytestconfig.pluginmanager.getplugin("capturemanager")
-    if reporter is not None and capture is not None and _WORST["where"]:
-        with capture.global_and_fixture_disabled():
-            reporter.write_line(f"\ntest_estimator: worst delayed-vs-augmented filter relative difference "
-                                f"{_WORST['rel']:.3g} ({_WORST['where']})")
+_WORST = WorstDifference("test_estimator: worst delayed-vs-augmented filter relative difference")
+_report_worst = _WORST.fixture()
 
 
 SHAPES = [  # (K, n, d, m, q, p, l, l_s): l_s in {0, 1, 5, >= K}, with and without motor delay l
@@ -68,8 +59,7 @@ def test_delayed_filter_matches_augmented_kalman(shape, seed):
     errs["x_hat"] = rel_err(x_hat, Zh[:, now])
     errs["x_del"] = rel_err(x_del, Zh[:, late])
     worst = max(errs, key=errs.get)
-    if errs[worst] > _WORST["rel"]:
-        _WORST.update(rel=errs[worst], where=f"{worst}, shape {shape}")
+    _WORST.record(errs[worst], f"{worst}, shape {shape}")
     assert all(e <= RTOL for e in errs.values()), errs
     assert not np.any(np.asarray(fgains.delayed_gain)[:ls]) and not np.any(np.asarray(fgains.current_gain)[:ls])
 

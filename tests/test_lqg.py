@@ -23,23 +23,15 @@ from delayed_ilqr.lqg.frame import from_slots, to_slots
 from delayed_ilqr.lqg.gains import unconstrained_gains
 from delayed_ilqr.lqg.structured import structured_scan, structured_slot_scan
 
+from comparisons import WorstDifference, rel_err   # tests/comparisons.py
+
 RTOL = 1e-9
 GAIN_FIELDS = ("feedforward", "state_feedback", "delay_feedback")
 VALUE_FIELDS = ("s_tilde", "s", "S", "r", "Rt", "R")
 
 # Worst structured-vs-augmented relative difference seen in this module (printed at the end).
-_WORST = {"rel": 0.0, "where": ""}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _report_worst(pytestconfig):
-    yield
-    reporter = pytestconfig.pluginmanager.getplugin("terminalreporter")
-    capture = pytestconfig.pluginmanager.getplugin("capturemanager")
-    if reporter is not None and capture is not None and _WORST["where"]:
-        with capture.global_and_fixture_disabled():
-            reporter.write_line(f"\ntest_lqg: worst structured-vs-augmented relative difference "
-                                f"{_WORST['rel']:.3g} ({_WORST['where']})")
+_WORST = WorstDifference("test_lqg: worst structured-vs-augmented relative difference")
+_report_worst = _WORST.fixture()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -87,16 +79,6 @@ def random_lqg(seed, K, n, d, p, l, **kw) -> DelayedLQG:
     return DelayedLQG(**random_arrays(seed, K, n, d, p, l, **kw))
 
 
-def rel_err(a, b) -> float:
-    """max |a - b| / max |b| (absolute when b is all zero); 0 for empty arrays."""
-    a, b = np.asarray(a), np.asarray(b)
-    assert a.shape == b.shape, (a.shape, b.shape)
-    if a.size == 0:
-        return 0.0
-    scale = float(np.max(np.abs(b)))
-    diff = float(np.max(np.abs(a - b)))
-    return diff / scale if scale > 0 else diff
-
 
 def structured_vs_augmented(lqg, reg=0.0, label=""):
     """Asserts that all gains, all value blocks and J(0) of both passes agree to RTOL."""
@@ -106,8 +88,7 @@ def structured_vs_augmented(lqg, reg=0.0, label=""):
     errs.update({f: rel_err(getattr(vs, f), getattr(va, f)) for f in VALUE_FIELDS})
     errs["J0"] = rel_err(vs.expected_cost, va.expected_cost)
     worst = max(errs, key=errs.get)
-    if errs[worst] > _WORST["rel"]:
-        _WORST.update(rel=errs[worst], where=f"{worst}, {label or repr(lqg)}, reg={reg}")
+    _WORST.record(errs[worst], f"{worst}, {label or repr(lqg)}, reg={reg}")
     assert bool(vs.positive_definite) and bool(va.positive_definite)
     assert all(e <= RTOL for e in errs.values()), errs
     return gs, vs

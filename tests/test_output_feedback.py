@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from delayed_sensing import Augmented, random_problem, rel_err
+from comparisons import WorstDifference, rel_err
+from delayed_sensing import Augmented, random_problem
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -19,23 +20,12 @@ from delayed_ilqr.lqg import (FilterGains, Gains, output_feedback_cost, separati
                               simulate_output_feedback)
 
 RTOL = 1e-9
-_WORST = {"rel": 0.0, "where": ""}
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _report_worst(pytestconfig):
-    yield
-    reporter = pytestconfig.pluginmanager.getplugin("terminalreporter")
-    capture = pytestconfig.pluginmanager.getplugin("capturemanager")
-    if reporter is not None and capture is not None and _WORST["where"]:
-        with capture.global_and_fixture_disabled():
-            reporter.write_line(f"\ntest_output_feedback: worst library-vs-augmented relative difference "
-                                f"{_WORST['rel']:.3g} ({_WORST['where']})")
+_WORST = WorstDifference("test_output_feedback: worst library-vs-augmented relative difference")
+_report_worst = _WORST.fixture()
 
 
 def _record(err, where):
-    if err > _WORST["rel"]:
-        _WORST.update(rel=err, where=where)
+    _WORST.record(err, where)
     return err
 
 

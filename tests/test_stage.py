@@ -17,7 +17,8 @@ from delayed_ilqr.lqg import DelayedLQG, augmented_backward_pass, backward_pass
 from delayed_ilqr.lqg.model import Stage
 from delayed_ilqr.lqg.stage import CostToGo, stage_step
 from delayed_ilqr.lqg.structured import structured_scan
-from test_lqg import random_arrays, rel_err
+from comparisons import rel_err
+from test_lqg import random_arrays
 
 STEP_RTOL = 1e-10              # one step from the same J(k+1): round-off only
 RECURSION_RTOL = 1e-9          # K steps from J(K), as tests/test_lqg.py's RTOL
