@@ -24,7 +24,10 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Optional
 
+import jax.numpy as jnp
 import numpy as np
+
+from .ilqg.linearize import rollout, trajectory_cost
 
 __all__ = ["DIVERGENCE_FACTOR", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "divergence_bound", "diverged_trials",
            "SampleStats", "sample_stats", "Summary", "summarize"]
@@ -47,16 +50,8 @@ def divergence_bound(problem) -> float:
     starts at its target, or blows up by itself), no finite bound is meaningful and only non-finite
     costs count (``inf`` is returned).
     """
-    import jax
-    import jax.numpy as jnp
-
-    u = jnp.zeros(problem.n_controls, problem.x0.dtype)
-
-    def step(x, _):
-        return x + problem.dt * problem.dynamics(x, u, u), problem.dt * problem.cost.running(x, u)
-
-    x_final, running = jax.lax.scan(step, problem.x0, None, length=problem.horizon)
-    rest = float(jnp.sum(running) + problem.cost.final(x_final))
+    us = jnp.zeros((problem.horizon, problem.n_controls), problem.x0.dtype)
+    rest = float(trajectory_cost(problem, rollout(problem, us), us))
     return DIVERGENCE_FACTOR * rest if math.isfinite(rest) and rest > 0 else math.inf
 
 
