@@ -3,13 +3,16 @@ recursion, checked at the LQG level (exactness under clamped gains, structured =
 on the nonlinear problems against a bounded direct method (L-BFGS-B over all commands)."""
 from functools import partial
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.lqg import DelayedLQG, policy_cost
+from delayed_ilqr.lqg import DelayedLQG, Gains, policy_cost
+from delayed_ilqr.ilqg.bounded import bounded_step, linear_plan, model_cost
 from delayed_ilqr.lqg.augmented import augmented_scan
+from delayed_ilqr.lqg.frame import from_slots, to_slots
 from delayed_ilqr.lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
 from delayed_ilqr.lqg.structured import structured_scan
 from delayed_ilqr.models import arm2, point_mass
@@ -132,3 +135,49 @@ def test_limits_that_never_bind_change_nothing():
     np.testing.assert_allclose(np.asarray(wide.u), np.asarray(free.u), rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.asarray(wide.policy.delay_feedback), np.asarray(free.policy.delay_feedback),
                                rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("l", [0, 1, 4])
+def test_model_cost_is_the_exact_cost_of_the_open_loop_plan(l):
+    # ilqg.bounded minimises model_cost; lqg.exact.policy_cost is the independent statement of it
+    K, nd = 9, 2
+    lqg = _random_lqg(K, 3, nd, 0, l, seed=20 + l)
+    du = jnp.asarray(np.random.default_rng(l).normal(size=(K, nd)))
+    open_loop = lambda I: Gains(I, jnp.zeros((K, nd, 3)), jnp.zeros((K, l, nd, nd)))
+    want = policy_cost(lqg, open_loop(du)) - policy_cost(lqg, open_loop(jnp.zeros_like(du)))
+    np.testing.assert_allclose(float(model_cost(lqg, du)), float(want), rtol=1e-10)
+
+
+@pytest.mark.parametrize("method", ["structured", "augmented"])
+@pytest.mark.parametrize("l", [0, 1, 4])
+def test_bounded_step_plans_the_minimiser_over_the_box(l, method):
+    """The law of ``bounded_step`` has as its linear plan the minimiser of the LQG over the box
+    (bounded L-BFGS-B on the model's cost, an independent solve), lies in the box for every alpha,
+    and its expected cost and predicted change are those of the law (``policy_cost``)."""
+    import scipy.optimize
+
+    K, nd = 12, 2
+    lqg = _random_lqg(K, 3, nd, 0, l, seed=30 + l)
+    free_plan = linear_plan(lqg, to_slots(structured_scan(lqg, store_value=False)[0]))
+    rng = np.random.default_rng(l)
+    half = 0.4 * np.max(np.abs(np.asarray(free_plan)), axis=0)
+    shift = rng.uniform(-0.5, 0.5, size=(K, nd)) * half            # nominal not centred in its box
+    lower, upper = jnp.asarray(-half - shift), jnp.asarray(half - shift)
+    gains, expected, ok, (a, b) = bounded_step(lqg, 0.0, lower, upper, jnp.full(nd, 1e-9), method)
+    assert bool(ok)
+    plan = np.asarray(linear_plan(lqg, gains))
+    fun = jax.jit(lambda v: model_cost(lqg, v.reshape(K, nd)))
+    ref = scipy.optimize.minimize(lambda v: float(fun(v)), np.zeros(K * nd), jac=lambda v: np.asarray(jax.grad(fun)(v)),
+                                  method="L-BFGS-B", bounds=list(zip(np.ravel(lower), np.ravel(upper))),
+                                  options=dict(ftol=1e-15, gtol=1e-12, maxiter=10000))
+    at_bound = np.isclose(plan, np.asarray(lower), atol=1e-12) | np.isclose(plan, np.asarray(upper), atol=1e-12)
+    assert at_bound.any() and not at_bound.all()                   # the box binds, not everywhere
+    assert np.all((plan >= np.asarray(lower) - 1e-12) & (plan <= np.asarray(upper) + 1e-12))
+    assert float(fun(jnp.asarray(plan.ravel()))) <= ref.fun + 1e-9 * abs(ref.fun)
+    np.testing.assert_allclose(plan, ref.x.reshape(K, nd), atol=1e-5 * np.max(half))
+    # clamped commands get no feedback; the value and the prediction are the law's
+    feedback = np.asarray(gains.feedback)
+    assert np.all(feedback[at_bound] == 0.0)
+    exact = float(policy_cost(lqg, from_slots(gains, 3)))
+    np.testing.assert_allclose(float(expected), exact, rtol=1e-10)
+    np.testing.assert_allclose(float(a + b), exact - float(jnp.sum(lqg.d_tilde)), rtol=1e-9)

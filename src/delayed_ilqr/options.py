@@ -30,8 +30,10 @@ class Options:
         reg_min, reg_max, reg_factor: Tassa's schedule (lambda below reg_min is set to 0; the
             solve stops when lambda exceeds reg_max).
         z_min: minimal accepted ratio of actual to expected reduction, in [0, 1).
-        limit_margin: with control limits, commands whose nominal lies at a bound or within
-            limit_margin * (u_max - u_min) of one get no feedback (see ``lqg.gains.boxed_gains``).
+        limit_margin: with control limits, the width limit_margin * (u_max - u_min) of the
+            epsilon-active set: without noise, that of the projected Newton method on the box
+            (``ilqg.bounded``); with noise, commands whose nominal lies that close to a bound get
+            no feedback (``lqg.gains.boxed_gains``).
 
     A convergence status (``Status.converged``) is reported only at a first-order point of the LQG
     model: lambda < 1e-5 (the step is the Newton step, projected with the limits) and, for

@@ -14,6 +14,7 @@ from ..lqg.frame import SlotGains, to_slots
 from ..lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
 from ..lqg.structured import structured_slot_scan
 from ..problem import Problem
+from .bounded import bounded_step
 from .line_search import predicted_change
 from .linearize import linearize, step_models
 
@@ -45,11 +46,18 @@ def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) ->
     is never stored) and predicts (a, b) as it goes. The augmented reference linearises into a
     stored model and predicts by ``line_search.predicted_change``.
 
-    With control limits the feedforward of each step solves a box QP with bounds on du_k
-    (u_min - u_k, u_max - u_k), and clamped commands get no feedback (``lqg.gains.boxed_gains``, margin
+    With control limits and no noise the law's plan minimises the LQG over the box
+    u_min - u_k <= du_k <= u_max - u_k (``ilqg.bounded``: projected Newton, epsilon-active set of
+    width ``limit_margin`` (u_max - u_min)); with limits and noise the feedforward of each step
+    solves its own box QP and clamped commands get no feedback (``lqg.gains.boxed_gains``, margin
     ``limit_margin``). With noise, lambda regularises the feedforward only
     (``lqg.gains.unregularized_feedback``).
     """
+    if problem.has_limits and problem.noise is None:
+        lqg = linearize(problem, xs, us)
+        gains, expected_cost, ok, predicted = bounded_step(lqg, reg, problem.u_min - us, problem.u_max - us,
+                                                           limit_margin * (problem.u_max - problem.u_min), method)
+        return BackwardPass(gains, None, expected_cost, ok, predicted)
     kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:
         kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 from .._kernels.dense import cholesky_solve
 from .boxqp import box_qp, free_solve
 
-__all__ = ["unconstrained_gains", "boxed_gains", "unregularized_feedback"]
+__all__ = ["unconstrained_gains", "boxed_gains", "clamped_gains", "unregularized_feedback"]
 
 
 def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
@@ -56,6 +56,23 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     Kfb = free_solve(H_reg, qp.free & (lower < -eps) & (upper > eps), G)
     ok = (qp.status != -1) & jnp.all(jnp.isfinite(Kfb)) & jnp.all(jnp.isfinite(I))
     return ok, I, Kfb
+
+
+def clamped_gains(H, reg, g, G, bounds, warm=None):
+    """The minimiser with some commands held fixed: ``bounds = (lower, upper)`` [d] marks command i
+    as fixed at du_i = lower_i where lower_i == upper_i, and free where they differ (the free
+    commands are not bounded). The free part is the Newton solve of the reduced quadratic,
+    I_f = -(H_ff + reg I)^{-1} (g + H du_c)_f, and only free commands get feedback (rows of L and of
+    every M^i are zero for the fixed ones). ``warm`` is unused. The bounded solver's projected
+    Newton method (``ilqg.bounded``) passes its active set this way.
+    """
+    lower, upper = bounds
+    fixed = lower == upper
+    H_reg = H + reg * jnp.eye(H.shape[0], dtype=H.dtype)
+    held = jnp.where(fixed, lower, 0.0)
+    I = held + free_solve(H_reg, ~fixed, g + H_reg @ held)
+    Kfb = free_solve(H_reg, ~fixed, G)
+    return jnp.all(jnp.isfinite(Kfb)) & jnp.all(jnp.isfinite(I)), I, Kfb
 
 
 def unregularized_feedback(gains_fn):
