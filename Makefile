@@ -29,6 +29,7 @@ $(BENCH_STAMP): $(STAMP)
 bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/run.py
 	$(BIN)/python benchmarks/solve_p1_p2.py
+	$(BIN)/python benchmarks/bounded.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache .hypothesis

@@ -137,7 +137,7 @@ def test_limits_that_never_bind_change_nothing():
                                rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.parametrize("l", [0, 1, 4])
+@pytest.mark.parametrize("l", [0, 3])
 def test_model_cost_is_the_exact_cost_of_the_open_loop_plan(l):
     # ilqg.bounded minimises model_cost; lqg.exact.policy_cost is the independent statement of it
     K, nd = 9, 2
@@ -145,11 +145,11 @@ def test_model_cost_is_the_exact_cost_of_the_open_loop_plan(l):
     du = jnp.asarray(np.random.default_rng(l).normal(size=(K, nd)))
     open_loop = lambda I: Gains(I, jnp.zeros((K, nd, 3)), jnp.zeros((K, l, nd, nd)))
     want = policy_cost(lqg, open_loop(du)) - policy_cost(lqg, open_loop(jnp.zeros_like(du)))
-    np.testing.assert_allclose(float(model_cost(lqg, du)), float(want), rtol=1e-10)
+    np.testing.assert_allclose(float(jax.jit(model_cost)(lqg, du)), float(want), rtol=1e-10)
 
 
 @pytest.mark.parametrize("method", ["structured", "augmented"])
-@pytest.mark.parametrize("l", [0, 1, 4])
+@pytest.mark.parametrize("l", [0, 3])
 def test_bounded_step_plans_the_minimiser_over_the_box(l, method):
     """The law of ``bounded_step`` has as its linear plan the minimiser of the LQG over the box
     (bounded L-BFGS-B on the model's cost, an independent solve), lies in the box for every alpha,
@@ -158,16 +158,19 @@ def test_bounded_step_plans_the_minimiser_over_the_box(l, method):
 
     K, nd = 12, 2
     lqg = _random_lqg(K, 3, nd, 0, l, seed=30 + l)
-    free_plan = linear_plan(lqg, to_slots(structured_scan(lqg, store_value=False)[0]))
+    plan_of = jax.jit(linear_plan)
+    free_plan = plan_of(lqg, to_slots(structured_scan(lqg, store_value=False)[0]))
     rng = np.random.default_rng(l)
     half = 0.4 * np.max(np.abs(np.asarray(free_plan)), axis=0)
     shift = rng.uniform(-0.5, 0.5, size=(K, nd)) * half            # nominal not centred in its box
     lower, upper = jnp.asarray(-half - shift), jnp.asarray(half - shift)
-    gains, expected, ok, (a, b) = bounded_step(lqg, 0.0, lower, upper, jnp.full(nd, 1e-9), method)
+    step = jax.jit(bounded_step, static_argnames="method")
+    gains, expected, ok, (a, b) = step(lqg, 0.0, lower, upper, jnp.full(nd, 1e-9), method=method)
     assert bool(ok)
-    plan = np.asarray(linear_plan(lqg, gains))
+    plan = np.asarray(plan_of(lqg, gains))
     fun = jax.jit(lambda v: model_cost(lqg, v.reshape(K, nd)))
-    ref = scipy.optimize.minimize(lambda v: float(fun(v)), np.zeros(K * nd), jac=lambda v: np.asarray(jax.grad(fun)(v)),
+    grad = jax.jit(jax.grad(lambda v: model_cost(lqg, v.reshape(K, nd))))
+    ref = scipy.optimize.minimize(lambda v: float(fun(v)), np.zeros(K * nd), jac=lambda v: np.asarray(grad(v)),
                                   method="L-BFGS-B", bounds=list(zip(np.ravel(lower), np.ravel(upper))),
                                   options=dict(ftol=1e-15, gtol=1e-12, maxiter=10000))
     at_bound = np.isclose(plan, np.asarray(lower), atol=1e-12) | np.isclose(plan, np.asarray(upper), atol=1e-12)
