@@ -42,9 +42,8 @@ from .line_search import predicted_change
 __all__ = ["linear_plan", "plan_feedforward", "model_cost", "bounded_step"]
 
 # Projected Newton on the QP: iterations per backward pass of the solver, and the step sizes of its
-# arc search, down to 1e-12 (the arc's descent is guaranteed only for small steps, and J costs one
-# linear rollout, so many are cheap; with the solver's 11 down to 1e-3 the search stopped short of
-# the minimiser on the arm, docs/derivation.md §15).
+# arc search, down to 1e-12: the projected arc is a descent path only for small enough steps, and J
+# costs one linear rollout, so many are cheap (docs/derivation.md §15 on the solver's own, too few).
 NEWTON_ITERATIONS = 20
 STEP_SIZES = tuple(float(s) for s in 10.0 ** np.linspace(0.0, -12.0, 49))
 _SEARCH, _FINAL, _DONE = 0, 1, 2     # the loop's stages: Newton iterations, the last backward pass, stop
@@ -64,6 +63,7 @@ def _closed_loop(lqg: DelayedLQG, feedback, data, law):
             du_delayed = jnp.zeros_like(du) if du_delayed is None else du_delayed
             return matmul(Z, jnp.concatenate([dx, du, du_delayed])), du, out
 
+        # du is chosen already: the step applies it as a feedforward, without feedback
         return closed_loop_step(y, slot, SlotGains(du, jnp.zeros_like(F)), plant, nx)
 
     _, outs = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(merged.horizon, l, nd), stacked_dynamics(merged),
