@@ -44,7 +44,7 @@ __all__ = ["linear_plan", "plan_feedforward", "model_cost", "bounded_step"]
 # Projected Newton on the QP: iterations per backward pass of the solver, and the step sizes of its
 # arc search, down to 1e-12: the projected arc is a descent path only for small enough steps, and J
 # costs one linear rollout, so many are cheap (docs/derivation.md §15 on the solver's own, too few).
-NEWTON_ITERATIONS = 20
+NEWTON_ITERATIONS = 60
 STEP_SIZES = tuple(float(s) for s in 10.0 ** np.linspace(0.0, -12.0, 49))
 _SEARCH, _FINAL, _DONE = 0, 1, 2     # the loop's stages: Newton iterations, the last backward pass, stop
 
