@@ -141,11 +141,27 @@ differences are less noisy than either value.
 _DEMO_FILES = """\
 ## Figures
 
-![expected cost and endpoint error against the delay](cost_vs_delay.png)
+![expected cost, endpoint error and endpoint spread against the delay](cost_vs_delay.png)
 
-![hand paths and endpoint spread](hand_paths.png)
+Monte Carlo mean cost with its bootstrap 95 % interval and each controller's predicted E[J]; the
+mean distance of the final hand position from the target; the spread of the final hand positions
+(1-sigma major axis). Compared with: human endpoint scatter of a few millimetres for unseen
+reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This plant has no sensory noise or
+sensory delay, so at no delay its scatter is far smaller (see the note above the figures).
+
+![hand paths, hand speed and endpoints](hand_paths.png)
+
+Top: nominal hand paths (thick) and ten noisy trials (thin). Middle: hand speed against time.
+Bottom: endpoints relative to the target (mm) with 2-sigma ellipses. Compared with: human reaches
+run along nearly straight paths with single-peaked, bell-shaped speed profiles (Morasso 1981, Exp
+Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). The P2 task (benchmark_problems.md)
+weighs effort and the final state only: its paths curve and its speed profile at no delay is
+flat-topped; with delay the delay-aware reach starts one delay late, with a higher, earlier peak.
 
 ![convergence of the solves](convergence.png)
+
+The cost of the nominal at each iteration of every solve (open markers: rejected steps; dashed:
+the noise-aware merit).
 
 ## Files
 
@@ -185,6 +201,15 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
     return "report.md"
 
 
+def _caption(file_name: str) -> str:
+    """The caption of a center-out figure (:data:`delayed_ilqr.plot.CAPTIONS`, by name or prefix)."""
+    from ..plot import CAPTIONS
+    for key, caption in CAPTIONS.items():
+        if file_name == key or file_name.startswith(key + "_"):
+            return caption
+    return ""
+
+
 def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict, table: str,
                             figures: Sequence[str]) -> list[str]:
     """center_out.json (settings and every number) and center_out.md (setting, table, figures)."""
@@ -194,6 +219,8 @@ def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict
              f"{s['targets']} targets at {1e3 * s['radius']:g} mm, {s['trials']} noisy trials per target (sigma_u "
              f"{s['sigma_u']:g}, seed {s['seed']}); designs: {', '.join(s['designs'])}. Study time "
              f"{s['elapsed_seconds']:.1f} s.", "",
-             table, ""] + [f"![{f}]({f})" for f in figures] + [""]
+             table, ""]
+    for f in figures:
+        lines += [f"![{f}]({f})", "", _caption(f), ""]
     (out / "center_out.md").write_text("\n".join(lines))
     return ["center_out.md", "center_out.json"]
