@@ -43,11 +43,16 @@ def test_solve_writes_json_npz_and_figures_consistent_with_the_api(tmp_path):
     target = np.asarray(point_mass().cost.x_target)
     np.testing.assert_allclose(data["endpoint_error"], np.linalg.norm(np.asarray(sol.x[-1, :2]) - target[:2]),
                                rtol=1e-12)
-    with np.load(tmp_path / "solution.npz") as npz:
-        assert npz["x"].shape == (61, 4) and npz["u"].shape == (60, 2)
-        assert npz["state_feedback"].shape == (60, 2, 4) and npz["delay_feedback"].shape == (60, 3, 2, 2)
-        assert npz["trace_cost"].shape == (int(sol.iterations) + 1,)
-        np.testing.assert_allclose(npz["u"], np.asarray(sol.u), rtol=1e-12)
+    saved = di.load(tmp_path / "solution.npz")                # the saved-solution format: it loads back
+    assert saved.x.shape == (61, 4) and saved.policy.delay_feedback.shape == (60, 3, 2, 2)
+    assert saved.status is di.Status(int(sol.status)) and int(saved.iterations) == int(sol.iterations)
+    np.testing.assert_allclose(saved.u, sol.u, rtol=1e-12)
+    np.testing.assert_allclose(saved.trace.cost, sol.trace.cost, rtol=1e-12)
+    meta = di.load_metadata(tmp_path / "solution.npz")
+    assert (meta["dt"], meta["delay_steps"], meta["info"]["model"]) == (0.01, 3, "point_mass")
+    problem = point_mass(delay=0.03, noise=True)
+    np.testing.assert_allclose(di.simulate(problem, saved.policy, 8, seed=2).cost,
+                               di.simulate(problem, sol.policy, 8, seed=2).cost, rtol=1e-10)
     for png in ("trajectories.png", "convergence.png"):
         assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -84,6 +89,9 @@ def test_simulate_summary_matches_a_direct_monte_carlo(tmp_path):
         assert npz["x"].shape == (16, 61, 4) and npz["u"].shape == (16, 60, 2) and npz["cost"].shape == (16,)
         np.testing.assert_allclose(npz["cost"], np.asarray(runs.cost), rtol=1e-12)
         assert npz["delay_feedback"].shape == (60, 3, 2, 2)
+    saved = di.load(tmp_path / "solution.npz")                # the policy that ran, loadable
+    rerun = di.simulate(problem, saved.policy, 16, seed=3)
+    np.testing.assert_allclose(rerun.cost, runs.cost, rtol=1e-12)
     assert (tmp_path / "trajectories.png").exists() and not (tmp_path / "hand_paths.png").exists()
 
 
