@@ -207,6 +207,7 @@ class Problem:
         self.n_controls = nd
         self.x0, self.cost = jnp.asarray(x0), cost
         self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
+        _check_labels(metadata, self.n_states, nd)
         self._check_callables()
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -310,6 +311,15 @@ class Problem:
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
                 f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps})")
+
+
+def _check_labels(metadata, nx: int, nd: int) -> None:
+    """The metadata's labels name every state and command (figures and tables read them)."""
+    for field, size, symbol in (("state_labels", nx, "n"), ("control_labels", nd, "d")):
+        labels = getattr(metadata, field, None)
+        if labels is not None and len(labels) != size:
+            raise ValueError(f"metadata.{field} must have one label per {'state' if symbol == 'n' else 'command'} "
+                             f"({symbol} = {size}); got {len(labels)}: {labels!r}")
 
 
 def _resolve_n_controls(n_controls, nd_cost, u_min, u_max) -> int:
