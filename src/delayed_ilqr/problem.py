@@ -146,7 +146,8 @@ class Problem:
             (covariance ``dt^2 sigma^2 ...``) is ``F`` with sigma_u = sigma sqrt(dt):
             :func:`delayed_ilqr.models.per_step_noise_to_diffusion`. Entered unconverted, it is
             ``1 / sqrt(dt)`` times too large (10x at dt = 10 ms).
-        u_min, u_max: optional [d] box limits on the commands (``-inf``/``inf`` for none).
+        u_min: optional [d] lower limits on the commands (a scalar for all; ``-inf`` for none).
+        u_max: optional [d] upper limits on the commands (a scalar for all; ``inf`` for none).
         n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
         name: a label for reports.
         metadata: optional :class:`~delayed_ilqr.models.ModelMetadata` (labels, task space, warm
