@@ -166,3 +166,56 @@ def test_time_flags_are_checked():
     with pytest.raises(TypeError, match="needs the time t"):
         di.GeneralCost(running, final, PARAMS, time_dependent=True).running(jnp.zeros(4), jnp.zeros(2))
     assert via_problem(0).replace(x0=jnp.ones(4)).time_dependent
+
+
+@pytest.mark.parametrize("delay_steps", [0, 1, 3])
+def test_time_varying_lq_equals_the_dense_optimum(delay_steps):
+    """A linear plant with time-varying A(t), B(t) and drift g(t), and a cost tracking a moving
+    reference r(t): the problem is an LQ problem, so the solver's optimum must equal the dense
+    least-squares solution over all commands, built here with t_k = k dt (no iteration, no library
+    code). l = 1 is the smallest delay with a pending command."""
+    n, d, K, dt = 3, 2, 30, 0.02
+    rng = np.random.default_rng(7 + delay_steps)
+    A0, A1 = rng.normal(size=(n, n)), rng.normal(size=(n, n))
+    B0, B1 = rng.normal(size=(n, d)), rng.normal(size=(n, d))
+    g0 = rng.normal(size=n)
+    Pw, Qw, Pf = np.diag([1.0, 0.5, 2.0]), 0.1 * np.eye(d), np.diag([5.0, 5.0, 1.0])
+
+    def A(t): return A0 + jnp.sin(8 * t) * A1
+    def B(t): return B0 + t * B1
+    def g(t): return g0 * jnp.cos(5 * t)
+    def ref(t): return jnp.array([jnp.sin(6 * t), t, 1.0 - t])
+
+    def f(x, u, ud, t): return A(t) @ x + B(t) @ ud + g(t)
+    def running(x, u, p, t): return (x - ref(t)) @ Pw @ (x - ref(t)) + u @ Qw @ u
+    def final(x, p, t): return (x - ref(t)) @ Pf @ (x - ref(t))
+
+    x0 = rng.normal(size=n)
+    problem = di.Problem(f, x0, dt, K, delay_steps, di.GeneralCost(running, final, time_dependent=True),
+                         n_controls=d, time_dependent=True)
+    sol = di.solve(problem)
+    assert sol.converged, sol.message
+
+    # dense reference: x_k = Phi_k U + x_free_k (U the K d commands), then least squares
+    Ak = [np.eye(n) + dt * np.asarray(A(k * dt)) for k in range(K)]
+    Bk = [dt * np.asarray(B(k * dt)) for k in range(K)]
+    Phi, free = [np.zeros((n, K * d))], [x0]
+    for k in range(K):
+        acting = np.zeros((n, K * d))
+        if k >= delay_steps:
+            j = k - delay_steps
+            acting[:, j * d:(j + 1) * d] = Bk[k]
+        Phi.append(Ak[k] @ Phi[-1] + acting)
+        free.append(Ak[k] @ free[-1] + dt * np.asarray(g(k * dt)))
+    rows, rhs = [], []
+    for k in range(K + 1):
+        W = np.linalg.cholesky(dt * Pw if k < K else Pf).T
+        rows.append(W @ Phi[k])
+        rhs.append(W @ (np.asarray(ref(k * dt)) - free[k]))
+    Wq = np.linalg.cholesky(dt * Qw).T
+    rows.append(np.kron(np.eye(K), Wq))
+    rhs.append(np.zeros(K * d))
+    U = np.linalg.lstsq(np.vstack(rows), np.concatenate(rhs), rcond=None)[0]
+    residual = np.vstack(rows) @ U - np.concatenate(rhs)
+    np.testing.assert_allclose(np.asarray(sol.u).ravel(), U, rtol=1e-8, atol=1e-9 * np.abs(U).max())
+    assert float(sol.cost) == pytest.approx(float(residual @ residual), rel=1e-10)
