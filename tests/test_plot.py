@@ -97,6 +97,20 @@ def test_trajectories_have_one_axis_per_state_and_command(tmp_path, n_show):
     check_png(fig, tmp_path / "trajectories.png")
 
 
+def test_own_plant_labels_come_from_its_metadata():
+    """A user's plant names its states and commands with ModelMetadata (no task space needed);
+    labels of the wrong count are refused when the problem is built."""
+    meta = di.models.ModelMetadata(state_labels=("cart x [m]", "angle [rad]", "cart speed [m/s]", "rate [rad/s]"),
+                                   control_labels=("force fx [N]", "force fy [N]"))
+    problem = point_mass(delay=0.03).replace(name="custom", metadata=meta)
+    x, u = nominal(problem)
+    fig = plot.plot_trajectories(problem, SimpleNamespace(policy=SimpleNamespace(x_nominal=x, u_nominal=u)))
+    assert [ax.get_ylabel() for ax in fig.axes] == list(meta.state_labels + meta.control_labels)
+    short = dataclasses.replace(meta, control_labels=("force [N]",))
+    with pytest.raises(ValueError, match=r"metadata.control_labels must have one label per command \(d = 2\); got 1"):
+        point_mass().replace(metadata=short)
+
+
 def test_trajectories_of_a_generic_model_use_indexed_labels():
     problem = point_mass(delay=0.03).replace(name="custom", metadata=None)
     x, u = nominal(problem)

@@ -37,7 +37,8 @@ from .solution import Policy, Solution, Status, Trace
 from .ilqg.solver import solve
 from .options import Options
 from .simulate import Runs, simulate
+from .saving import load, load_metadata
 
 __all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
-           "Solution", "Policy", "Status", "Trace", "simulate", "Runs"]
+           "Solution", "Policy", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"

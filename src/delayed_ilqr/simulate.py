@@ -5,6 +5,8 @@ Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-
 
     x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
 
+(a time-dependent problem's f and F see each sub-step's own time, k dt + j h)
+
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
 terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the law is the solver's,
 ``ilqg.closed_loop.delayed_law``)::
@@ -77,19 +79,21 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
-        x_bar, u_bar, I, LM, xi = data           # xi: [substeps, p]
+        x_bar, u_bar, I, LM, xi, t = data        # xi: [substeps, p]; t: t_k, None without time
         pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
         du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         ud = sent[m - l] if l > 0 else u
 
-        def substep(x, xi_j):
-            x_new = x + h * problem.dynamics(x, u, ud)
+        def substep(x, sub):
+            xi_j, t_j = sub
+            x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
             if problem.noise is not None:
-                x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
+                x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
             return x_new, None
 
-        x_new, _ = jax.lax.scan(substep, x, xi)
+        t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
+        x_new, _ = jax.lax.scan(substep, x, (xi, t_sub))
         if m > 0:
             sent = jnp.concatenate([sent[1:], u[None]])
             nominal = jnp.concatenate([nominal[1:], u_bar[None]])
@@ -111,7 +115,8 @@ def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, ke
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
         init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
-        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi)
+        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi,
+                problem.step_times(dtype))
         _, (xs, us) = jax.lax.scan(step, init, data)
         xs = jnp.concatenate([problem.x0[None], xs])
         return xs, us, trajectory_cost(problem, xs, us)

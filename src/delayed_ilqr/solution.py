@@ -32,6 +32,12 @@ class Policy(NamedTuple):
     state_feedback: jax.Array
     delay_feedback: jax.Array
 
+    def save(self, path, problem=None, info=None) -> None:
+        """Writes the policy to ``path`` (``.npz`` with a JSON header, :mod:`delayed_ilqr.saving`);
+        ``problem`` (optional) records its dt and delay; :func:`delayed_ilqr.load` reads it back."""
+        from .saving import save
+        save(path, self, problem, info)
+
 
 class Status(enum.IntEnum):
     """Exit statuses of :func:`delayed_ilqr.solve`; ``Status.X.message`` says what to change."""
@@ -116,6 +122,13 @@ class Solution(NamedTuple):
     iterations: jax.Array
     policy: Policy
     trace: Trace
+
+    def save(self, path, problem=None, info=None) -> None:
+        """Writes the solution (nominal, policy, trace, status) to ``path`` (``.npz`` with a JSON
+        header, :mod:`delayed_ilqr.saving`); ``problem`` (optional) records its dt and delay;
+        :func:`delayed_ilqr.load` reads it back."""
+        from .saving import save
+        save(path, self, problem, info)
 
     @property
     def converged(self):

@@ -77,8 +77,9 @@ def center_out_records(results: Sequence) -> list[dict]:
 
 def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, endpoint) -> list[str]:
     """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing) and
-    solution.npz (trajectory, gains, trace); ``timed`` and ``endpoint`` as in
-    :func:`.tables.solve_summary`."""
+    solution.npz (the :class:`~delayed_ilqr.Solution`: trajectory, gains, trace, in the format of
+    :mod:`delayed_ilqr.saving`, so that ``delayed_ilqr.load`` reads it); ``timed`` and
+    ``endpoint`` as in :func:`.tables.solve_summary`."""
     sol, solve_time, first = timed
     status = Status(int(sol.status))
     label, unit, value = endpoint
@@ -88,17 +89,19 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
         message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
         expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
         endpoint_unit=unit, solve_time=solve_time, first_solve_time=first))
-    np.savez_compressed(out / "solution.npz", x=np.asarray(sol.x), u=np.asarray(sol.u), **policy_arrays(sol))
+    sol.save(out / "solution.npz", problem, info=dict(model=model, method=method))
     return ["solution.json", "solution.npz"]
 
 
 def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> list[str]:
-    """The ``simulate`` command's simulate.json (settings and the result's record) and runs.npz
-    (trials, nominal, gains, trace)."""
+    """The ``simulate`` command's simulate.json (settings and the result's record), runs.npz
+    (trials, nominal, gains, trace) and solution.npz (the solution whose policy ran, readable by
+    ``delayed_ilqr.load``)."""
     write_json(out / "simulate.json", dict(settings=settings, result=result.to_dict()))
     np.savez_compressed(out / "runs.npz", x=np.asarray(result.runs.x), u=np.asarray(result.runs.u),
                         cost=np.asarray(result.runs.cost), **policy_arrays(result.solution))
-    return ["simulate.json", "runs.npz"]
+    result.solution.save(out / "solution.npz", result.problem, info=settings)
+    return ["simulate.json", "runs.npz", "solution.npz"]
 
 
 def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, settings: dict, stem: str) -> list[str]:

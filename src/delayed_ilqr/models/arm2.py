@@ -193,7 +193,7 @@ class Arm2Dynamics:
 
 @dataclass(frozen=True)
 class Arm2Noise:
-    """F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)] [4, 2]: torque noise proportional to ud."""
+    """F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], shape [4, 2]: torque noise proportional to ud."""
 
     params: Arm2Params = ARM2_PARAMS
     sigma_u: float = SIGMA_U

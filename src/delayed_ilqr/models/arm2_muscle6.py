@@ -224,10 +224,13 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         x0: [10] initial state; default q = (pi/4, pi/2), dq = 0, a = A_REST (0.05) for all muscles.
         sigma_u: excitation noise, a diffusion scale (used when ``noise``); default 0.01, calibrated
             to human force variability (module docstring).
-        r, w_p, w_v, w_a: cost weights (effort per unit time, final hand position, final hand
-            velocity, final activation); stored in ``cost.params``.
+        r: effort weight per unit time (the cost weights are stored in ``cost.params``).
+        w_p: final hand position weight.
+        w_v: final hand velocity weight.
+        w_a: final activation weight.
         arm: rigid-body parameters (:class:`~delayed_ilqr.models.arm2.Arm2Params`).
-        t_act, t_deact: activation / deactivation time constants in seconds.
+        t_act: activation time constant in seconds.
+        t_deact: deactivation time constant in seconds.
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
