@@ -15,7 +15,10 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    step is not taken, and the line search is not run when the model predicts less than that.
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
-converging iteration's own, or one more pass when the last iteration moved the nominal.
+converging iteration's own, or one more pass when the last iteration moved the nominal. For a
+problem with delayed sensors (``Problem.observation``) the delayed Kalman filter of the
+linearisation at that nominal is added after the loop, and ``expected_cost`` becomes the exact
+cost of the controller on its estimate (``estimation.design_estimator``).
 """
 from __future__ import annotations
 
@@ -35,6 +38,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
+from .estimation import design_estimator
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
 
@@ -168,8 +172,12 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                   ~ok, no_gains, jnp.asarray(jnp.nan), trace)
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
-    policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
-    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
+    gains = from_slots(st.gains, nx)
+    policy, expected_cost = Policy(st.xs, st.us, *gains), st.expected_cost
+    if problem.observation is not None:     # delayed sensors: the filter at the returned nominal
+        estimator, expected_cost = design_estimator(problem, st.xs, st.us, gains)
+        policy = policy._replace(estimator=estimator)
+    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=expected_cost, status=st.status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
