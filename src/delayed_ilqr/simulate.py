@@ -158,9 +158,7 @@ def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, sub
                 x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
             return x_new, None
 
-        x_new, _ = jax.lax.scan(substep, x, xi)
-        if disturbance is not None:
-            x_new = x_new + disturbance
+        x_new = jax.lax.scan(substep, x, xi)[0] + disturbance
         sent = jnp.concatenate([sent[1:], u[None]])
         nominal = jnp.concatenate([nominal[1:], u_bar[None]])
         # the filter moves with the commands actually sent (after clipping)
@@ -172,7 +170,7 @@ def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, sub
 
 
 @partial(jax.jit, static_argnames=("n_trials", "substeps"))
-def _simulate_observed(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance=None) -> Runs:
+def _simulate_observed(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance) -> Runs:
     K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
     est = policy.estimator
     l_p, ls_e, ls = policy.delay_feedback.shape[1], est.sensory_delay, problem.observation.delay_steps
@@ -310,8 +308,9 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
         TypeError, ValueError: naming the argument, for a wrong problem or policy type, a policy
             whose shapes do not match the problem (or a filter without sensors, sensors without a
             filter), a non-positive ``n_trials`` / ``substeps``, a seed that is not a
-            non-negative integer, or a disturbance that is not a finite [K, n] array; ValueError when the trials would not fit
-            in memory (:func:`check_memory`, before anything is computed).
+            non-negative integer, or a disturbance that is not a finite [K, n] array;
+            ValueError when the trials would not fit in memory (:func:`check_memory`, before
+            anything is computed).
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
@@ -323,5 +322,10 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     if disturbance is not None:
         disturbance = jnp.asarray(_validate.array(disturbance, "disturbance", (problem.horizon, problem.n_states)))
     check_memory(problem, n_trials, substeps)
-    run = _simulate if policy.estimator is None else _simulate_observed
-    return run(problem, policy, n_trials, substeps, jax.random.PRNGKey(seed), disturbance)
+    key = jax.random.PRNGKey(seed)
+    if policy.estimator is None:
+        return _simulate(problem, policy, n_trials, substeps, key, disturbance)
+    # with sensors, one compilation serves the runs with and without a disturbance
+    if disturbance is None:
+        disturbance = jnp.zeros((problem.horizon, problem.n_states))
+    return _simulate_observed(problem, policy, n_trials, substeps, key, disturbance)

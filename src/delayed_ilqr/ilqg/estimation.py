@@ -10,6 +10,7 @@ noise included). With additive noise the pair is the optimal output feedback of 
 """
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from ..lqg.estimator import _delayed_kalman, _process_cov
@@ -17,10 +18,10 @@ from ..lqg.model import Gains
 from ..lqg.output_feedback import _output_feedback_cost
 from ..observation import linearized_observation
 from ..problem import Problem
-from ..solution import Estimator
+from ..solution import Estimator, Solution
 from .linearize import linearize
 
-__all__ = ["design_estimator"]
+__all__ = ["design_estimator", "with_estimator", "without_observation"]
 
 
 def design_estimator(problem: Problem, xs, us, gains: Gains):
@@ -37,3 +38,27 @@ def design_estimator(problem: Problem, xs, us, gains: Gains):
     estimator = Estimator(lqg.A, lqg.B0, lqg.B1, obs.H, y_nominal, fgains.delayed_gain, fgains.current_gain,
                           cov.current, sensory_delay=obs.delay_steps)
     return estimator, jnp.asarray(cost)
+
+
+def without_observation(problem: Problem) -> Problem:
+    """The same problem with full-state feedback (a copy that shares every field but the sensors)."""
+    new = object.__new__(Problem)
+    new.__dict__.update(problem.__dict__)
+    new.observation = None
+    return new
+
+
+@jax.jit
+def _with_estimator(problem: Problem, sol: Solution) -> Solution:
+    policy = sol.policy
+    gains = Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback)
+    estimator, cost = design_estimator(problem, sol.x, sol.u, gains)
+    return sol._replace(expected_cost=cost, policy=policy._replace(estimator=estimator))
+
+
+def with_estimator(problem: Problem, sol: Solution) -> Solution:
+    """``sol`` (the full-state solve of ``problem``) with the estimator of ``problem.observation``
+    in its policy and the exact output-feedback cost as ``expected_cost``; the status is kept."""
+    status = sol.status
+    out = _with_estimator(problem, sol._replace(status=jnp.asarray(status)))
+    return out._replace(status=status)

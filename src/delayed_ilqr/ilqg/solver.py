@@ -16,9 +16,10 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal. For a
-problem with delayed sensors (``Problem.observation``) the delayed Kalman filter of the
-linearisation at that nominal is added after the loop, and ``expected_cost`` becomes the exact
-cost of the controller on its estimate (``estimation.design_estimator``).
+problem with delayed sensors (``Problem.observation``) the controller is that of the same problem
+without them (one compiled solver for both), and the delayed Kalman filter of the linearisation
+at the returned nominal is added after it (``estimation.with_estimator``), with ``expected_cost``
+the exact cost of the controller on its estimate.
 """
 from __future__ import annotations
 
@@ -38,7 +39,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
-from .estimation import design_estimator
+from .estimation import with_estimator, without_observation
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
 
@@ -172,12 +173,8 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                   ~ok, no_gains, jnp.asarray(jnp.nan), trace)
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
-    gains = from_slots(st.gains, nx)
-    policy, expected_cost = Policy(st.xs, st.us, *gains), st.expected_cost
-    if problem.observation is not None:     # delayed sensors: the filter at the returned nominal
-        estimator, expected_cost = design_estimator(problem, st.xs, st.us, gains)
-        policy = policy._replace(estimator=estimator)
-    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=expected_cost, status=st.status,
+    policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
+    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
@@ -234,6 +231,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
             raise ValueError(f"u_init must have shape {shape}; got shape {u_init.shape}")
     else:
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
+    if problem.observation is not None:
+        # the controller is designed with the full state; the filter is added to its solution
+        return with_estimator(problem, solve(without_observation(problem), u_init, options))
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return sol._replace(status=Status(int(sol.status)))
