@@ -267,3 +267,24 @@ def test_simulate_refuses_mismatched_policy_and_sensors():
     bad = sol.policy._replace(estimator=sol.policy.estimator.replace(H=np.zeros((40, 2, 4))))
     with pytest.raises(ValueError, match=r"policy.estimator.H must have shape \(40, 4, 4\)"):
         di.simulate(problem, bad, 2)
+
+
+# ------------------------------------------------------------------------------------------------
+# the models' default sensors
+# ------------------------------------------------------------------------------------------------
+
+def test_models_attach_their_default_sensors():
+    from delayed_ilqr.models import arm2_muscle6, sensors
+    assert point_mass().observation is None and arm2().observation is None
+    obs = point_mass(sensory_delay=0.05, dt=0.01).observation
+    assert obs.delay_steps == 5
+    np.testing.assert_allclose(np.diag(obs.G), [0.005, 0.005, 0.05, 0.05], rtol=1e-12)   # the documented SDs at 10 ms
+    # a density: halving dt multiplies the per-sample SD by sqrt 2
+    fine = arm2(sensory_delay=0.05, dt=0.005).observation
+    assert fine.delay_steps == 10
+    np.testing.assert_allclose(np.diag(fine.G), math.sqrt(2) * np.array([0.02, 0.02, 0.2, 0.2]), rtol=1e-12)
+    muscle = arm2_muscle6(sensory_delay=0.0).observation
+    np.testing.assert_array_equal(muscle.H, np.eye(10)[:4])           # joint angles and velocities
+    assert sensors.JOINT_ANGLE_DENSITY / math.sqrt(0.01) == pytest.approx(0.02)
+    with pytest.raises(ValueError, match="sensory_delay must be a whole number of steps"):
+        arm2(sensory_delay=0.025)
