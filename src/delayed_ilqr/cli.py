@@ -441,7 +441,7 @@ def _perturb_rows(results) -> list[dict]:
 
 
 def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows) -> None:
-    from .plot.perturbation import perturbation_figures
+    from .plot import perturbation_figures
     records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
                for row in table_rows]
     report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
