@@ -104,7 +104,7 @@ def test_monte_carlo_matches_the_expected_cost_and_the_filter_covariance(ls, lm)
 def test_nearly_perfect_undelayed_sensors_give_the_full_state_design():
     """H = I, G = 1e-7 I, l_s = 0: the filter returns the state, so the expected cost is the
     full-state J(0) and each trial the full-state trial with the same motor noise (same seed)."""
-    base = point_mass(delay=0.03, noise=True, dt=0.01, horizon=40)
+    base = point_mass(delay=0.03, noise=True)         # the shape test_simulate and test_cli compile
     problem = base.replace(observation=di.Observation(np.eye(4), 1e-7 * np.eye(4)))
     sol, full = di.solve(problem), di.solve(base)
     assert rel_err(sol.expected_cost, full.expected_cost) < 1e-8
@@ -209,9 +209,9 @@ def test_first_response_to_a_disturbance_is_u_at_kp_plus_1_plus_ls(ls, lm):
 
 
 def test_disturbance_without_observation_is_seen_at_the_next_step():
-    problem = point_mass(delay=0.03, noise=True, dt=0.01, horizon=40)
+    problem = point_mass(delay=0.03, noise=True)
     sol = di.solve(problem)
-    W = np.zeros((40, 4))
+    W = np.zeros((60, 4))
     W[10, 3] = 0.05
     base = di.simulate(problem, sol.policy, 3, seed=1)
     pert = di.simulate(problem, sol.policy, 3, seed=1, disturbance=W)
@@ -288,3 +288,19 @@ def test_models_attach_their_default_sensors():
     assert sensors.JOINT_ANGLE_DENSITY / math.sqrt(0.01) == pytest.approx(0.02)
     with pytest.raises(ValueError, match="sensory_delay must be a whole number of steps"):
         arm2(sensory_delay=0.025)
+
+
+def test_sensing_study_designs_agree_without_sensory_delay_and_respond_on_time():
+    """At l_s = 0 the design that ignores the sensory delay is the aware one (same trials, same
+    numbers); with l_s = 5 the aware design's first correction of the kick is (1 + l_s) dt after it."""
+    from delayed_ilqr.experiments.sensing_study import sensory_delay_study, study_rows
+    results = sensory_delay_study([0.0, 0.05], delay=0.03, model="point_mass", trials=50, seed=4, kick=0.2,
+                                  pulse_time=0.2, model_kwargs=dict(noise=True))
+    rows = {(r["sensory delay [ms]"], r["design"]): r for r in study_rows(results)}
+    aware0, ignorant0 = rows[0.0, "aware"], rows[0.0, "ignorant"]
+    assert ignorant0["expected cost"] is None and aware0["expected cost"] > 0
+    for key in ("MC cost", "endpoint SD [mm]", "endpoint error [mm]", "first response [ms]", "half-peak [ms]"):
+        assert ignorant0[key] == aware0[key], key
+    assert rows[0.0, "aware"]["first response [ms]"] == pytest.approx(10.0)
+    assert rows[50.0, "aware"]["first response [ms]"] == pytest.approx(60.0)
+    assert rows[50.0, "ignorant"]["first response [ms]"] == pytest.approx(60.0)     # no limits: nothing clipped

@@ -445,7 +445,7 @@ def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows)
     records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
                for row in table_rows]
     report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
-    (staging / "perturb.md").write_text(tables.markdown_table(tables.perturbation_rows(table_rows)) + "\n")
+    (staging / "perturb.md").write_text(tables.markdown_table(tables.records_table(table_rows)) + "\n")
     arrays = {}
     for r in results:
         tag = f"ls{int(round(1000 * r.sensory_delay))}ms"
@@ -499,7 +499,7 @@ def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed
         results = perturbation.perturbation_study(model, sensory_delays, delay, pulse_time, kick, trials, seed,
                                                   noise=noise, model_kwargs=kwargs)
         rows = _perturb_rows(results)
-        click.echo(tables.text_table(tables.perturbation_rows(rows)))
+        click.echo(tables.text_table(tables.records_table(rows)))
         if out is not None:
             settings = dict(model=model, delay=delay, sensory_delays=list(sensory_delays), pulse_time=pulse_time,
                             kick=kick, trials=trials, seed=seed, noise=noise, **kwargs)
