@@ -164,8 +164,9 @@ def reference_observed_loop(problem, policy, xi, v, disturbance=None):
 
 
 def test_simulate_on_the_nonlinear_arm_equals_a_numpy_loop():
-    obs = di.Observation(lambda x: jnp.concatenate([x[:2], 0.5 * x[2:] ** 2 + x[2:]]), 0.01 * np.eye(4),
-                         delay_steps=3)
+    # nonlinear outputs and state-dependent sensory noise (velocity noise growing with speed)
+    obs = di.Observation(lambda x: jnp.concatenate([x[:2], 0.5 * x[2:] ** 2 + x[2:]]),
+                         lambda x: 0.01 * jnp.diag(jnp.concatenate([jnp.ones(2), 1 + x[2:4] ** 2])), delay_steps=3)
     problem = arm2(delay=0.02, noise=True, dt=0.01, horizon=25).replace(observation=obs)
     sol = di.solve(problem)
     W = np.zeros((25, 4))
