@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision, _validate
-from .lqg.observation import DelayedObservation, _unflatten as _delayed_observation
+from .lqg.observation import _unflatten as _delayed_observation
 
 __all__ = ["Observation", "linearized_observation"]
 

@@ -24,7 +24,7 @@ from .. import Problem, Runs, Solution, simulate, solve
 from ..models import REGISTRY
 from ..models.metadata import default_u_init, task_space
 
-__all__ = ["PerturbationResult", "lateral_kick", "perturbation_study", "first_response"]
+__all__ = ["PerturbationResult", "lateral_kick", "perturbation_study", "first_response", "PERTURB_MODELS"]
 
 
 class PerturbationResult(NamedTuple):
