@@ -142,6 +142,26 @@ def test_demo_writes_the_report(tmp_path):
         assert (out / png).exists()
 
 
+def test_perturb_writes_the_responses_and_the_first_response_is_one_step_plus_the_sensory_delay(tmp_path):
+    result = run("perturb", "point_mass", "--delay", "0.03", "--sensory-delays", "0,0.05", "--pulse-time", "0.2",
+                 "--trials", "20", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "perturb.json").read_text())
+    assert [r["sensory delay [ms]"] for r in data["results"]] == [0.0, 50.0]
+    # W_kp enters x_{kp+1}: the first command that can respond is u_{kp+1+l_s}
+    assert [r["first response [ms after kick]"] for r in data["results"]] == pytest.approx([10.0, 60.0])
+    problem = point_mass(delay=0.03, noise=True, sensory_delay=0.05)
+    sol = di.solve(problem)
+    np.testing.assert_allclose(data["results"][1]["expected cost"], float(sol.expected_cost), rtol=1e-12)
+    with np.load(tmp_path / "perturb_means.npz") as npz:
+        kicked, calm = npz["ls50ms_x_kicked_mean"], npz["ls50ms_x_mean"]
+        assert kicked.shape == (61, 4)
+        np.testing.assert_array_equal(kicked[:21], calm[:21])
+        assert np.linalg.norm(kicked[21, 2:] - calm[21, 2:]) == pytest.approx(0.2, rel=1e-12)   # the kick, m/s
+    assert (tmp_path / "perturbation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "manifest.json" in result.output
+
+
 @pytest.mark.parametrize("args, message", [
     (["solve", "no_such_model"], "must be a built-in model (arm2, arm2_muscle6, cart_pole, pendulum, point_mass) "
                                  "or package.module:factory; got 'no_such_model'"),
@@ -168,6 +188,10 @@ def test_demo_writes_the_report(tmp_path):
     (["compare", "arm2", "--trials", "0"], "--trials"),
     (["demo", "--trials", "0"], "--trials"),
     (["solve", "arm2", "--method", "dense"], "--method"),
+    (["perturb", "point_mass", "--delay", "0.03", "--sensory-delays", "0,0.025"], "--sensory-delays"),
+    (["perturb", "point_mass", "--delay", "0.03", "--pulse-time", "0.6"], "--pulse-time"),
+    (["perturb", "pendulum"], "MODEL"),
+    (["perturb", "point_mass", "--kick", "0"], "--kick"),
 ])
 def test_bad_arguments_exit_with_2_and_say_why(args, message):
     result = CliRunner().invoke(cli.main, args)

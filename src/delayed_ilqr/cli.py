@@ -2,7 +2,7 @@
 :mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
 (:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
-Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo`` and ``center-out``
+Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out`` and ``perturb``
 (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
@@ -43,7 +43,7 @@ import numpy as np
 from . import Options, Status
 from ._cpu import configure_cpu
 from .simulate import check_memory
-from .experiments import center_out, delay_study, engine, report, tables
+from .experiments import center_out, delay_study, engine, perturbation, report, tables
 from .models import REGISTRY, arm2_muscle6
 from .models.arm2 import SIGMA_U_HUMAN
 from .models.metadata import default_u_init
@@ -547,6 +547,95 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
     for delay, design, j in failed:
         click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
     if failed and not allow_unconverged:
+        sys.exit(1)
+
+
+def _perturb_rows(results) -> list[dict]:
+    """One table row per sensory delay: design, costs, and the latencies after the kick."""
+    rows = []
+    for r in results:
+        dt, kp = r.problem.dt, r.pulse_step
+        after = lambda k: None if k is None else 1000 * dt * (k - kp)          # noqa: E731
+        rows.append({"sensory delay [ms]": 1000 * r.sensory_delay, "status": str(r.solution.status),
+                     "expected cost": float(r.solution.expected_cost),
+                     "MC cost": float(r.base.summary().mean_cost),
+                     "MC cost kicked": float(r.perturbed.summary().mean_cost),
+                     "first response [ms after kick]": after(r.latency_steps),
+                     "half-peak response [ms after kick]": after(r.half_steps)})
+    return rows
+
+
+def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows) -> None:
+    from .plot import perturbation_figures
+    records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
+               for row in table_rows]
+    report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
+    (staging / "perturb.md").write_text(tables.markdown_table(tables.records_table(table_rows)) + "\n")
+    arrays = {}
+    for r in results:
+        tag = f"ls{int(round(1000 * r.sensory_delay))}ms"
+        arrays[f"{tag}_x_mean"] = np.asarray(r.base.x).mean(axis=0)
+        arrays[f"{tag}_x_kicked_mean"] = np.asarray(r.perturbed.x).mean(axis=0)
+        arrays[f"{tag}_u_mean"] = np.asarray(r.base.u).mean(axis=0)
+        arrays[f"{tag}_u_kicked_mean"] = np.asarray(r.perturbed.u).mean(axis=0)
+        arrays[f"{tag}_disturbance"] = r.disturbance
+    np.savez_compressed(staging / "perturb_means.npz", **arrays)
+    report.save_figures(perturbation_figures(results), staging)
+
+
+@main.command("perturb")
+@click.argument("model", type=click.Choice(perturbation.PERTURB_MODELS), metavar="MODEL")
+@click.option("--delay", type=float, default=0.05, show_default=True,
+              help="Input (motor) delay in seconds (a whole number of the model's time steps).")
+@click.option("--sensory-delays", type=_DelayList(), default="0,0.05,0.1", show_default=True,
+              help="Comma-separated sensory delays in seconds, each a whole number of the model's time steps.")
+@click.option("--pulse-time", type=click.FloatRange(min=0.0), default=0.15, show_default=True,
+              help="When the kick hits, in seconds from the start of the movement.")
+@click.option("--kick", type=click.FloatRange(min=0.0, min_open=True), default=0.2, show_default=True,
+              help="Size of the kick: the change of the hand's (point's) velocity in m/s, perpendicular "
+                   "to the nominal movement.")
+@click.option("--trials", type=click.IntRange(min=1), default=200, show_default=True,
+              help="Monte Carlo trials per sensory delay (each run twice: without and with the kick).")
+@click.option("--seed", type=_SEED, default=0, show_default=True, help="Seed of the motor and sensory noise.")
+@click.option("--noise/--no-noise", default=True, show_default=True,
+              help="Motor noise in the plant (the sensors are always noisy).")
+@_out_option(default=None, help="Folder for perturb.json, perturb.md, perturb_means.npz and perturbation.png.")
+def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed, noise, out, overwrite):
+    """Perturbation experiments: kick the hand of MODEL mid-reach and measure the correction
+    against the sensory delay.
+
+    MODEL is point_mass, arm2 (torque noise at the human level, SIGMA_U_HUMAN) or arm2_muscle6,
+    with their default sensors (docs/models.md). Per sensory delay the controller and the
+    delayed filter are designed, and --trials trials run without and with the kick on the same
+    noise; the first command that differs is (1 + l_s) steps after the kick.
+    """
+    kwargs = dict(sigma_u=SIGMA_U_HUMAN) if model == "arm2" else {}
+    try:
+        problems = [REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls, **kwargs)
+                    for ls in sensory_delays]
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--delay' / '--sensory-delays'") from exc
+    final = problems[0].horizon * problems[0].dt
+    if pulse_time >= final:
+        raise click.BadParameter(f"must be within the movement, below {final:g} s; got {pulse_time:g}",
+                                 param_hint="'--pulse-time'")
+    _check_trials(problems[-1], trials, 1, runs=2 * len(sensory_delays))
+    with _Output(out, overwrite) as output:
+        results = perturbation.perturbation_study(model, sensory_delays, delay, pulse_time, kick, trials, seed,
+                                                  noise=noise, model_kwargs=kwargs)
+        rows = _perturb_rows(results)
+        click.echo(tables.text_table(tables.records_table(rows)))
+        if out is not None:
+            settings = dict(model=model, delay=delay, sensory_delays=list(sensory_delays), pulse_time=pulse_time,
+                            kick=kick, trials=trials, seed=seed, noise=noise, **kwargs)
+            _perturb_outputs(results, output.staging, settings, rows)
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out}")
+    failed = [r for r in results if not r.converged]
+    for r in failed:
+        click.echo(f"warning: the solve at sensory delay {r.sensory_delay:g} s did not converge "
+                   f"({r.solution.status})", err=True)
+    if failed:
         sys.exit(1)
 
 

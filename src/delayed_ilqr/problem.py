@@ -157,11 +157,15 @@ class Problem:
             a step of :func:`~delayed_ilqr.simulate` with sub-steps, the sub-step's time): force
             fields, timed perturbations. A time-dependent cost is declared on the
             :class:`GeneralCost`. Static: part of the compiled solver.
+        observation: optional :class:`~delayed_ilqr.Observation`, the delayed noisy sensors
+            y_k = h(x_{k-l_s}) + G v_k. With it, :func:`~delayed_ilqr.solve` adds the delayed
+            Kalman filter to the policy and :func:`~delayed_ilqr.simulate` runs the controller on
+            its estimate; without it (the default) the controller sees the state.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
                  u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem",
-                 metadata=None, time_dependent: bool = False):
+                 metadata=None, time_dependent: bool = False, observation=None):
         _precision.require_x64("Problem")
         if not isinstance(time_dependent, (bool, np.bool_)):
             raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
@@ -210,6 +214,7 @@ class Problem:
         self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
         _check_labels(metadata, self.n_states, nd)
         self._check_callables()
+        self.observation = _observation(observation, self.x0, self.horizon)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -264,7 +269,7 @@ class Problem:
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
-                      metadata=self.metadata, time_dependent=self.time_dependent)
+                      metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation)
         fields.update(changes)
         x0 = changes.get("x0")
         if x0 is not None and "cost" not in changes and np.shape(x0) != (self.n_states,):
@@ -365,16 +370,28 @@ def _limits(u_min, u_max, nd):
     return jnp.asarray(lo), jnp.asarray(hi), bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
 
 
+def _observation(observation, x0, horizon):
+    """The problem's observation, checked against its state size and horizon (None: full state)."""
+    if observation is None:
+        return None
+    from .observation import Observation       # the sensors' module imports the LQG layer
+    if not isinstance(observation, Observation):
+        raise TypeError(f"observation must be None or a delayed_ilqr.Observation; got {type(observation).__name__}")
+    observation.check(x0, horizon)
+    return observation
+
+
 def _problem_flatten(p: Problem):
-    return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                               p.n_controls, p.name, p._has_limits, p.metadata, p.time_dependent)
+    return (p.x0, p.cost, p.u_min, p.u_max, p.observation), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
+                                                             p.n_controls, p.name, p._has_limits, p.metadata,
+                                                             p.time_dependent)
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
      new._has_limits, new.metadata, new.time_dependent) = aux
-    new.x0, new.cost, new.u_min, new.u_max = data
+    new.x0, new.cost, new.u_min, new.u_max, new.observation = data
     return new
 
 

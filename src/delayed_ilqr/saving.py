@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision
-from .solution import Policy, Solution, Status, Trace
+from .solution import Estimator, Policy, Solution, Status, Trace
 
 __all__ = ["FORMAT_VERSION", "save", "load", "load_metadata"]
 
@@ -37,13 +37,19 @@ FORMAT_NAME = "delayed-ilqr"
 FORMAT_VERSION = 1
 _METADATA = "__metadata__"
 # the records a file may contain, by the name the header gives their class (a new record type
-# nested in Solution or Policy, such as an estimator, is added here)
-_RECORDS = {cls.__name__: cls for cls in (Solution, Policy, Trace)}
+# nested in Solution or Policy is added here, with its fields in _fields)
+_RECORDS = {cls.__name__: cls for cls in (Solution, Policy, Trace, Estimator)}
+
+
+def _fields(cls) -> tuple:
+    """The field names of a record class: a NamedTuple's, or the Estimator's arrays and its delay."""
+    return cls._arrays + ("sensory_delay",) if cls is Estimator else cls._fields
 
 
 def _flatten(record, prefix: str, arrays: dict, types: dict) -> None:
     types[prefix.rstrip(".")] = type(record).__name__
-    for name, value in zip(record._fields, record):
+    for name in _fields(type(record)):
+        value = getattr(record, name)
         if value is None:
             continue
         if isinstance(value, tuple(_RECORDS.values())):
@@ -118,13 +124,13 @@ def load(path):
 def _build(types: dict, prefix: str, arrays: dict, path):
     cls = _RECORDS[types[prefix.rstrip(".")]]
     values = {}
-    for name in cls._fields:
+    for name in _fields(cls):
         key = prefix + name
         if key in types:
             values[name] = _build(types, key + ".", arrays, path)
         elif key in arrays:
             values[name] = _value(cls, name, arrays.pop(key))
-        elif name not in cls._field_defaults:
+        elif name not in getattr(cls, "_field_defaults", {}):
             raise ValueError(f"{path}: the saved {cls.__name__} has no entry {key!r}, a required field")
     return cls(**values)
 
@@ -132,6 +138,8 @@ def _build(types: dict, prefix: str, arrays: dict, path):
 def _value(cls, name, array):
     if cls is Solution and name == "status" and array.ndim == 0:
         return Status(int(array))
+    if cls is Estimator and name == "sensory_delay":
+        return int(array)                        # static: the pytree's auxiliary data
     return jnp.asarray(array)
 
 

@@ -46,14 +46,21 @@ def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
 
 
 def policy_arrays(sol) -> dict:
-    """The nominal, the gains and the solver trace of a solution, by NPZ name."""
+    """The nominal, the gains and the solver trace of a solution, by NPZ name (with sensors also
+    the filter: ``estimator_<field>`` for each array of :class:`~delayed_ilqr.Estimator` and
+    ``estimator_sensory_delay``)."""
     p, t = sol.policy, sol.trace
     n = int(sol.iterations) + 1
-    return dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
-                feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
-                delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
-                trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
-                trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
+    arrays = dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
+                  feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
+                  delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
+                  trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
+                  trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
+    if p.estimator is not None:
+        for name in p.estimator._arrays:
+            arrays[f"estimator_{name}"] = np.asarray(getattr(p.estimator, name))
+        arrays["estimator_sensory_delay"] = np.asarray(p.estimator.sensory_delay)
+    return arrays
 
 
 def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
