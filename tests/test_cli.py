@@ -43,11 +43,16 @@ def test_solve_writes_json_npz_and_figures_consistent_with_the_api(tmp_path):
     target = np.asarray(point_mass().cost.x_target)
     np.testing.assert_allclose(data["endpoint_error"], np.linalg.norm(np.asarray(sol.x[-1, :2]) - target[:2]),
                                rtol=1e-12)
-    with np.load(tmp_path / "solution.npz") as npz:
-        assert npz["x"].shape == (61, 4) and npz["u"].shape == (60, 2)
-        assert npz["state_feedback"].shape == (60, 2, 4) and npz["delay_feedback"].shape == (60, 3, 2, 2)
-        assert npz["trace_cost"].shape == (int(sol.iterations) + 1,)
-        np.testing.assert_allclose(npz["u"], np.asarray(sol.u), rtol=1e-12)
+    saved = di.load(tmp_path / "solution.npz")                # the saved-solution format: it loads back
+    assert saved.x.shape == (61, 4) and saved.policy.delay_feedback.shape == (60, 3, 2, 2)
+    assert saved.status is di.Status(int(sol.status)) and int(saved.iterations) == int(sol.iterations)
+    np.testing.assert_allclose(saved.u, sol.u, rtol=1e-12)
+    np.testing.assert_allclose(saved.trace.cost, sol.trace.cost, rtol=1e-12)
+    meta = di.load_metadata(tmp_path / "solution.npz")
+    assert (meta["dt"], meta["delay_steps"], meta["info"]["model"]) == (0.01, 3, "point_mass")
+    problem = point_mass(delay=0.03, noise=True)
+    np.testing.assert_allclose(di.simulate(problem, saved.policy, 8, seed=2).cost,
+                               di.simulate(problem, sol.policy, 8, seed=2).cost, rtol=1e-10)
     for png in ("trajectories.png", "convergence.png"):
         assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -84,6 +89,9 @@ def test_simulate_summary_matches_a_direct_monte_carlo(tmp_path):
         assert npz["x"].shape == (16, 61, 4) and npz["u"].shape == (16, 60, 2) and npz["cost"].shape == (16,)
         np.testing.assert_allclose(npz["cost"], np.asarray(runs.cost), rtol=1e-12)
         assert npz["delay_feedback"].shape == (60, 3, 2, 2)
+    saved = di.load(tmp_path / "solution.npz")                # the policy that ran, loadable
+    rerun = di.simulate(problem, saved.policy, 16, seed=3)
+    np.testing.assert_allclose(rerun.cost, runs.cost, rtol=1e-12)
     assert (tmp_path / "trajectories.png").exists() and not (tmp_path / "hand_paths.png").exists()
 
 
@@ -134,8 +142,41 @@ def test_demo_writes_the_report(tmp_path):
         assert (out / png).exists()
 
 
+def test_perturb_writes_the_responses_and_the_first_response_is_one_step_plus_the_sensory_delay(tmp_path):
+    result = run("perturb", "point_mass", "--delay", "0.03", "--sensory-delays", "0,0.05", "--pulse-time", "0.2",
+                 "--trials", "20", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    data = json.loads((tmp_path / "perturb.json").read_text())
+    assert [r["sensory delay [ms]"] for r in data["results"]] == [0.0, 50.0]
+    # W_kp enters x_{kp+1}: the first command that can respond is u_{kp+1+l_s}
+    assert [r["first response [ms after kick]"] for r in data["results"]] == pytest.approx([10.0, 60.0])
+    problem = point_mass(delay=0.03, noise=True, sensory_delay=0.05)
+    sol = di.solve(problem)
+    np.testing.assert_allclose(data["results"][1]["expected cost"], float(sol.expected_cost), rtol=1e-12)
+    with np.load(tmp_path / "perturb_means.npz") as npz:
+        kicked, calm = npz["ls50ms_x_kicked_mean"], npz["ls50ms_x_mean"]
+        assert kicked.shape == (61, 4)
+        np.testing.assert_array_equal(kicked[:21], calm[:21])
+        assert np.linalg.norm(kicked[21, 2:] - calm[21, 2:]) == pytest.approx(0.2, rel=1e-12)   # the kick, m/s
+    assert (tmp_path / "perturbation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "manifest.json" in result.output
+
+
 @pytest.mark.parametrize("args, message", [
-    (["solve", "no_such_model"], "'no_such_model' is not one of"),
+    (["solve", "no_such_model"], "must be a built-in model (arm2, arm2_muscle6, cart_pole, pendulum, point_mass) "
+                                 "or package.module:factory; got 'no_such_model'"),
+    (["solve", "no_such_module_xyz:f"], "cannot import module 'no_such_module_xyz'"),
+    (["solve", "delayed_ilqr.models:REGISTRY"], "'delayed_ilqr.models' has no callable 'REGISTRY'"),
+    (["solve", "delayed_ilqr.models:"], "has no callable ''"),
+    (["solve", "point_mass", "--param", "sigma"], "must be key=value with key a Python name"),
+    (["solve", "point_mass", "--param", "x0=(0, zero)"], "the value of x0 must be a Python literal"),
+    (["solve", "point_mass", "--param", "mass=2.0"], "unexpected keyword argument 'mass'"),
+    (["solve", "point_mass", "--param", "delay=0.1"], "delay is set by its own option"),
+    (["solve", "point_mass", "--param", "horizon=5", "--param", "horizon=6"], "horizon is given twice"),
+    (["solve", "point_mass", "--dt", "0.01", "--param", "dt=0.02"], "dt is given both as --dt and as --param"),
+    (["solve", "point_mass", "--dt", "0"], "--dt"),
+    (["solve", "point_mass", "--dt", "0.02", "--delay", "0.03"], "delay must be a whole number of steps of dt=0.02"),
+    (["compare", "point_mass", "--dt", "0.02", "--delays", "0,0.03"], "delay must be a whole number of steps"),
     (["solve", "arm2", "--delay", "0.025"], "delay must be a whole number of steps of dt=0.01 s"),
     (["solve", "arm2", "--delay", "-0.01"], "--delay"),
     (["simulate", "arm2", "--delay", "0.025", "--trials", "3"], "--delay"),
@@ -147,6 +188,10 @@ def test_demo_writes_the_report(tmp_path):
     (["compare", "arm2", "--trials", "0"], "--trials"),
     (["demo", "--trials", "0"], "--trials"),
     (["solve", "arm2", "--method", "dense"], "--method"),
+    (["perturb", "point_mass", "--delay", "0.03", "--sensory-delays", "0,0.025"], "--sensory-delays"),
+    (["perturb", "point_mass", "--delay", "0.03", "--pulse-time", "0.6"], "--pulse-time"),
+    (["perturb", "pendulum"], "MODEL"),
+    (["perturb", "point_mass", "--kick", "0"], "--kick"),
 ])
 def test_bad_arguments_exit_with_2_and_say_why(args, message):
     result = CliRunner().invoke(cli.main, args)
@@ -174,3 +219,73 @@ def test_help_documents_every_option(command):
     assert (cmd.help or "").strip()
     top = CliRunner().invoke(cli.main, ["--help"])
     assert command in top.output
+
+
+FACTORY = """
+import jax.numpy as jnp
+import delayed_ilqr as di
+from delayed_ilqr.models import point_mass
+
+
+def reach(delay=0.0, noise=False, dt=0.01, target=(0.2, 0.1), stiffness=0.0):
+    \"\"\"A point mass on a spring, reaching to target.\"\"\"
+    base = point_mass(delay=delay, noise=noise, dt=dt, x_target=tuple(target) + (0.0, 0.0))
+
+    def spring(x, u, ud):
+        return base.dynamics(x, u, ud) - stiffness * jnp.concatenate([jnp.zeros(2), x[:2]])
+
+    return base.replace(dynamics=_cached(spring, stiffness), name="spring_reach")
+
+
+_CACHE = {}
+
+
+def _cached(f, key):          # one function object per stiffness: one compilation
+    return _CACHE.setdefault(key, f)
+
+
+def not_a_problem(delay=0.0, noise=False):
+    return 42
+"""
+
+
+@pytest.fixture
+def user_module(tmp_path, monkeypatch):
+    """A module file in the current folder, as a user would write it (a fresh name per test)."""
+    name = f"user_models_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{name}.py").write_text(FACTORY)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.path", list(__import__("sys").path))     # the CLI adds the folder; undone here
+    return name
+
+
+def test_own_model_with_params_solves_like_the_api(user_module, tmp_path):
+    out = tmp_path / "out"
+    result = run("solve", f"{user_module}:reach", "--param", "target=(0.1, -0.05)", "--param", "stiffness=4.0",
+                 "--delay", "0.02", "--out", out)
+    assert result.exit_code == 0, result.output
+    assert "A point mass on a spring, reaching to target." in result.output
+    module = __import__(user_module)
+    reference = di.solve(module.reach(delay=0.02, target=(0.1, -0.05), stiffness=4.0))
+    saved = di.load(out / "solution.npz")
+    np.testing.assert_allclose(saved.u, reference.u, rtol=1e-12)
+    assert float(np.linalg.norm(np.asarray(saved.x[-1, :2]) - [0.1, -0.05])) < 1e-2
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["settings"]["params"] == dict(target=[0.1, -0.05], stiffness=4.0)
+    assert manifest["settings"]["model"] == f"{user_module}:reach"
+
+
+def test_own_model_that_returns_no_problem_is_refused(user_module):
+    result = CliRunner().invoke(cli.main, ["solve", f"{user_module}:not_a_problem"])
+    assert result.exit_code == 2 and "the factory must return a delayed_ilqr.Problem" in result.output
+
+
+def test_dt_makes_delays_between_the_default_steps_possible(tmp_path):
+    """25 ms is 2.5 steps of the default 10 ms and is refused; at --dt 0.005 it is 5 steps."""
+    assert run("solve", "point_mass", "--delay", "0.025").exit_code == 2
+    result = run("solve", "point_mass", "--delay", "0.025", "--dt", "0.005", "--out", tmp_path)
+    assert result.exit_code == 0, result.output
+    meta = di.load_metadata(tmp_path / "solution.npz")
+    assert (meta["dt"], meta["delay_steps"], meta["horizon"]) == (0.005, 5, 120)
+    reference = di.solve(point_mass(delay=0.025, dt=0.005))
+    np.testing.assert_allclose(di.load(tmp_path / "solution.npz").u, reference.u, rtol=1e-12)

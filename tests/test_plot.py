@@ -16,7 +16,10 @@ from matplotlib.patches import Ellipse
 
 import delayed_ilqr as di
 from delayed_ilqr import plot
+from delayed_ilqr.experiments.center_out import DelayResult, TargetResult
 from delayed_ilqr.experiments.delay_study import ControllerResult
+from delayed_ilqr.models import arm2_muscle6
+from delayed_ilqr.models.metadata import task_position
 from delayed_ilqr.experiments.engine import endpoint_error
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.simulate import Runs
@@ -94,6 +97,20 @@ def test_trajectories_have_one_axis_per_state_and_command(tmp_path, n_show):
     check_png(fig, tmp_path / "trajectories.png")
 
 
+def test_own_plant_labels_come_from_its_metadata():
+    """A user's plant names its states and commands with ModelMetadata (no task space needed);
+    labels of the wrong count are refused when the problem is built."""
+    meta = di.models.ModelMetadata(state_labels=("cart x [m]", "angle [rad]", "cart speed [m/s]", "rate [rad/s]"),
+                                   control_labels=("force fx [N]", "force fy [N]"))
+    problem = point_mass(delay=0.03).replace(name="custom", metadata=meta)
+    x, u = nominal(problem)
+    fig = plot.plot_trajectories(problem, SimpleNamespace(policy=SimpleNamespace(x_nominal=x, u_nominal=u)))
+    assert [ax.get_ylabel() for ax in fig.axes] == list(meta.state_labels + meta.control_labels)
+    short = dataclasses.replace(meta, control_labels=("force [N]",))
+    with pytest.raises(ValueError, match=r"metadata.control_labels must have one label per command \(d = 2\); got 1"):
+        point_mass().replace(metadata=short)
+
+
 def test_trajectories_of_a_generic_model_use_indexed_labels():
     problem = point_mass(delay=0.03).replace(name="custom", metadata=None)
     x, u = nominal(problem)
@@ -105,10 +122,20 @@ def test_trajectories_of_a_generic_model_use_indexed_labels():
 def test_hand_paths_panel_per_delay_with_paths_endpoints_and_ellipses(tmp_path, results):
     fig = plot.plot_hand_paths(results, n_paths=7)
     assert isinstance(fig, Figure)
-    assert len(fig.axes) == 2 * 2                                  # two rows, one column per delay
-    top, bottom = fig.axes[0], fig.axes[2]                         # first delay: paths, endpoints
+    assert len(fig.axes) == 3 * 2                                  # three rows, one column per delay
+    top, middle, bottom = fig.axes[0], fig.axes[2], fig.axes[4]    # first delay: paths, speed, endpoints
     assert len(top.get_lines()) == 2 * (7 + 1)                     # per controller: 7 trials + nominal
     assert top.get_xlabel() == "hand x [m]" and "50 ms" in top.get_title()
+    # hand speed in cm/s: the nominal's hand displacement per step over dt, 1 m/s = 100 cm/s
+    assert len(middle.get_lines()) == 2 * (7 + 1) and middle.get_ylabel() == "hand speed [cm/s]"
+    problem = results[0].problem
+    q = np.asarray(results[0].solution.x)[:, :2]
+    l1, l2 = 0.30, 0.33                                            # arm2's segment lengths (docs/models.md)
+    hand = np.stack([l1 * np.cos(q[:, 0]) + l2 * np.cos(q[:, 0] + q[:, 1]),
+                     l1 * np.sin(q[:, 0]) + l2 * np.sin(q[:, 0] + q[:, 1])], axis=1)
+    speed = 100.0 * np.linalg.norm(np.diff(hand, axis=0), axis=1) / problem.dt
+    np.testing.assert_allclose(middle.get_lines()[7].get_ydata(), speed, rtol=1e-12)
+    assert fig.axes[3].get_ylim() == middle.get_ylim()            # one speed scale across delays
     ellipses = [p for p in bottom.patches if isinstance(p, Ellipse)]
     assert len(ellipses) == 2
     # the ellipse of the tighter (aware) controller is the smaller one
@@ -129,8 +156,8 @@ def test_hand_paths_need_an_arm(results):
 def test_delay_study_has_cost_and_endpoint_axes_with_error_bars(tmp_path, results):
     fig = plot.plot_delay_study(results)
     assert isinstance(fig, Figure)
-    assert len(fig.axes) == 2
-    ax_cost, ax_err = fig.axes
+    assert len(fig.axes) == 3
+    ax_cost, ax_err, ax_spread = fig.axes
     assert ax_cost.get_yscale() == "log" and ax_cost.get_xlabel() == "input delay [ms]"
     assert ax_err.get_ylabel() == "hand position error [mm]"
     labels = [t.get_text() for t in ax_cost.get_legend().get_texts()]
@@ -140,6 +167,14 @@ def test_delay_study_has_cost_and_endpoint_axes_with_error_bars(tmp_path, result
     # one definition of a diverged trial: both panels count the same 3 of 40 at 50 ms
     for ax in (ax_cost, ax_err):
         assert [t.get_text() for t in ax.texts] == ["3/40 diverged"]
+    assert ax_err.get_title() == "hand position error"
+    # the spread: 1-sigma major axis (mm) of the final hand positions of the same 37 trials
+    r = results[1]
+    ends = task_position(r.problem, r.runs.x[3:, -1])
+    major = 1e3 * np.sqrt(np.linalg.eigvalsh(np.cov(ends, rowvar=False))[-1])
+    ignorant_spread = [line for line in ax_spread.get_lines() if line.get_label() == "delay-ignorant: Monte Carlo"][0]
+    np.testing.assert_allclose(ignorant_spread.get_ydata()[0], major, rtol=1e-12)
+    assert ax_spread.get_ylabel() == "1-sigma major axis [mm]"
     ignorant_bar = [c for c in ax_cost.containers if c.get_label() == "delay-ignorant: Monte Carlo mean, 95% CI"][0]
     np.testing.assert_allclose(ignorant_bar.lines[0].get_ydata(), [results[1].cost.mean, results[3].cost.mean])
     assert math.isfinite(results[1].cost.mean) and results[1].cost.n_diverged == 3
@@ -176,3 +211,84 @@ def test_importing_the_package_and_plot_does_not_import_matplotlib():
     code = "import sys, delayed_ilqr, delayed_ilqr.plot, delayed_ilqr.cli; print('matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def fake_reaches(tau, design, spread_mm, n_targets=3, n_trials=30):
+    """A center-out DelayResult of the muscle arm from synthetic states: straight-line nominals in
+    joint space and endpoints scattered by ``spread_mm`` around each target (no solve)."""
+    rng = np.random.default_rng(int(1e3 * tau) + len(design))
+    plants, targets, xs, runs = [], [], [], []
+    for j in range(n_targets):
+        angle = 2 * np.pi * j / n_targets
+        plant = arm2_muscle6(delay=tau, target=(-0.02 + 0.1 * np.cos(angle), 0.45 + 0.1 * np.sin(angle)))
+        K = plant.horizon
+        x = np.asarray(plant.x0)[None] + np.linspace(0.0, 1.0, K + 1)[:, None] * 0.1 * rng.standard_normal(plant.n_states)
+        target = np.asarray(plant.cost.params["target"])
+        ends = target + 1e-3 * spread_mm * rng.standard_normal((n_trials, 2)) * np.array([2.0, 1.0])
+        plants.append(plant)
+        xs.append(x)
+        runs.append(SimpleNamespace(x=np.repeat(x[None], n_trials, axis=0)))
+        targets.append(TargetResult(target=target, status="CONVERGED_COST", iterations=10, cost=1.0,
+                                    predicted_cost=1.0, hand_error=1e-4, hand_speed=1e-3, endpoints=ends,
+                                    mc_error=np.linalg.norm(ends - target, axis=1), mc_cost=1.0 + rng.random(n_trials),
+                                    diverged=np.zeros(n_trials, bool)))
+    solutions = SimpleNamespace(x=np.stack(xs), u=np.zeros((n_targets, plants[0].horizon, 6)))
+    return DelayResult(delay=tau, delay_steps=round(tau / 0.01), dt=0.01, design=design, solve_time=0.1, first_call=1.0,
+                       targets=targets, solutions=solutions, runs=runs, plants=plants)
+
+
+@pytest.fixture(scope="module")
+def reaches():
+    return [fake_reaches(tau, design, spread) for tau, spread in ((0.0, 0.5), (0.05, 3.0))
+            for design, spread in (("noise-aware", spread), ("deterministic", 2 * spread))]
+
+
+def test_center_out_figures_have_speed_profiles_endpoints_in_mm_and_delay_trends(tmp_path, reaches):
+    figures = plot.center_out_figures(reaches)
+    assert set(figures) == {"center_out_hand_paths.png", "center_out_speed.png", "center_out_endpoints.png",
+                            "center_out_vs_delay.png", "center_out_excitations_noise-aware_0ms.png",
+                            "center_out_excitations_deterministic_0ms.png", "center_out_excitations_noise-aware_50ms.png",
+                            "center_out_excitations_deterministic_50ms.png"}
+    # every figure has a caption naming the human finding it is compared with
+    for name in figures:
+        caption = [c for key, c in plot.CAPTIONS.items() if name == key or name.startswith(key + "_")]
+        assert len(caption) == 1 and "Compared with:" in caption[0], name
+    # speed: one line per target, cm/s from the hand displacement per step
+    speed = figures["center_out_speed.png"].axes
+    assert len(speed) == 4 and speed[0].get_ylabel() == "hand speed [cm/s]"
+    r = reaches[0]
+    hand = task_position(r.plants[1], r.solutions.x[1])
+    np.testing.assert_allclose(speed[0].get_lines()[1].get_ydata(),
+                               100 * np.linalg.norm(np.diff(hand, axis=0), axis=1) / r.dt, rtol=1e-12)
+    # endpoints: in mm relative to each target, the 2-sigma ellipse of each target's trials
+    ends = figures["center_out_endpoints.png"].axes[0]
+    assert ends.get_xlabel() == "endpoint x - target x [mm]"
+    ellipses = [p for p in ends.patches if isinstance(p, Ellipse)]
+    assert len(ellipses) == 3
+    rel = 1e3 * (r.targets[0].endpoints - r.targets[0].target)
+    major = 2 * 2 * np.sqrt(np.linalg.eigvalsh(np.cov(rel, rowvar=False))[-1])
+    np.testing.assert_allclose(ellipses[0].width, major, rtol=1e-12)
+    # against the delay: the pooled Monte Carlo mean cost and the mean spread over targets (mm)
+    ax_cost, ax_spread = figures["center_out_vs_delay.png"].axes
+    aware = [c for c in ax_spread.containers if c.get_label().startswith("noise-aware")][0]
+    expected = [np.mean([1e3 * t.spread for t in reaches[i].targets]) for i in (0, 2)]
+    np.testing.assert_allclose(aware.lines[0].get_ydata(), expected, rtol=1e-12)
+    cost = [c for c in ax_cost.containers if c.get_label().startswith("deterministic")][0]
+    np.testing.assert_allclose(cost.lines[0].get_ydata(),
+                               [np.mean(np.concatenate([t.mc_cost for t in reaches[i].targets])) for i in (1, 3)])
+    for name in ("center_out_speed.png", "center_out_endpoints.png", "center_out_vs_delay.png"):
+        check_png(figures[name], tmp_path / name)
+
+
+def test_center_out_report_captions_every_figure(tmp_path, reaches):
+    from delayed_ilqr.experiments import report
+    figures = report.save_figures(plot.center_out_figures(reaches[:2]), tmp_path)
+    settings = dict(targets=3, radius=0.1, trials=30, sigma_u=0.01, seed=0, designs=["noise-aware", "deterministic"],
+                    elapsed_seconds=1.0)
+    report.write_center_out_report(tmp_path, reaches[:2], settings, "table", figures)
+    text = (tmp_path / "center_out.md").read_text()
+    for name in figures:
+        after = text.split(f"![{name}]({name})", 1)[1].lstrip("\n").split("\n", 1)[0]
+        assert after and not after.startswith("!["), name
+    assert "Flash & Hogan 1985" in text and "Gordon, Ghilardi & Ghez 1994" in text
+

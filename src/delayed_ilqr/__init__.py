@@ -17,6 +17,8 @@ d_tilde, d, D, e, E   eq. (4): cost_k = d_tilde + 2 dx'd + dx'D dx + 2 du'e + du
 I, L, M    eq. (6): du_k = I_k + L_k dx_k + sum_i M_k^i du_{k+i-l}
 S, s, s_tilde, R, Rt, r   eq. (7): coefficients of the cost-to-go J(k)
 H          Hessian of J(k-1) in du_{k-1} (the quantity that must be positive definite)
+l_s, y     sensory delay in steps; y_k = h(x_{k-l_s}) + G v_k, the measurement that arrives at k
+x_hat      E[dx_k | I_k], the delayed filter's estimate; Kd, Kc its gains (``lqg.estimator``)
 =========  =====================================================================================
 
 Importing the package changes nothing in the process: no environment variable, no JAX setting.
@@ -33,11 +35,13 @@ single functions (see ``_cpu``); it warns when it comes too late to take effect.
 from . import lqg, models
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
-from .solution import Policy, Solution, Status, Trace
+from .observation import Observation
+from .solution import Estimator, Policy, Solution, Status, Trace
 from .ilqg.solver import solve
 from .options import Options
 from .simulate import Runs, simulate
+from .saving import load, load_metadata
 
-__all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
-           "Solution", "Policy", "Status", "Trace", "simulate", "Runs"]
+__all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options",
+           "solve", "Solution", "Policy", "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"

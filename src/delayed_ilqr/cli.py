@@ -2,12 +2,19 @@
 :mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
 (:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
-Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo`` and ``center-out``
+Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out`` and ``perturb``
 (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
 in one line (``--debug`` shows the traceback).
+
+MODEL is a built-in model (``delayed-ilqr models``) or your own factory as
+``package.module:factory`` (imported with the current folder on the path), called like the
+built-ins as ``factory(delay=seconds, noise=bool, **params)`` and returning a
+:class:`~delayed_ilqr.Problem`; ``--param key=value`` (repeatable, the value a Python literal)
+adds keyword arguments and ``--dt`` sets the time step (``dt=``), so that delays that are not
+multiples of the model's default step can be studied.
 
 Outputs are atomic: a command writes into a hidden folder beside ``--out`` and renames it to
 ``--out`` at the end, with a ``manifest.json`` listing the files, the command and the version; an
@@ -15,8 +22,10 @@ interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty
 """
 from __future__ import annotations
 
+import ast
 import dataclasses
 import datetime
+import importlib
 import importlib.metadata
 import json
 import math
@@ -25,7 +34,7 @@ import pathlib
 import shutil
 import sys
 import time
-from typing import Optional
+from typing import Callable, NamedTuple, Optional
 
 import click
 import jax
@@ -34,7 +43,7 @@ import numpy as np
 from . import Options, Status
 from ._cpu import configure_cpu
 from .simulate import check_memory
-from .experiments import center_out, delay_study, engine, report, tables
+from .experiments import center_out, delay_study, engine, perturbation, report, tables
 from .models import REGISTRY, arm2_muscle6
 from .models.arm2 import SIGMA_U_HUMAN
 from .models.metadata import default_u_init
@@ -42,7 +51,6 @@ from .models.metadata import default_u_init
 __all__ = ["main"]
 
 DEMO_DELAYS = (0.0, 0.05, 0.1, 0.15)
-_MODEL = click.Choice(sorted(REGISTRY))
 _SEED = click.IntRange(min=0, max=2 ** 63 - 1)       # what simulate accepts
 _OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
 
@@ -67,12 +75,101 @@ class _DelayList(click.ParamType):
         return delays
 
 
-def _problem(model: str, delay: float, noise: bool, hint: str = "--delay"):
-    """The model's problem; the factory's refusal of a delay becomes a usage error (exit code 2)."""
+class _Model(NamedTuple):
+    """MODEL resolved: its name as given, the factory, a one-line description."""
+
+    name: str
+    factory: Callable
+    description: str
+
+
+class _ModelType(click.ParamType):
+    """A built-in model name or ``package.module:factory``."""
+
+    name = "MODEL"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, _Model):
+            return value
+        if value in REGISTRY:
+            return _Model(value, REGISTRY[value].factory, REGISTRY[value].description)
+        if ":" not in value:
+            self.fail(f"must be a built-in model ({', '.join(sorted(REGISTRY))}) or package.module:factory; "
+                      f"got {value!r}", param, ctx)
+        module_name, _, attr = value.partition(":")
+        if os.getcwd() not in sys.path:          # a factory in a file of the current folder, as python -m finds it
+            sys.path.insert(0, os.getcwd())
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            self.fail(f"cannot import module {module_name!r} of {value!r}: {exc}", param, ctx)
+        factory = getattr(module, attr, None) if attr else None
+        if not callable(factory):
+            self.fail(f"{module_name!r} has no callable {attr!r}; MODEL must name a factory as "
+                      f"package.module:factory; got {value!r}", param, ctx)
+        doc = (factory.__doc__ or "").strip().splitlines()
+        return _Model(value, factory, doc[0] if doc else value)
+
+
+class _ParamPair(click.ParamType):
+    """``key=value`` with the value a Python literal (ast.literal_eval)."""
+
+    name = "KEY=VALUE"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        key, sep, text = value.partition("=")
+        key = key.strip()
+        if not sep or not key.isidentifier():
+            self.fail(f"must be key=value with key a Python name, e.g. sigma_u=0.01; got {value!r}", param, ctx)
+        try:
+            return key, ast.literal_eval(text.strip())
+        except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+            self.fail(f"the value of {key} must be a Python literal (a number, True/False/None, a tuple or list, "
+                      f"a quoted string such as {key}=\"'text'\"); got {text!r}", param, ctx)
+
+
+def _model_options(f):
+    """--param (repeatable) and --dt: keyword arguments of the model's factory."""
+    f = click.option("--dt", type=click.FloatRange(min=0.0, min_open=True), default=None,
+                     help="Time step in seconds (the factory's dt; default: the model's).")(f)
+    return click.option("--param", "params", type=_ParamPair(), multiple=True, metavar="KEY=VALUE",
+                        help="A keyword argument of the model's factory, the value a Python literal "
+                             "(repeatable), e.g. --param sigma_u=0.01.")(f)
+
+
+def _model_kwargs(params, dt) -> dict:
+    kwargs = {}
+    for key, value in params:
+        if key in kwargs:
+            raise click.BadParameter(f"{key} is given twice", param_hint="'--param'")
+        if key in ("delay", "noise"):
+            raise click.BadParameter(f"{key} is set by its own option, not by --param", param_hint="'--param'")
+        kwargs[key] = value
+    if dt is not None:
+        if "dt" in kwargs:
+            raise click.BadParameter("dt is given both as --dt and as --param dt=...", param_hint="'--dt'")
+        kwargs["dt"] = dt
+    return kwargs
+
+
+def _problem(model: _Model, delay: float, noise: bool, kwargs: Optional[dict] = None, hint: str = "--delay"):
+    """The model's problem; the factory's refusal of a delay or a parameter becomes a usage error
+    (exit code 2), naming the option."""
+    from .problem import Problem
+    kwargs = kwargs or {}
     try:
-        return REGISTRY[model].factory(delay=delay, noise=noise)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint=f"'{hint}'") from exc
+        problem = model.factory(delay=delay, noise=noise, **kwargs)
+    except TypeError as exc:
+        raise click.BadParameter(f"{model.name}: {exc}", param_hint="'--param'") from exc
+    except ValueError as exc:       # the factory says which argument; the hint names the options that set them
+        options = [hint] + (["--dt"] if "dt" in kwargs else []) + (["--param"] if set(kwargs) - {"dt"} else [])
+        raise click.BadParameter(f"{model.name}: {exc}", param_hint=" / ".join(f"'{o}'" for o in options)) from exc
+    if not isinstance(problem, Problem):
+        raise click.BadParameter(f"the factory must return a delayed_ilqr.Problem; {model.name} returned "
+                                 f"{type(problem).__name__}", param_hint="'MODEL'")
+    return problem
 
 
 ERROR_EXIT = 3      # neither a usage error (2) nor a solve that did not converge (1)
@@ -201,33 +298,37 @@ def models_command():
 
 
 @main.command("solve")
-@click.argument("model", type=_MODEL, metavar="MODEL")
+@click.argument("model", type=_ModelType(), metavar="MODEL")
 @click.option("--delay", type=float, default=0.0, show_default=True,
               help="Input delay tau in seconds (a whole number of the model's time steps).")
 @click.option("--noise/--no-noise", default=False, show_default=True,
               help="Solve the stochastic problem (signal-dependent noise) or the deterministic one.")
 @click.option("--method", type=click.Choice(["structured", "augmented"]), default="structured", show_default=True,
               help="Backward pass: Theorem 1's structured recursion, or the state-augmentation reference.")
-@_out_option(default=None, help="Folder for solution.json, solution.npz (trajectory, gains, trace) and figures.")
-def solve_command(model, delay, noise, method, out, overwrite):
+@_model_options
+@_out_option(default=None, help="Folder for solution.json, solution.npz (the Solution, for delayed_ilqr.load) "
+                                "and figures.")
+def solve_command(model, delay, noise, method, params, dt, out, overwrite):
     """Solve MODEL with iLQG and report the nominal solution and its convergence.
 
-    MODEL is one of the names that `delayed-ilqr models` lists.
+    MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
+    package.module:factory (called as factory(delay=..., noise=..., **params)).
     """
-    problem = _problem(model, delay, noise)
+    kwargs = _model_kwargs(params, dt)
+    problem = _problem(model, delay, noise, kwargs)
     with _Output(out, overwrite) as output:
         timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
         sol = timed[0]
         label, unit = engine.endpoint_description(problem)
         endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
-        click.echo(tables.pairs(tables.solve_summary(problem, REGISTRY[model].description, noise, method, timed,
-                                                     endpoint)))
+        click.echo(tables.pairs(tables.solve_summary(problem, model.description, noise, method, timed, endpoint)))
         if out is not None:
             from . import plot
-            report.write_solution(output.staging, model, problem, method, timed, endpoint)
+            report.write_solution(output.staging, model.name, problem, method, timed, endpoint)
             report.save_figures({"trajectories.png": plot.plot_trajectories(problem, sol),
-                                 "convergence.png": plot.plot_convergence({model: sol})}, output.staging)
-            written = output.commit(dict(model=model, delay=delay, noise=noise, method=method))
+                                 "convergence.png": plot.plot_convergence({model.name: sol})}, output.staging)
+            written = output.commit(dict(model=model.name, delay=delay, noise=noise, method=method,
+                                         **_kwargs_settings(kwargs)))
             click.echo(f"wrote {', '.join(written)} to {out}")
     status = Status(int(sol.status))
     if not status.converged:
@@ -236,7 +337,7 @@ def solve_command(model, delay, noise, method, out, overwrite):
 
 
 @main.command("simulate")
-@click.argument("model", type=_MODEL, metavar="MODEL")
+@click.argument("model", type=_ModelType(), metavar="MODEL")
 @click.option("--delay", type=float, default=0.0, show_default=True,
               help="Input delay tau in seconds (a whole number of the model's time steps).")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
@@ -250,21 +351,25 @@ def solve_command(model, delay, noise, method, out, overwrite):
                    "plant; augmented: delay-aware by state augmentation.")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
               help="Euler-Maruyama sub-steps per control step.")
-@_out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains) and figures.")
-def simulate_command(model, delay, trials, seed, noise, controller, substeps, out, overwrite):
+@_model_options
+@_out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains), "
+                                "solution.npz (for delayed_ilqr.load) and figures.")
+def simulate_command(model, delay, trials, seed, noise, controller, substeps, params, dt, out, overwrite):
     """Solve MODEL and run its feedback policy on the (noisy, delayed) plant --trials times.
 
-    MODEL is one of the names that `delayed-ilqr models` lists.
+    MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
+    package.module:factory (called as factory(delay=..., noise=..., **params)).
     """
-    problem = _problem(model, delay, noise)
+    kwargs = _model_kwargs(params, dt)
+    problem = _problem(model, delay, noise, kwargs)
     _check_trials(problem, trials, substeps)
     with _Output(out, overwrite) as output:
         r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
-        click.echo(tables.pairs(tables.simulate_summary(r, REGISTRY[model].description)))
+        click.echo(tables.pairs(tables.simulate_summary(r, model.description)))
         if out is not None:
             from . import plot
-            settings = dict(_settings(model, noise, trials, seed, substeps), delay=problem.delay,
-                            controller=controller)
+            settings = dict(_settings(model.name, noise, trials, seed, substeps), delay=problem.delay,
+                            controller=controller, **_kwargs_settings(kwargs))
             report.write_runs(output.staging, r, settings)
             figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}
             if plot.draws_paths(problem):
@@ -276,13 +381,29 @@ def simulate_command(model, delay, trials, seed, noise, controller, substeps, ou
         sys.exit(1)
 
 
-def _check_study(model, delays, trials, noise, controllers, substeps):
+def _check_study(model, delays, trials, noise, controllers, substeps, kwargs=None):
     """Every delay and the memory of all the trials, checked before anything is solved."""
-    problems = [_problem(model, tau, noise, hint="--delays") for tau in delays]
+    problems = [_problem(model, tau, noise, kwargs, hint="--delays") for tau in delays]
     _check_trials(problems[-1], trials, substeps, runs=len(delays) * len(controllers))
 
 
+def _kwargs_settings(kwargs: dict) -> dict:
+    """The factory's keyword arguments for the JSON settings (absent when there are none)."""
+    if not kwargs:
+        return {}
+    return dict(params={k: v if _json_ready(v) else repr(v) for k, v in kwargs.items()})
+
+
+def _json_ready(value) -> bool:
+    try:
+        json.dumps(value, allow_nan=False)          # tuples become lists
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
 def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None):
+    model = model.factory if isinstance(model, _Model) else model
     return delay_study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
                                       substeps=substeps, model_kwargs=model_kwargs, progress=True)
 
@@ -295,7 +416,7 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
 
 
 @main.command("compare")
-@click.argument("model", type=_MODEL, metavar="MODEL")
+@click.argument("model", type=_ModelType(), metavar="MODEL")
 @click.option("--delays", type=_DelayList(), default="0,0.05,0.1", show_default=True,
               help="Comma-separated input delays in seconds, each a whole number of the model's time steps.")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
@@ -308,22 +429,26 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Also evaluate the state-augmentation solution (delay-aware reference).")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
               help="Euler-Maruyama sub-steps per control step.")
+@_model_options
 @_out_option(default=None, help="Folder for compare.json, compare.md, compare_runs.npz and figures.")
-def compare_command(model, delays, trials, seed, noise, augmented, substeps, out, overwrite):
+def compare_command(model, delays, trials, seed, noise, augmented, substeps, params, dt, out, overwrite):
     """Delay-aware vs delay-ignorant control of MODEL at several delays, by Monte Carlo.
 
-    MODEL is one of the names that `delayed-ilqr models` lists. Prints one table row per delay and
-    controller.
+    MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
+    package.module:factory (called as factory(delay=..., noise=..., **params)). Prints one table
+    row per delay and controller. With --dt the delays are whole numbers of that step, e.g.
+    --dt 0.005 --delays 0,0.025,0.05,0.075,0.1,0.125,0.15.
     """
     controllers = ["aware", "ignorant"] + (["augmented"] if augmented else [])
-    _check_study(model, delays, trials, noise, controllers, substeps)
+    kwargs = _model_kwargs(params, dt)
+    _check_study(model, delays, trials, noise, controllers, substeps, kwargs)
     with _Output(out, overwrite) as output:
-        results = _run_study(model, delays, trials, seed, noise, controllers, substeps)
+        results = _run_study(model, delays, trials, seed, noise, controllers, substeps, kwargs)
         table = tables.delay_study_rows(results)
         click.echo(tables.text_table(table))
         if out is not None:
-            settings = dict(_settings(model, noise, trials, seed, substeps), delays=list(delays),
-                            controllers=controllers)
+            settings = dict(_settings(model.name, noise, trials, seed, substeps), delays=list(delays),
+                            controllers=controllers, **_kwargs_settings(kwargs))
             _study_outputs(results, output.staging, settings, "compare")
             (output.staging / "compare.md").write_text(tables.markdown_table(table) + "\n")
             written = output.commit(settings)
@@ -347,7 +472,7 @@ def demo_command(out, overwrite, trials, seed):
     0.2 is a numerical stress test), input delays 0, 50, 100 and 150 ms, --trials noisy trials per
     controller and delay. Prints the table and writes a markdown report with figures.
     """
-    _check_study("arm2", list(DEMO_DELAYS), trials, True, ["aware", "ignorant"], 1)
+    _check_study(_ModelType().convert("arm2", None, None), list(DEMO_DELAYS), trials, True, ["aware", "ignorant"], 1)
     with _Output(out, overwrite) as output:
         start = time.perf_counter()
         results = _run_study("arm2", list(DEMO_DELAYS), trials, seed, True, ["aware", "ignorant"], 1,
@@ -422,6 +547,95 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
     for delay, design, j in failed:
         click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
     if failed and not allow_unconverged:
+        sys.exit(1)
+
+
+def _perturb_rows(results) -> list[dict]:
+    """One table row per sensory delay: design, costs, and the latencies after the kick."""
+    rows = []
+    for r in results:
+        dt, kp = r.problem.dt, r.pulse_step
+        after = lambda k: None if k is None else 1000 * dt * (k - kp)          # noqa: E731
+        rows.append({"sensory delay [ms]": 1000 * r.sensory_delay, "status": str(r.solution.status),
+                     "expected cost": float(r.solution.expected_cost),
+                     "MC cost": float(r.base.summary().mean_cost),
+                     "MC cost kicked": float(r.perturbed.summary().mean_cost),
+                     "first response [ms after kick]": after(r.latency_steps),
+                     "half-peak response [ms after kick]": after(r.half_steps)})
+    return rows
+
+
+def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows) -> None:
+    from .plot import perturbation_figures
+    records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
+               for row in table_rows]
+    report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
+    (staging / "perturb.md").write_text(tables.markdown_table(tables.records_table(table_rows)) + "\n")
+    arrays = {}
+    for r in results:
+        tag = f"ls{int(round(1000 * r.sensory_delay))}ms"
+        arrays[f"{tag}_x_mean"] = np.asarray(r.base.x).mean(axis=0)
+        arrays[f"{tag}_x_kicked_mean"] = np.asarray(r.perturbed.x).mean(axis=0)
+        arrays[f"{tag}_u_mean"] = np.asarray(r.base.u).mean(axis=0)
+        arrays[f"{tag}_u_kicked_mean"] = np.asarray(r.perturbed.u).mean(axis=0)
+        arrays[f"{tag}_disturbance"] = r.disturbance
+    np.savez_compressed(staging / "perturb_means.npz", **arrays)
+    report.save_figures(perturbation_figures(results), staging)
+
+
+@main.command("perturb")
+@click.argument("model", type=click.Choice(perturbation.PERTURB_MODELS), metavar="MODEL")
+@click.option("--delay", type=float, default=0.05, show_default=True,
+              help="Input (motor) delay in seconds (a whole number of the model's time steps).")
+@click.option("--sensory-delays", type=_DelayList(), default="0,0.05,0.1", show_default=True,
+              help="Comma-separated sensory delays in seconds, each a whole number of the model's time steps.")
+@click.option("--pulse-time", type=click.FloatRange(min=0.0), default=0.15, show_default=True,
+              help="When the kick hits, in seconds from the start of the movement.")
+@click.option("--kick", type=click.FloatRange(min=0.0, min_open=True), default=0.2, show_default=True,
+              help="Size of the kick: the change of the hand's (point's) velocity in m/s, perpendicular "
+                   "to the nominal movement.")
+@click.option("--trials", type=click.IntRange(min=1), default=200, show_default=True,
+              help="Monte Carlo trials per sensory delay (each run twice: without and with the kick).")
+@click.option("--seed", type=_SEED, default=0, show_default=True, help="Seed of the motor and sensory noise.")
+@click.option("--noise/--no-noise", default=True, show_default=True,
+              help="Motor noise in the plant (the sensors are always noisy).")
+@_out_option(default=None, help="Folder for perturb.json, perturb.md, perturb_means.npz and perturbation.png.")
+def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed, noise, out, overwrite):
+    """Perturbation experiments: kick the hand of MODEL mid-reach and measure the correction
+    against the sensory delay.
+
+    MODEL is point_mass, arm2 (torque noise at the human level, SIGMA_U_HUMAN) or arm2_muscle6,
+    with their default sensors (docs/models.md). Per sensory delay the controller and the
+    delayed filter are designed, and --trials trials run without and with the kick on the same
+    noise; the first command that differs is (1 + l_s) steps after the kick.
+    """
+    kwargs = dict(sigma_u=SIGMA_U_HUMAN) if model == "arm2" else {}
+    try:
+        problems = [REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls, **kwargs)
+                    for ls in sensory_delays]
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--delay' / '--sensory-delays'") from exc
+    final = problems[0].horizon * problems[0].dt
+    if pulse_time >= final:
+        raise click.BadParameter(f"must be within the movement, below {final:g} s; got {pulse_time:g}",
+                                 param_hint="'--pulse-time'")
+    _check_trials(problems[-1], trials, 1, runs=2 * len(sensory_delays))
+    with _Output(out, overwrite) as output:
+        results = perturbation.perturbation_study(model, sensory_delays, delay, pulse_time, kick, trials, seed,
+                                                  noise=noise, model_kwargs=kwargs)
+        rows = _perturb_rows(results)
+        click.echo(tables.text_table(tables.records_table(rows)))
+        if out is not None:
+            settings = dict(model=model, delay=delay, sensory_delays=list(sensory_delays), pulse_time=pulse_time,
+                            kick=kick, trials=trials, seed=seed, noise=noise, **kwargs)
+            _perturb_outputs(results, output.staging, settings, rows)
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out}")
+    failed = [r for r in results if not r.converged]
+    for r in failed:
+        click.echo(f"warning: the solve at sensory delay {r.sensory_delay:g} s did not converge "
+                   f"({r.solution.status})", err=True)
+    if failed:
         sys.exit(1)
 
 

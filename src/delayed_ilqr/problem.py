@@ -3,6 +3,15 @@
     x_{k+1} = x_k + dt f(x_k, u_k, u_{k-l}) + sqrt(dt) F(x_k, u_k, u_{k-l}) xi_k,   u_k = 0 for k < 0
     J = sum_{k<K} dt * running(x_k, u_k) + final(x_K)
 
+Time in the task (via-points, moving targets, force fields, timed perturbations): a problem built
+with ``time_dependent=True`` calls its dynamics and noise with the step's time t_k = k dt (seconds)
+as a last argument, f(x, u, ud, t); a ``GeneralCost(..., time_dependent=True)`` calls
+running(x, u, params, t) with t_k and final(x, params, t) with t_K = K dt. The declaration is
+explicit, not read from the signature: a signature cannot tell a time argument from an optional
+parameter (``f(x, u, ud, gain=1.0)``), and ``functools.partial``, ``jax.jit``-wrapped functions
+and callable objects hide it. Without it the callables are called exactly as before and the
+compiled solver does not contain the time at all.
+
 All callables are written with ``jax.numpy`` and see one time step (no batch axis). A
 :class:`Problem` is a JAX pytree: its arrays (x0, the cost's arrays or parameters, the limits) are
 data, its callables and sizes are static, so two problems that differ only in arrays share one
@@ -36,10 +45,13 @@ class QuadraticCost(NamedTuple):
     P_final: Any
     x_target: Any
 
-    def running(self, x, u):
+    time_dependent = False        # a class attribute, not a field: eq. (2) does not depend on time
+
+    def running(self, x, u, t=None):
+        """x'P x + u'Q u (``t`` is accepted and ignored, as for any time-independent cost)."""
         return x @ self.P @ x + u @ self.Q @ u
 
-    def final(self, x):
+    def final(self, x, t=None):
         err = x - self.x_target
         return err @ self.P_final @ err
 
@@ -52,27 +64,44 @@ class GeneralCost:
         final: ``final(x, params) -> scalar`` (not multiplied by dt).
         params: a pytree of arrays (targets, weights) passed to both; it is data, so problems that
             differ only in ``params`` share one compiled solver.
+        time_dependent: if True, the functions take the time as a last argument:
+            ``running(x, u, params, t)`` at t = k dt and ``final(x, params, t)`` at t = K dt
+            (seconds), for via-points and moving targets. Static: it is part of the compiled solver.
 
     The quadratisation keeps the x-u cross term of ``running``; the running cost may not depend on
     the delayed command (eq. 4 has no such terms).
     """
 
-    def __init__(self, running: Callable, final: Callable, params=None):
+    def __init__(self, running: Callable, final: Callable, params=None, time_dependent: bool = False):
+        t = ", t" if time_dependent else ""
         if not callable(running):
-            raise TypeError(f"running must be callable as running(x, u, params); got {type(running).__name__}")
+            raise TypeError(f"running must be callable as running(x, u, params{t}); got {type(running).__name__}")
         if not callable(final):
-            raise TypeError(f"final must be callable as final(x, params); got {type(final).__name__}")
-        self.running_fn, self.final_fn = running, final
+            raise TypeError(f"final must be callable as final(x, params{t}); got {type(final).__name__}")
+        if not isinstance(time_dependent, (bool, np.bool_)):
+            raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
+        self.running_fn, self.final_fn, self.time_dependent = running, final, bool(time_dependent)
         self.params = jax.tree_util.tree_map(_param, params)
 
-    def running(self, x, u):
-        return jnp.asarray(self.running_fn(x, u, self.params), x.dtype)     # a constant may be a float
+    def running(self, x, u, t=None):
+        """The running cost at (x, u), at time t (s) if the cost is time-dependent."""
+        args = (x, u, self.params) + self._time(t, "running")
+        return jnp.asarray(self.running_fn(*args), x.dtype)     # a constant may be a float
 
-    def final(self, x):
-        return jnp.asarray(self.final_fn(x, self.params), x.dtype)
+    def final(self, x, t=None):
+        """The final cost at x, at the final time t = K dt if the cost is time-dependent."""
+        return jnp.asarray(self.final_fn(*(x, self.params) + self._time(t, "final")), x.dtype)
+
+    def _time(self, t, what):
+        if not self.time_dependent:
+            return ()
+        if t is None:
+            raise TypeError(f"this GeneralCost is time-dependent: cost.{what} needs the time t (s); got t=None")
+        return (t,)
 
     def __repr__(self):
-        return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r})"
+        flag = ", time_dependent=True" if self.time_dependent else ""
+        return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r}{flag})"
 
 
 def _param(leaf):
@@ -87,14 +116,14 @@ def _param(leaf):
 
 jax.tree_util.register_pytree_node(
     GeneralCost,
-    lambda c: ((c.params,), (c.running_fn, c.final_fn)),
+    lambda c: ((c.params,), (c.running_fn, c.final_fn, c.time_dependent)),
     lambda aux, data: _general_cost_from(aux, data[0]),
 )
 
 
 def _general_cost_from(aux, params):
     new = object.__new__(GeneralCost)
-    new.running_fn, new.final_fn = aux
+    new.running_fn, new.final_fn, new.time_dependent = aux
     new.params = params
     return new
 
@@ -117,21 +146,35 @@ class Problem:
             (covariance ``dt^2 sigma^2 ...``) is ``F`` with sigma_u = sigma sqrt(dt):
             :func:`delayed_ilqr.models.per_step_noise_to_diffusion`. Entered unconverted, it is
             ``1 / sqrt(dt)`` times too large (10x at dt = 10 ms).
-        u_min, u_max: optional [d] box limits on the commands (``-inf``/``inf`` for none).
+        u_min: optional [d] lower limits on the commands (a scalar for all; ``-inf`` for none).
+        u_max: optional [d] upper limits on the commands (a scalar for all; ``inf`` for none).
         n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
         name: a label for reports.
         metadata: optional :class:`~delayed_ilqr.models.ModelMetadata` (labels, task space, warm
             start) that studies and figures read; static data, so it must be hashable.
+        time_dependent: if True, ``dynamics`` and ``noise`` take the step's time as a last
+            argument, ``f(x, u, ud, t)`` and ``F(x, u, ud, t)`` with t = k dt in seconds (within
+            a step of :func:`~delayed_ilqr.simulate` with sub-steps, the sub-step's time): force
+            fields, timed perturbations. A time-dependent cost is declared on the
+            :class:`GeneralCost`. Static: part of the compiled solver.
+        observation: optional :class:`~delayed_ilqr.Observation`, the delayed noisy sensors
+            y_k = h(x_{k-l_s}) + G v_k. With it, :func:`~delayed_ilqr.solve` adds the delayed
+            Kalman filter to the policy and :func:`~delayed_ilqr.simulate` runs the controller on
+            its estimate; without it (the default) the controller sees the state.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
                  u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem",
-                 metadata=None):
+                 metadata=None, time_dependent: bool = False, observation=None):
         _precision.require_x64("Problem")
+        if not isinstance(time_dependent, (bool, np.bool_)):
+            raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
+        self.time_dependent = bool(time_dependent)
+        t = ", t" if self.time_dependent else ""
         if not callable(dynamics):
-            raise TypeError(f"dynamics must be callable as f(x, u, ud); got {type(dynamics).__name__}")
+            raise TypeError(f"dynamics must be callable as f(x, u, ud{t}); got {type(dynamics).__name__}")
         if noise is not None and not callable(noise):
-            raise TypeError(f"noise must be None or callable as F(x, u, ud); got {type(noise).__name__}")
+            raise TypeError(f"noise must be None or callable as F(x, u, ud{t}); got {type(noise).__name__}")
         self.dynamics, self.noise, self.name = dynamics, noise, str(name)
         try:
             hash(metadata)
@@ -169,7 +212,9 @@ class Problem:
         self.n_controls = nd
         self.x0, self.cost = jnp.asarray(x0), cost
         self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
+        _check_labels(metadata, self.n_states, nd)
         self._check_callables()
+        self.observation = _observation(observation, self.x0, self.horizon)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -181,7 +226,33 @@ class Problem:
         """p, the number of noise columns (0 without noise)."""
         if self.noise is None:
             return 0
-        return jax.eval_shape(self.noise, self.x0, *(jnp.zeros(self.n_controls),) * 2).shape[1]
+        return jax.eval_shape(self.noise_at, self.x0, *(jnp.zeros(self.n_controls),) * 2, 0.0).shape[1]
+
+    # -- time ----------------------------------------------------------------------------------
+    @property
+    def uses_time(self) -> bool:
+        """Whether the dynamics, the noise or the cost depend on time (static)."""
+        return self.time_dependent or bool(getattr(self.cost, "time_dependent", False))
+
+    @property
+    def final_time(self) -> float:
+        """t_K = K dt (s), the time the final cost is evaluated at."""
+        return self.horizon * self.dt
+
+    def step_times(self, dtype=jnp.float64):
+        """t_k = k dt for k = 0..K-1 ([K], seconds), or None when nothing depends on time, so
+        that the loops of a time-independent problem carry no time at all."""
+        if not self.uses_time:
+            return None
+        return self.dt * jnp.arange(self.horizon, dtype=dtype)
+
+    def dynamics_at(self, x, u, ud, t):
+        """f(x, u, ud), or f(x, u, ud, t) for a time-dependent problem (t: the time in s)."""
+        return self.dynamics(x, u, ud, t) if self.time_dependent else self.dynamics(x, u, ud)
+
+    def noise_at(self, x, u, ud, t):
+        """F(x, u, ud), or F(x, u, ud, t) for a time-dependent problem: [n, p]."""
+        return self.noise(x, u, ud, t) if self.time_dependent else self.noise(x, u, ud)
 
     @property
     def has_limits(self) -> bool:
@@ -198,7 +269,7 @@ class Problem:
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
-                      metadata=self.metadata)
+                      metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation)
         fields.update(changes)
         x0 = changes.get("x0")
         if x0 is not None and "cost" not in changes and np.shape(x0) != (self.n_states,):
@@ -209,26 +280,33 @@ class Problem:
     def _check_callables(self):
         nx, nd = self.n_states, self.n_controls
         x, u = jax.ShapeDtypeStruct((nx,), jnp.float64), jax.ShapeDtypeStruct((nd,), jnp.float64)
+        t = jax.ShapeDtypeStruct((), jnp.float64)
+        ts = ", t" if self.time_dependent else ""
+        at = f" and t of shape ()" if self.time_dependent else ""
         try:
-            out = jax.eval_shape(self.dynamics, x, u, u)
+            out = jax.eval_shape(self.dynamics_at, x, u, u, t)
         except Exception as exc:  # a user's function failing on shapes: say which and why
-            raise ValueError(f"dynamics(x, u, ud) failed on x of shape ({nx},) and u, ud of shape ({nd},): {exc}") from exc
+            raise ValueError(f"dynamics(x, u, ud{ts}) failed on x of shape ({nx},) and u, ud of shape ({nd},)"
+                             f"{at}: {exc}") from exc
         if getattr(out, "shape", None) != (nx,):
-            raise ValueError(f"dynamics(x, u, ud) must return shape ({nx},); got {getattr(out, 'shape', type(out))}")
+            raise ValueError(f"dynamics(x, u, ud{ts}) must return shape ({nx},); got {getattr(out, 'shape', type(out))}")
         if not jnp.issubdtype(out.dtype, jnp.floating):
-            raise ValueError(f"dynamics(x, u, ud) must return floating-point values (autodiff needs them); "
+            raise ValueError(f"dynamics(x, u, ud{ts}) must return floating-point values (autodiff needs them); "
                              f"got dtype {out.dtype}")
         if self.noise is not None:
             try:
-                out = jax.eval_shape(self.noise, x, u, u)
+                out = jax.eval_shape(self.noise_at, x, u, u, t)
             except Exception as exc:
-                raise ValueError(f"noise(x, u, ud) failed on x of shape ({nx},) and u, ud of shape ({nd},): {exc}") from exc
+                raise ValueError(f"noise(x, u, ud{ts}) failed on x of shape ({nx},) and u, ud of shape ({nd},)"
+                                 f"{at}: {exc}") from exc
             shape = getattr(out, "shape", None)
             if shape is None or len(shape) != 2 or shape[0] != nx:
-                raise ValueError(f"noise(x, u, ud) must return shape ({nx}, p); got {shape}")
+                raise ValueError(f"noise(x, u, ud{ts}) must return shape ({nx}, p); got {shape}")
             if not jnp.issubdtype(out.dtype, jnp.floating):
-                raise ValueError(f"noise(x, u, ud) must return floating-point values; got dtype {out.dtype}")
-        for what, fn, args in (("cost.running(x, u)", self.cost.running, (x, u)), ("cost.final(x)", self.cost.final, (x,))):
+                raise ValueError(f"noise(x, u, ud{ts}) must return floating-point values; got dtype {out.dtype}")
+        ct = ", t" if getattr(self.cost, "time_dependent", False) else ""
+        for what, fn, args in ((f"cost.running(x, u{ct})", self.cost.running, (x, u, t)),
+                               (f"cost.final(x{ct})", self.cost.final, (x, t))):
             try:
                 out = jax.eval_shape(fn, *args)
             except Exception as exc:
@@ -239,6 +317,15 @@ class Problem:
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
                 f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps})")
+
+
+def _check_labels(metadata, nx: int, nd: int) -> None:
+    """The metadata's labels name every state and command (figures and tables read them)."""
+    for field, size, symbol in (("state_labels", nx, "n"), ("control_labels", nd, "d")):
+        labels = getattr(metadata, field, None)
+        if labels is not None and len(labels) != size:
+            raise ValueError(f"metadata.{field} must have one label per {'state' if symbol == 'n' else 'command'} "
+                             f"({symbol} = {size}); got {len(labels)}: {labels!r}")
 
 
 def _resolve_n_controls(n_controls, nd_cost, u_min, u_max) -> int:
@@ -283,16 +370,28 @@ def _limits(u_min, u_max, nd):
     return jnp.asarray(lo), jnp.asarray(hi), bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
 
 
+def _observation(observation, x0, horizon):
+    """The problem's observation, checked against its state size and horizon (None: full state)."""
+    if observation is None:
+        return None
+    from .observation import Observation       # the sensors' module imports the LQG layer
+    if not isinstance(observation, Observation):
+        raise TypeError(f"observation must be None or a delayed_ilqr.Observation; got {type(observation).__name__}")
+    observation.check(x0, horizon)
+    return observation
+
+
 def _problem_flatten(p: Problem):
-    return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                               p.n_controls, p.name, p._has_limits, p.metadata)
+    return (p.x0, p.cost, p.u_min, p.u_max, p.observation), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
+                                                             p.n_controls, p.name, p._has_limits, p.metadata,
+                                                             p.time_dependent)
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata) = aux
-    new.x0, new.cost, new.u_min, new.u_max = data
+     new._has_limits, new.metadata, new.time_dependent) = aux
+    new.x0, new.cost, new.u_min, new.u_max, new.observation = data
     return new
 
 

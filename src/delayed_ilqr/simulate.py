@@ -5,6 +5,8 @@ Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-
 
     x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
 
+(a time-dependent problem's f and F see each sub-step's own time, k dt + j h)
+
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
 terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the law is the solver's,
 ``ilqg.closed_loop.delayed_law``)::
@@ -27,7 +29,7 @@ from __future__ import annotations
 import math
 import os
 from functools import partial
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -37,8 +39,9 @@ from . import _precision, _validate
 from .ilqg.closed_loop import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
+from .lqg.estimator import FilterGains, _measured_rows, delayed_rows, estimator_predict, estimator_update
 from .problem import Problem
-from .solution import Policy
+from .solution import Estimator, Policy
 from .statistics import Summary, summarize
 
 __all__ = ["simulate", "memory_estimate", "check_memory", "Runs"]
@@ -51,11 +54,14 @@ class Runs(NamedTuple):
         x: [N, K+1, n] states (x[:, 0] = x0).
         u: [N, K, d] commands sent (the plant receives them ``problem.delay_steps`` steps later).
         cost: [N] eq. (2) of each trial, ``trajectory_cost(problem, x, u)``.
+        x_hat: None with full-state feedback; with an :class:`~delayed_ilqr.Estimator`, [N, K, n]
+            the estimates x_nominal_k + E[dx_k | I_k] the commands u_k were computed from.
     """
 
     x: jax.Array
     u: jax.Array
     cost: jax.Array
+    x_hat: Optional[jax.Array] = None
 
     def summary(self) -> Summary:
         """Mean and median cost with 95 % intervals; mean and covariance of x_K (only non-finite
@@ -77,19 +83,24 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
-        x_bar, u_bar, I, LM, xi = data           # xi: [substeps, p]
+        # xi: [substeps, p]; t: t_k, None without time; disturbance: [W_k] or []
+        x_bar, u_bar, I, LM, xi, t, *disturbance = data
         pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
         du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         ud = sent[m - l] if l > 0 else u
 
-        def substep(x, xi_j):
-            x_new = x + h * problem.dynamics(x, u, ud)
+        def substep(x, sub):
+            xi_j, t_j = sub
+            x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
             if problem.noise is not None:
-                x_new = x_new + root_h * problem.noise(x, u, ud) @ xi_j
+                x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
             return x_new, None
 
-        x_new, _ = jax.lax.scan(substep, x, xi)
+        t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
+        x_new, _ = jax.lax.scan(substep, x, (xi, t_sub))
+        if disturbance:
+            x_new = x_new + disturbance[0]
         if m > 0:
             sent = jnp.concatenate([sent[1:], u[None]])
             nominal = jnp.concatenate([nominal[1:], u_bar[None]])
@@ -99,7 +110,7 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
 
 
 @partial(jax.jit, static_argnames=("n_trials", "substeps"))
-def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, key) -> Runs:
+def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance=None) -> Runs:
     K, nd, p = problem.horizon, problem.n_controls, problem.n_noise
     l_p = policy.delay_feedback.shape[1]
     m = max(problem.delay_steps, l_p)
@@ -111,12 +122,109 @@ def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, ke
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
         init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
-        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi)
+        data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi,
+                problem.step_times(dtype))
+        if disturbance is not None:
+            data = data + (disturbance,)
         _, (xs, us) = jax.lax.scan(step, init, data)
         xs = jnp.concatenate([problem.x0[None], xs])
         return xs, us, trajectory_cost(problem, xs, us)
 
     return Runs(*jax.vmap(trial)(jax.random.split(key, n_trials)))
+
+
+def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, substeps: int):
+    """The scan body of one trial with delayed noisy sensors: the plant as in :func:`_trial_step`,
+    the measurement y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k of the plant's sensors (l_s =
+    ``problem.observation.delay_steps``; x0 before time 0), the policy's delayed filter on it
+    (designed for l_s_e = ``ls_e`` and the motor delay l_p, ``lqg.estimator``) and the law on its
+    estimate. ``buffer`` = max(l, l_s_e + l_p + 1) sent commands and their nominals are kept in time
+    order: the plant reads u_{k-l}, the law u_{k-l_p}..u_{k-1}, the filter the deviations
+    du_{k-l_s_e-l_p}..du_k."""
+    l, obs = problem.delay_steps, problem.observation
+    h = problem.dt / substeps
+    root_h = math.sqrt(h)
+    B, window = buffer, ls_e + l_p + 1
+
+    def step(carry, data):
+        past, sent, nominal, x_hat_prior, x_tilde = carry        # past[0] = x_{k-l_s}, past[-1] = x_k
+        x_bar, u_bar, LM, xi, v, est, disturbance, t = data       # t: t_k, None without time
+        A, B0, B1, Ad, B0d, B1d, H, y_bar, Kd, Kc = est
+        x, sensed = past[-1], past[0]
+        dy = obs.measure(sensed) + obs.noise_matrix(sensed) @ v - y_bar
+        x_hat, x_del = estimator_update(x_hat_prior, x_tilde, dy, H, Kd, Kc)
+        pending = (sent[B - l_p:] - nominal[B - l_p:]).reshape(-1)         # u_{k+i-l_p} - u_nominal, i < l_p
+        u = jnp.clip(u_bar + delayed_law(jnp.zeros_like(u_bar), LM, jnp.concatenate([x_hat, pending])),
+                     problem.u_min, problem.u_max)
+        ud = sent[B - l] if l > 0 else u
+
+        def substep(x, sub):
+            xi_j, t_j = sub
+            x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
+            if problem.noise is not None:
+                x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
+            return x_new, None
+
+        t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
+        x_new = jax.lax.scan(substep, x, (xi, t_sub))[0] + disturbance
+        sent = jnp.concatenate([sent[1:], u[None]])
+        nominal = jnp.concatenate([nominal[1:], u_bar[None]])
+        # the filter moves with the commands actually sent (after clipping)
+        prior = estimator_predict(x_hat, x_del, (sent - nominal)[B - window:], (A, B0, B1), (Ad, B0d, B1d), l_p, ls_e)
+        past = jnp.concatenate([past[1:], x_new[None]])
+        return (past, sent, nominal) + prior, (x_new, u, x_bar + x_hat)
+
+    return step
+
+
+@partial(jax.jit, static_argnames=("n_trials", "substeps"))
+def _simulate_observed(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance) -> Runs:
+    K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
+    est = policy.estimator
+    l_p, ls_e, ls = policy.delay_feedback.shape[1], est.sensory_delay, problem.observation.delay_steps
+    B = max(problem.delay_steps, ls_e + l_p + 1)
+    step = _observed_trial_step(problem, l_p, ls_e, B, substeps)
+    dtype = problem.x0.dtype
+    LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
+    B0, B1 = (est.B0 + est.B1, jnp.zeros_like(est.B1)) if l_p == 0 else (est.B0, est.B1)   # merged_if_undelayed
+    delayed = tuple(delayed_rows(a, ls_e, fill) for a, fill in ((est.A, jnp.eye(nx)), (B0, 0.0), (B1, 0.0)))
+    Kd, Kc = _measured_rows(FilterGains(est.delayed_gain, est.current_gain), ls_e)
+    rows = (est.A, B0, B1) + delayed + (est.H, est.y_nominal, Kd, Kc)
+    q = problem.observation.noise_matrix(problem.x0).shape[1]
+
+    def trial(trial_key):
+        xi = jax.random.normal(trial_key, (K, substeps, p), dtype)       # the motor noise of the full-state run
+        v = jax.random.normal(jax.random.fold_in(trial_key, 1), (K, q), dtype)
+        init = (jnp.broadcast_to(problem.x0, (ls + 1, nx)), jnp.zeros((B, nd), dtype), jnp.zeros((B, nd), dtype),
+                jnp.zeros(nx, dtype), jnp.zeros(nx, dtype))
+        data = (policy.x_nominal[:-1], policy.u_nominal, LM, xi, v, rows, disturbance, problem.step_times(dtype))
+        _, (xs, us, x_hat) = jax.lax.scan(step, init, data)
+        xs = jnp.concatenate([problem.x0[None], xs])
+        return xs, us, trajectory_cost(problem, xs, us), x_hat
+
+    return Runs(*jax.vmap(trial)(jax.random.split(key, n_trials)))
+
+
+def _check_estimator(problem: Problem, policy: Policy):
+    """The policy's estimator, checked against the problem's sensors (None for full state)."""
+    est, obs = policy.estimator, problem.observation
+    if est is None and obs is None:
+        return None
+    if obs is None:
+        raise ValueError("policy.estimator is set but the problem has no observation: a policy with a filter runs "
+                         "on a problem with sensors (Problem(observation=...)); got observation=None")
+    if not isinstance(est, Estimator):
+        raise ValueError("policy.estimator must be a delayed_ilqr.Estimator for a problem with an observation "
+                         "(solve the problem with its observation); got "
+                         f"{'None' if est is None else type(est).__name__}")
+    K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
+    m = jax.eval_shape(obs.measure, jax.ShapeDtypeStruct((nx,), jnp.float64)).shape[0]
+    shapes = dict(A=(K, nx, nx), B0=(K, nx, nd), B1=(K, nx, nd), H=(K, m, nx), y_nominal=(K, m),
+                  delayed_gain=(K, nx, m), current_gain=(K, nx, m), error_covariance=(K + 1, nx, nx))
+    checked = {name: jnp.asarray(_validate.array(getattr(est, name), f"policy.estimator.{name}", shape),
+                                 jnp.float64) for name, shape in shapes.items()}
+    ls_e = _validate.delay_steps(est.sensory_delay, "policy.estimator.sensory_delay")
+    return Estimator(**checked, sensory_delay=ls_e)
 
 
 def _check_policy(problem: Problem, policy) -> Policy:
@@ -131,7 +239,7 @@ def _check_policy(problem: Problem, policy) -> Policy:
         _validate.array(policy.state_feedback, "policy.state_feedback", (K, nd, nx)),
         _validate.array(policy.delay_feedback, "policy.delay_feedback", (K, l_p, nd, nd)),
     ]
-    return Policy(*(jnp.asarray(a, jnp.float64) for a in checked))
+    return Policy(*(jnp.asarray(a, jnp.float64) for a in checked), estimator=_check_estimator(problem, policy))
 
 
 # The largest share of the machine's memory one Monte Carlo may plan to hold: the trials, their
@@ -141,9 +249,14 @@ MEMORY_FRACTION = 0.5
 
 def memory_estimate(problem: Problem, n_trials: int, substeps: int = 1) -> int:
     """Bytes :func:`simulate` holds for ``n_trials`` trials: states [N, K+1, n], commands [N, K, d],
-    costs [N] and the noise samples [N, K, substeps, p], in float64."""
+    costs [N] and the noise samples [N, K, substeps, p], in float64; with an observation also the
+    estimates [N, K, n] and the sensory noise samples [N, K, q]."""
     K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
-    return 8 * int(n_trials) * ((K + 1) * nx + K * nd + 1 + K * int(substeps) * p)
+    per_trial = (K + 1) * nx + K * nd + 1 + K * int(substeps) * p
+    if problem.observation is not None:
+        q = jax.eval_shape(problem.observation.noise_matrix, jax.ShapeDtypeStruct((nx,), jnp.float64)).shape[1]
+        per_trial += K * (nx + q)
+    return 8 * int(n_trials) * per_trial
 
 
 def _available_memory() -> int:
@@ -167,8 +280,15 @@ def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str =
                          "seeds) and pool their statistics")
 
 
-def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1) -> Runs:
+def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1,
+             disturbance=None) -> Runs:
     """Monte Carlo of ``problem``'s stochastic plant under the delayed feedback law of ``policy``.
+
+    With delayed sensors (``problem.observation``) the policy's :class:`~delayed_ilqr.Estimator`
+    runs on the measurements y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k of the nonlinear plant (x0 before
+    time 0) and the law acts on its estimate x_nominal_k + x_hat_k instead of x_k; the sensory noise
+    v is drawn from ``jax.random.fold_in(trial_key, 1)``, so the motor noise xi of a trial is that
+    of the full-state run with the same seed.
 
     Args:
         problem: the plant (dynamics, noise, delay ``delay_steps`` = l, limits, cost). Without
@@ -180,18 +300,25 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
         seed: non-negative integer; the trials use ``jax.random.split(jax.random.PRNGKey(seed), N)``.
         substeps: Euler-Maruyama sub-steps per control step (positive int); 1 integrates at dt,
             exactly like :func:`~delayed_ilqr.ilqg.linearize.rollout` in the noise-free case.
+        disturbance: optional [K, n] array W added to every trial's state update,
+            x_{k+1} = ... + W_k, and unknown to the controller (a perturbation experiment: a force
+            pulse is W_k = dt f_pulse on the velocity rows). With delayed sensors, the first
+            command that can respond to W_k is u_{k+1+l_s}.
 
     Returns:
-        :class:`Runs` with x [N, K+1, n], u [N, K, d], cost [N]; ``runs.summary()`` gives the mean
+        :class:`Runs` with x [N, K+1, n], u [N, K, d], cost [N] (and x_hat [N, K, n] with an
+        estimator); ``runs.summary()`` gives the mean
         cost, its standard error and 95 % confidence interval, the median, and the final-state
         statistics. A trial whose closed loop blows up has a non-finite cost (counted in
         ``summary().n_diverged``); nothing is raised.
 
     Raises:
         TypeError, ValueError: naming the argument, for a wrong problem or policy type, a policy
-            whose shapes do not match the problem, a non-positive ``n_trials`` / ``substeps``, or
-            a seed that is not a non-negative integer; ValueError when the trials would not fit
-            in memory (:func:`check_memory`, before anything is computed).
+            whose shapes do not match the problem (or a filter without sensors, sensors without a
+            filter), a non-positive ``n_trials`` / ``substeps``, a seed that is not a
+            non-negative integer, or a disturbance that is not a finite [K, n] array;
+            ValueError when the trials would not fit in memory (:func:`check_memory`, before
+            anything is computed).
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
@@ -200,5 +327,13 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     substeps = _validate.positive_int(substeps, "substeps")
     seed = _validate.seed(seed)
     policy = _check_policy(problem, policy)
+    if disturbance is not None:
+        disturbance = jnp.asarray(_validate.array(disturbance, "disturbance", (problem.horizon, problem.n_states)))
     check_memory(problem, n_trials, substeps)
-    return _simulate(problem, policy, n_trials, substeps, jax.random.PRNGKey(seed))
+    key = jax.random.PRNGKey(seed)
+    if policy.estimator is None:
+        return _simulate(problem, policy, n_trials, substeps, key, disturbance)
+    # with sensors, one compilation serves the runs with and without a disturbance
+    if disturbance is None:
+        disturbance = jnp.zeros((problem.horizon, problem.n_states))
+    return _simulate_observed(problem, policy, n_trials, substeps, key, disturbance)

@@ -2,12 +2,62 @@
 from __future__ import annotations
 
 import enum
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import numpy as np
 
-__all__ = ["Policy", "Status", "Trace", "Solution"]
+__all__ = ["Policy", "Estimator", "Status", "Trace", "Solution"]
+
+
+class Estimator:
+    """The delayed Kalman filter of a policy whose sensors are delayed and noisy (issue 20).
+
+    It runs on deviations from the policy's nominal (``docs/derivation.md`` §14)::
+
+        e_k     = (y_k - y_nominal_k) - H_k x_tilde_k                   innovation of the measurement
+        x_del_k = x_tilde_k + Kd_k e_k                                  E[dx_{k-l_s} | I_k]
+        x_hat_k = A_{k-1} x_hat_{k-1} + B0_{k-1} du_{k-1} + B1_{k-1} du_{k-1-l} + Kc_k e_k
+        x_tilde_{k+1} = A_{k-l_s} x_del_k + B0_{k-l_s} du_{k-l_s} + B1_{k-l_s} du_{k-l_s-l}
+
+    with du the commands actually sent minus their nominal, l the policy's motor delay and
+    (A, B0, B1) the linearisation of the plant at the nominal; the policy's law acts on x_hat_k.
+
+    Attributes:
+        A: [K, n, n]; B0, B1: [K, n, d]: the model the estimates move with.
+        H: [K, m, n] dh/dx at x_nominal_{k-l_s}; y_nominal: [K, m] h(x_nominal_{k-l_s}).
+        delayed_gain: [K, n, m] Kd_k; current_gain: [K, n, m] Kc_k (rows k < l_s unused).
+        error_covariance: [K+1, n, n] Sigma_k = Cov(dx_k | I_k) on the linearised model (row K:
+            the terminal state given I_{K-1}); exact for a linear plant with additive noise.
+        sensory_delay: l_s, the delay the filter was designed for (static: a pytree's aux data).
+            It may differ from the plant's (a design that ignores the sensory delay).
+    """
+
+    _arrays = ("A", "B0", "B1", "H", "y_nominal", "delayed_gain", "current_gain", "error_covariance")
+
+    def __init__(self, A, B0, B1, H, y_nominal, delayed_gain, current_gain, error_covariance, sensory_delay: int):
+        self.A, self.B0, self.B1, self.H, self.y_nominal = A, B0, B1, H, y_nominal
+        self.delayed_gain, self.current_gain, self.error_covariance = delayed_gain, current_gain, error_covariance
+        self.sensory_delay = sensory_delay
+
+    def replace(self, **changes) -> "Estimator":
+        fields = {name: getattr(self, name) for name in self._arrays + ("sensory_delay",)}
+        fields.update(changes)
+        return Estimator(**fields)
+
+    @property
+    def n_outputs(self) -> int:
+        return self.H.shape[-2]
+
+    def __repr__(self):
+        return (f"Estimator(K={self.H.shape[-3]}, n={self.A.shape[-1]}, m={self.n_outputs}, "
+                f"sensory_delay={self.sensory_delay})")
+
+
+jax.tree_util.register_pytree_node(
+    Estimator,
+    lambda e: (tuple(getattr(e, name) for name in Estimator._arrays), e.sensory_delay),
+    lambda ls, arrays: Estimator(*arrays, sensory_delay=ls))
 
 
 class Policy(NamedTuple):
@@ -24,6 +74,9 @@ class Policy(NamedTuple):
     Attributes:
         x_nominal: [K+1, n]; u_nominal: [K, d]; feedforward: [K, d] I_k; state_feedback: [K, d, n]
         L_k; delay_feedback: [K, l, d, d] M_k^i (index i multiplies the command sent at k+i-l).
+        estimator: None when the controller sees the state; for a problem with an
+            :class:`~delayed_ilqr.Observation`, the :class:`Estimator` whose estimate
+            x_nominal_k + x_hat_k replaces x_k in the law above.
     """
 
     x_nominal: jax.Array
@@ -31,6 +84,13 @@ class Policy(NamedTuple):
     feedforward: jax.Array
     state_feedback: jax.Array
     delay_feedback: jax.Array
+    estimator: Optional[Estimator] = None
+
+    def save(self, path, problem=None, info=None) -> None:
+        """Writes the policy to ``path`` (``.npz`` with a JSON header, :mod:`delayed_ilqr.saving`);
+        ``problem`` (optional) records its dt and delay; :func:`delayed_ilqr.load` reads it back."""
+        from .saving import save
+        save(path, self, problem, info)
 
 
 class Status(enum.IntEnum):
@@ -100,7 +160,9 @@ class Solution(NamedTuple):
     Attributes:
         x: [K+1, n] nominal states; u: [K, d] nominal commands.
         cost: eq. (2) on the nominal, noise-free trajectory.
-        expected_cost: J(0) of the last LQG approximation (noise terms included).
+        expected_cost: J(0) of the last LQG approximation (noise terms included). With an
+            observation: the exact expected cost of the controller acting on the delayed filter's
+            estimate, on that linearisation (``lqg.output_feedback_cost``).
         status: the :class:`Status` (an IntEnum: prints as its name, compares as its code); an
             int32 array of codes when the solve was traced (``jit``, ``vmap``).
         iterations: number of iterations run.
@@ -116,6 +178,13 @@ class Solution(NamedTuple):
     iterations: jax.Array
     policy: Policy
     trace: Trace
+
+    def save(self, path, problem=None, info=None) -> None:
+        """Writes the solution (nominal, policy, trace, status) to ``path`` (``.npz`` with a JSON
+        header, :mod:`delayed_ilqr.saving`); ``problem`` (optional) records its dt and delay;
+        :func:`delayed_ilqr.load` reads it back."""
+        from .saving import save
+        save(path, self, problem, info)
 
     @property
     def converged(self):

@@ -122,7 +122,9 @@ def evaluate(problem: Problem, controller: str = "aware", n_trials: int = 1000, 
     Args:
         problem: the (delayed, possibly noisy) plant.
         controller: "aware", "ignorant" or "augmented" (see :data:`CONTROLLERS`).
-        n_trials, seed, substeps: passed to :func:`~delayed_ilqr.simulate`.
+        n_trials: Monte Carlo trials, passed to :func:`~delayed_ilqr.simulate`.
+        seed: the seed of the Monte Carlo noise.
+        substeps: Euler-Maruyama sub-steps per control step.
         options: solver options; default ``Options()`` (``method`` is forced to "augmented" for the
             augmented controller).
         u_init: initial commands [K, d] for the solve (default: the model's, ``metadata.u_init``;

@@ -116,5 +116,5 @@ def endpoint_error(problem: Problem, final_states) -> np.ndarray:
     x = np.asarray(final_states, dtype=np.float64)
     target = task_target(problem)
     if target is None:
-        return np.asarray(jax.vmap(problem.cost.final)(jnp.asarray(x)))
+        return np.asarray(jax.vmap(problem.cost.final, in_axes=(0, None))(jnp.asarray(x), problem.final_time))
     return np.linalg.norm(_positions(problem, x) - target, axis=-1)

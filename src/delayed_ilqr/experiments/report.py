@@ -46,14 +46,21 @@ def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
 
 
 def policy_arrays(sol) -> dict:
-    """The nominal, the gains and the solver trace of a solution, by NPZ name."""
+    """The nominal, the gains and the solver trace of a solution, by NPZ name (with sensors also
+    the filter: ``estimator_<field>`` for each array of :class:`~delayed_ilqr.Estimator` and
+    ``estimator_sensory_delay``)."""
     p, t = sol.policy, sol.trace
     n = int(sol.iterations) + 1
-    return dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
-                feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
-                delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
-                trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
-                trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
+    arrays = dict(x_nominal=np.asarray(p.x_nominal), u_nominal=np.asarray(p.u_nominal),
+                  feedforward=np.asarray(p.feedforward), state_feedback=np.asarray(p.state_feedback),
+                  delay_feedback=np.asarray(p.delay_feedback), trace_cost=np.asarray(t.cost[:n]),
+                  trace_merit=np.asarray(t.merit[:n]), trace_step_size=np.asarray(t.step_size[:n]),
+                  trace_reg=np.asarray(t.reg[:n]), trace_grad_norm=np.asarray(t.grad_norm[:n]))
+    if p.estimator is not None:
+        for name in p.estimator._arrays:
+            arrays[f"estimator_{name}"] = np.asarray(getattr(p.estimator, name))
+        arrays["estimator_sensory_delay"] = np.asarray(p.estimator.sensory_delay)
+    return arrays
 
 
 def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
@@ -77,8 +84,9 @@ def center_out_records(results: Sequence) -> list[dict]:
 
 def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, endpoint) -> list[str]:
     """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing) and
-    solution.npz (trajectory, gains, trace); ``timed`` and ``endpoint`` as in
-    :func:`.tables.solve_summary`."""
+    solution.npz (the :class:`~delayed_ilqr.Solution`: trajectory, gains, trace, in the format of
+    :mod:`delayed_ilqr.saving`, so that ``delayed_ilqr.load`` reads it); ``timed`` and
+    ``endpoint`` as in :func:`.tables.solve_summary`."""
     sol, solve_time, first = timed
     status = Status(int(sol.status))
     label, unit, value = endpoint
@@ -88,17 +96,19 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
         message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
         expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
         endpoint_unit=unit, solve_time=solve_time, first_solve_time=first))
-    np.savez_compressed(out / "solution.npz", x=np.asarray(sol.x), u=np.asarray(sol.u), **policy_arrays(sol))
+    sol.save(out / "solution.npz", problem, info=dict(model=model, method=method))
     return ["solution.json", "solution.npz"]
 
 
 def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> list[str]:
-    """The ``simulate`` command's simulate.json (settings and the result's record) and runs.npz
-    (trials, nominal, gains, trace)."""
+    """The ``simulate`` command's simulate.json (settings and the result's record), runs.npz
+    (trials, nominal, gains, trace) and solution.npz (the solution whose policy ran, readable by
+    ``delayed_ilqr.load``)."""
     write_json(out / "simulate.json", dict(settings=settings, result=result.to_dict()))
     np.savez_compressed(out / "runs.npz", x=np.asarray(result.runs.x), u=np.asarray(result.runs.u),
                         cost=np.asarray(result.runs.cost), **policy_arrays(result.solution))
-    return ["simulate.json", "runs.npz"]
+    result.solution.save(out / "solution.npz", result.problem, info=settings)
+    return ["simulate.json", "runs.npz", "solution.npz"]
 
 
 def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, settings: dict, stem: str) -> list[str]:
@@ -141,11 +151,27 @@ differences are less noisy than either value.
 _DEMO_FILES = """\
 ## Figures
 
-![expected cost and endpoint error against the delay](cost_vs_delay.png)
+![expected cost, endpoint error and endpoint spread against the delay](cost_vs_delay.png)
 
-![hand paths and endpoint spread](hand_paths.png)
+Monte Carlo mean cost with its bootstrap 95 % interval and each controller's predicted E[J]; the
+mean distance of the final hand position from the target; the spread of the final hand positions
+(1-sigma major axis). Compared with: human endpoint scatter of a few millimetres for unseen
+reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This plant has no sensory noise or
+sensory delay, so at no delay its scatter is far smaller (see the note above the figures).
+
+![hand paths, hand speed and endpoints](hand_paths.png)
+
+Top: nominal hand paths (thick) and ten noisy trials (thin). Middle: hand speed against time.
+Bottom: endpoints relative to the target (mm) with 2-sigma ellipses. Compared with: human reaches
+run along nearly straight paths with single-peaked, bell-shaped speed profiles (Morasso 1981, Exp
+Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). The P2 task (benchmark_problems.md)
+weighs effort and the final state only: its paths curve and its speed profile at no delay is
+flat-topped; with delay the delay-aware reach starts one delay late, with a higher, earlier peak.
 
 ![convergence of the solves](convergence.png)
+
+The cost of the nominal at each iteration of every solve (open markers: rejected steps; dashed:
+the noise-aware merit).
 
 ## Files
 
@@ -185,6 +211,15 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
     return "report.md"
 
 
+def _caption(file_name: str) -> str:
+    """The caption of a center-out figure (:data:`delayed_ilqr.plot.CAPTIONS`, by name or prefix)."""
+    from ..plot import CAPTIONS
+    for key, caption in CAPTIONS.items():
+        if file_name == key or file_name.startswith(key + "_"):
+            return caption
+    return ""
+
+
 def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict, table: str,
                             figures: Sequence[str]) -> list[str]:
     """center_out.json (settings and every number) and center_out.md (setting, table, figures)."""
@@ -194,6 +229,8 @@ def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict
              f"{s['targets']} targets at {1e3 * s['radius']:g} mm, {s['trials']} noisy trials per target (sigma_u "
              f"{s['sigma_u']:g}, seed {s['seed']}); designs: {', '.join(s['designs'])}. Study time "
              f"{s['elapsed_seconds']:.1f} s.", "",
-             table, ""] + [f"![{f}]({f})" for f in figures] + [""]
+             table, ""]
+    for f in figures:
+        lines += [f"![{f}]({f})", "", _caption(f), ""]
     (out / "center_out.md").write_text("\n".join(lines))
     return ["center_out.md", "center_out.json"]

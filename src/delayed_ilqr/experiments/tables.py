@@ -15,8 +15,8 @@ from .. import Status
 from .delay_study import ControllerResult
 from .designs import REGISTRY
 
-__all__ = ["num", "unit_scale", "delay_study_rows", "center_out_rows", "text_table", "markdown_table", "pairs",
-           "solve_summary", "simulate_summary"]
+__all__ = ["num", "unit_scale", "delay_study_rows", "center_out_rows", "records_table", "text_table",
+           "markdown_table", "pairs", "solve_summary", "simulate_summary"]
 
 Table = tuple[list[str], list[list[str]]]
 
@@ -95,6 +95,13 @@ def center_out_rows(results: Sequence) -> Table:
     Monte Carlo means and spreads over the trials that did not diverge, and how many did (per
     target, then averaged over the targets)."""
     return list(_CENTER_OUT_HEADER), [_center_out_row(r) for r in results]
+
+
+def records_table(records: Sequence[dict]) -> Table:
+    """Records (one dict per row, the same keys; None shown as "-") as a table."""
+    header = list(records[0])
+    cell = lambda v: "-" if v is None else (num(v) if isinstance(v, float) else str(v))
+    return header, [[cell(r[h]) for h in header] for r in records]
 
 
 def text_table(table: Table) -> str:

@@ -30,6 +30,7 @@ class NominalRow(NamedTuple):
     u_bar: jax.Array         # [d]
     ud_bar: jax.Array        # [d] u_bar_{k-l}
     gains: SlotGains         # row k
+    t: jax.Array | None = None   # t_k = k dt; None when the problem does not depend on time
 
 
 class StepValues(NamedTuple):
@@ -46,7 +47,7 @@ def nominal_rows(problem: Problem, xs_bar, us_bar, gains: SlotGains) -> NominalR
     """The :class:`NominalRow` of every step k = 0..K-1 (time-major)."""
     K = us_bar.shape[0]
     return NominalRow(slot_offsets(K, problem.delay_steps, problem.n_controls), xs_bar[:-1], us_bar,
-                      delayed_commands(problem, us_bar), gains)
+                      delayed_commands(problem, us_bar), gains, problem.step_times(us_bar.dtype))
 
 
 def initial_frame(problem: Problem, dtype):
@@ -63,7 +64,7 @@ def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
     def plant(x, du, du_delayed):
         u = jnp.clip(row.u_bar + du, problem.u_min, problem.u_max)
         ud = row.ud_bar + du_delayed if l > 0 else u
-        x_new = x + problem.dt * problem.dynamics(x, u, ud)
+        x_new = x + problem.dt * problem.dynamics_at(x, u, ud, row.t)
         return x_new, u - row.u_bar, StepValues(x, u, ud, x_new)
 
     gains = SlotGains(alpha * row.gains.feedforward, row.gains.feedback)

@@ -49,9 +49,9 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
         row, S_next = data
         y_new, (x, u, ud, x_new) = nonlinear_step(problem, alpha, y, row)
         if noisy:       # c' S c summed over the noise columns, c = sqrt(dt) F at the nominal state
-            F = problem.noise(row.x_bar, u, ud)                                    # [n, p]
+            F = problem.noise_at(row.x_bar, u, ud, row.t)                          # [n, p]
             noise = noise + dt * jnp.sum(F * matmul(S_next, F))
-        return (y_new, running + problem.cost.running(x, u), noise, finite & jnp.all(jnp.isfinite(x_new)))
+        return (y_new, running + problem.cost.running(x, u, row.t), noise, finite & jnp.all(jnp.isfinite(x_new)))
 
     step = jax.vmap(one, in_axes=(0, 0, None))
     A = alphas.shape[0]
@@ -62,7 +62,8 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
     (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
                                                  (y0, zero, zero, jnp.ones(A, bool)), data,
                                                  pack_inputs=False)       # as in closed_loop_rollout
-    cost = dt * running + jax.vmap(problem.cost.final)(y[:, :problem.n_states])
+    cost = dt * running + jax.vmap(problem.cost.final, in_axes=(0, None))(y[:, :problem.n_states],
+                                                                          problem.final_time)
     return cost, cost + noise, finite
 
 

@@ -15,7 +15,11 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    step is not taken, and the line search is not run when the model predicts less than that.
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
-converging iteration's own, or one more pass when the last iteration moved the nominal.
+converging iteration's own, or one more pass when the last iteration moved the nominal. For a
+problem with delayed sensors (``Problem.observation``) the controller is that of the same problem
+without them (one compiled solver for both), and the delayed Kalman filter of the linearisation
+at the returned nominal is added after it (``estimation.with_estimator``), with ``expected_cost``
+the exact cost of the controller on its estimate.
 """
 from __future__ import annotations
 
@@ -35,6 +39,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
+from .estimation import with_estimator, without_observation
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
 
@@ -226,6 +231,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
             raise ValueError(f"u_init must have shape {shape}; got shape {u_init.shape}")
     else:
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
+    if problem.observation is not None:
+        # the controller is designed with the full state; the filter is added to its solution
+        return with_estimator(problem, solve(without_observation(problem), u_init, options))
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return sol._replace(status=Status(int(sol.status)))

@@ -44,6 +44,7 @@ from .._kernels.dense import small_matvec
 from ..problem import Problem
 from . import _common
 from .metadata import ModelMetadata, TaskSpace
+from .sensors import joint_sensors
 
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
            "mass_matrix", "mass_matrix_inverse", "coriolis", "joint_acceleration", "hand_position",
@@ -193,7 +194,7 @@ class Arm2Dynamics:
 
 @dataclass(frozen=True)
 class Arm2Noise:
-    """F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)] [4, 2]: torque noise proportional to ud."""
+    """F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], shape [4, 2]: torque noise proportional to ud."""
 
     params: Arm2Params = ARM2_PARAMS
     sigma_u: float = SIGMA_U
@@ -227,7 +228,7 @@ def _check_params(params) -> Arm2Params:
 
 def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi / 2, 0.0, 0.0),
          x_target=(math.pi / 2, math.pi / 3, 0.0, 0.0), params: Arm2Params = ARM2_PARAMS,
-         sigma_u=SIGMA_U) -> Problem:
+         sigma_u=SIGMA_U, sensory_delay=None) -> Problem:
     """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
@@ -240,6 +241,9 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
         params: arm parameters; P2 uses :data:`ARM2_PARAMS`.
         sigma_u: the diffusion scale of the torque noise (used when ``noise``): 0.2 for P2-noisy
             (default), :data:`SIGMA_U_HUMAN` for human-like noise (module docstring).
+        sensory_delay: None (default): the controller sees the state. A delay in seconds (a
+            whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
+            velocities seen that late through additive noise (:func:`.sensors.joint_sensors`).
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2"``; its metadata's task space is the hand
@@ -256,4 +260,5 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
                    name="arm2", metadata=ModelMetadata(
                        state_labels=ARM_STATE_LABELS,
                        control_labels=("shoulder torque u1 [N m]", "elbow torque u2 [N m]"),
-                       task=hand_task(params)))
+                       task=hand_task(params)),
+                   observation=None if sensory_delay is None else joint_sensors(4, sensory_delay, dt))

@@ -88,6 +88,7 @@ from . import muscle as _muscle
 from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
                    hand_velocity, joint_acceleration)
 from .metadata import CostParameter, ModelMetadata
+from .sensors import joint_sensors
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", "Arm2Muscle6Dynamics",
            "Arm2Muscle6Noise",
@@ -208,7 +209,8 @@ def center_out_targets(n=8, radius=0.1, q0=Q0, arm: Arm2Params = ARM2_PARAMS, st
 
 def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, final_time=FINAL_TIME,
                  geometry="angle_dependent", x0=None, sigma_u=SIGMA_U, r=R_EFFORT, w_p=W_POS, w_v=W_VEL,
-                 w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS, t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT) -> Problem:
+                 w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS, t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT,
+                 sensory_delay=None) -> Problem:
     """Energy-optimal reaching with the six-muscle arm and delayed excitations (Li & Todorov 2004).
 
     Args:
@@ -224,10 +226,17 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         x0: [10] initial state; default q = (pi/4, pi/2), dq = 0, a = A_REST (0.05) for all muscles.
         sigma_u: excitation noise, a diffusion scale (used when ``noise``); default 0.01, calibrated
             to human force variability (module docstring).
-        r, w_p, w_v, w_a: cost weights (effort per unit time, final hand position, final hand
-            velocity, final activation); stored in ``cost.params``.
+        r: effort weight per unit time (the cost weights are stored in ``cost.params``).
+        w_p: final hand position weight.
+        w_v: final hand velocity weight.
+        w_a: final activation weight.
         arm: rigid-body parameters (:class:`~delayed_ilqr.models.arm2.Arm2Params`).
-        t_act, t_deact: activation / deactivation time constants in seconds.
+        t_act: activation time constant in seconds.
+        t_deact: deactivation time constant in seconds.
+        sensory_delay: None (default): the controller sees the state. A delay in seconds (a
+            whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
+            velocities seen that late through additive noise (:func:`.sensors.joint_sensors`);
+            the activations are not sensed.
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
@@ -252,4 +261,5 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     noise_fn = Arm2Muscle6Noise(sigma_u, t_act, t_deact) if noise else None
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
-                   metadata=METADATA if arm == ARM2_PARAMS else _metadata(arm))
+                   metadata=METADATA if arm == ARM2_PARAMS else _metadata(arm),
+                   observation=None if sensory_delay is None else joint_sensors(10, sensory_delay, dt))

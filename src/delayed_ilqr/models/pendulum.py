@@ -86,7 +86,7 @@ class PendulumDynamics:
 
 @dataclass(frozen=True)
 class PendulumNoise:
-    """F(x, u, ud) = [0; sigma_u ud / (m l^2)] [2, 1]: torque noise proportional to the acting torque."""
+    """F(x, u, ud) = [0; sigma_u ud / (m l^2)], shape [2, 1]: torque noise proportional to the acting torque."""
 
     mass: float = MASS
     length: float = LENGTH

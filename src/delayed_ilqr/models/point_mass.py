@@ -22,6 +22,7 @@ import jax.numpy as jnp
 from ..problem import Problem
 from . import _common
 from .metadata import ModelMetadata, StateComponents, TaskSpace
+from .sensors import point_sensors
 
 __all__ = ["point_mass", "PointMassDynamics", "PointMassNoise", "FINAL_TIME"]
 
@@ -66,7 +67,7 @@ class PointMassNoise:
 
 
 def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1, 0.0, 0.0),
-               x0=(0.0, 0.0, 0.0, 0.0)) -> Problem:
+               x0=(0.0, 0.0, 0.0, 0.0), sensory_delay=None) -> Problem:
     """P1 of ``docs/models.md`` §2: the point mass reaching to (0.2, 0.1) m and stopping there.
 
     Args:
@@ -76,6 +77,9 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
         horizon: K; default ``round(0.6 / dt)`` (60 at dt = 0.01, 600 at dt = 0.001).
         x_target: [4] final target [px, py, vx, vy].
         x0: [4] initial state.
+        sensory_delay: None (default): the controller sees the state. A delay in seconds (a
+            whole number of steps of ``dt``, 0 allowed): the problem gets the default sensors,
+            position and velocity seen that late through additive noise (:mod:`.sensors`).
 
     Returns:
         A :class:`~delayed_ilqr.Problem` named ``"point_mass"``.
@@ -86,4 +90,5 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
     cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     return Problem(dynamics=PointMassDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
                    delay_steps=delay_steps, cost=cost, noise=PointMassNoise() if noise else None,
-                   name="point_mass", metadata=METADATA)
+                   name="point_mass", metadata=METADATA,
+                   observation=None if sensory_delay is None else point_sensors(sensory_delay, dt))

@@ -9,16 +9,22 @@ position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.
 ==========================  ===================================================================
 :mod:`.solution`            states and commands against time; convergence of solves
 :mod:`.delay_study`         cost and endpoint error against the delay; task-space (hand) paths
-:mod:`.center_out`          center-out hand paths and ellipses; excitation patterns
+:mod:`.center_out`          center-out hand paths, speed profiles, endpoint ellipses in mm, cost
+                            and spread against the delay; excitation patterns
+:mod:`.perturbation`        mean corrective responses to a kick against the sensory delay
 ==========================  ===================================================================
 
-``delay_study_figures`` and ``center_out_figures`` give a study's figures by file name.
+``delay_study_figures``, ``center_out_figures`` and ``perturbation_figures`` give a study's figures
+by file name.
 """
 from ._common import COLORS
-from .center_out import center_out_figures, plot_center_out, plot_excitations
+from .center_out import (CAPTIONS, center_out_figures, plot_center_out, plot_center_out_vs_delay,
+                         plot_endpoints, plot_excitations, plot_speed_profiles)
 from .delay_study import delay_study_figures, draws_paths, plot_delay_study, plot_hand_paths
+from .perturbation import perturbation_figures, plot_perturbation
 from .solution import plot_convergence, plot_trajectories, state_labels
 
 __all__ = ["plot_trajectories", "plot_hand_paths", "plot_delay_study", "plot_convergence", "plot_center_out",
-           "plot_excitations", "delay_study_figures", "center_out_figures", "draws_paths", "state_labels",
-           "COLORS"]
+           "plot_speed_profiles", "plot_endpoints", "plot_center_out_vs_delay", "CAPTIONS", "plot_excitations",
+           "delay_study_figures", "center_out_figures", "draws_paths", "state_labels", "plot_perturbation",
+           "perturbation_figures", "COLORS"]

@@ -1,4 +1,11 @@
-"""Figures of the center-out study: hand paths with endpoint ellipses, and the excitation patterns."""
+"""Figures of the center-out study: hand paths, hand speed profiles, endpoint ellipses in mm, cost and
+endpoint spread against the delay, and the excitation patterns.
+
+Each figure is compared with a finding of the reaching literature in the report's caption
+(:data:`CAPTIONS`): nearly straight hand paths (Morasso 1981), single-peaked, bell-shaped speed
+profiles (Flash & Hogan 1985), endpoint ellipses of a few millimetres elongated along the movement
+(Gordon, Ghilardi & Ghez 1994; van Beers, Haggard & Wolpert 2004).
+"""
 from __future__ import annotations
 
 from typing import Sequence
@@ -6,9 +13,56 @@ from typing import Sequence
 import numpy as np
 
 from ..models.metadata import task_position, task_space
+from ..statistics import sample_stats
 from ._common import ellipse, figure
 
-__all__ = ["plot_center_out", "plot_excitations", "center_out_figures"]
+__all__ = ["plot_center_out", "plot_speed_profiles", "plot_endpoints", "plot_center_out_vs_delay",
+           "plot_excitations", "center_out_figures", "CAPTIONS"]
+
+#: Per figure file (the excitation figures by prefix): what it shows and the human finding it is
+#: compared with. The report writes it under the figure.
+CAPTIONS = {
+    "center_out_hand_paths.png":
+        "Nominal hand paths (thick), five noisy trials per target (thin) and the 2-sigma ellipses of the "
+        "endpoints. Compared with: human point-to-point reaches in the horizontal plane run along "
+        "nearly straight hand paths (Morasso 1981, Exp Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688).",
+    "center_out_speed.png":
+        "Hand speed of the nominal reaches against time (one line per target). Compared with: human reaches "
+        "have single-peaked, bell-shaped speed profiles (Morasso 1981; Flash & Hogan 1985).",
+    "center_out_endpoints.png":
+        "Endpoints of the noisy trials relative to each target, in mm, with their 2-sigma ellipses (one "
+        "colour per target; each panel has its own scale). Compared with: human endpoints of unseen 10 "
+        "cm reaches scatter by millimetres, in ellipses elongated along the movement (Gordon, Ghilardi & Ghez "
+        "1994, Exp Brain Res 99:97), and execution noise explains that scatter (van Beers, Haggard & "
+        "Wolpert 2004, J Neurophysiol 91:1050).",
+    "center_out_vs_delay.png":
+        "Monte Carlo mean cost (over the trials of all targets that did not diverge, bootstrap 95 % "
+        "interval; open markers: the designs' predicted E[J]) and endpoint spread (1-sigma major "
+        "axis: mean over targets, bars from the smallest to the largest) against the input delay. "
+        "Compared with: human endpoint spread of a few mm at short feedback delays (Gordon et al. "
+        "1994); the cost of the delay is this library's prediction.",
+    "center_out_excitations":
+        "Nominal muscle excitations against the time they are sent (they act one delay later). "
+        "Compared with: human EMG of point-to-point movements, an agonist burst that accelerates "
+        "and an antagonist burst that brakes (the triphasic pattern of fast movements; Hallett, "
+        "Shahani & Young 1975, J Neurol Neurosurg Psychiatry 38:1154).",
+}
+
+_DESIGN_COLORS = {"noise-aware": "tab:blue", "deterministic": "tab:red"}
+
+
+def _grid(results, width: float, height: float, **kwargs):
+    """A figure with one panel per (design row, delay column); returns (figure, axes, place)."""
+    designs = list(dict.fromkeys(r.design for r in results))
+    delays = list(dict.fromkeys(r.delay for r in results))
+    fig = figure(figsize=(width * len(delays), height * len(designs)), layout="constrained")
+    grid = fig.subplots(len(designs), len(delays), squeeze=False, **kwargs)
+    return fig, grid, lambda r: grid[designs.index(r.design), delays.index(r.delay)]
+
+
+def _target_colors(n: int):
+    from matplotlib import colormaps
+    return [colormaps["tab10"](j % 10) for j in range(n)]
 
 
 def _reaches_panel(ax, r, n_paths: int, colors):
@@ -34,7 +88,7 @@ def _reaches_panel(ax, r, n_paths: int, colors):
     ax.set_xlabel(f"{task.point} x [{task.unit}]")
     ax.set_ylabel(f"{task.point} y [{task.unit}]")
     converged = sum(t.converged for t in r.targets)
-    ax.set_title(f"{r.design}, delay {1e3 * r.delay:g} ms ({converged}/{len(r.targets)} converged)")
+    ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms (converged {converged}/{len(r.targets)})")
     ax.grid(alpha=0.3)
 
 
@@ -51,19 +105,143 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
         trials (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final
         hand positions; the start hand position is the black dot.
     """
+    results = _nonempty(results)
+    fig, _, place = _grid(results, 4.6, 4.8)
+    colors = _target_colors(len(results[0].targets))
+    for r in results:
+        _reaches_panel(place(r), r, n_paths, colors)
+    fig.suptitle(f"six-muscle arm, center-out: hand paths ({n_paths} of N = {results[0].runs[0].x.shape[0]} "
+                 "trials per target) and 2-sigma endpoint ellipses")
+    return fig
+
+
+def _nonempty(results) -> list:
     results = list(results)
     if not results:
         raise ValueError("results must hold at least one DelayResult; got none")
-    designs = list(dict.fromkeys(r.design for r in results))
-    delays = list(dict.fromkeys(r.delay for r in results))
-    fig = figure(figsize=(4.6 * len(delays), 4.8 * len(designs)), layout="constrained")
-    grid = fig.subplots(len(designs), len(delays), squeeze=False)
-    from matplotlib import colormaps
-    colors = [colormaps["tab10"](j % 10) for j in range(len(results[0].targets))]
+    return results
+
+
+def _hand_speed(plant, x, dt: float) -> np.ndarray:
+    """Hand speed [..., K] (m/s) of states x [..., K+1, n]: the hand displacement per step over dt."""
+    p = task_position(plant, x)
+    return np.linalg.norm(np.diff(p, axis=-2), axis=-1) / dt
+
+
+def plot_speed_profiles(results: Sequence):
+    """Hand speed of every nominal reach against time, one panel per delay (columns) and design (rows).
+
+    Args:
+        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects.
+
+    Returns:
+        A Figure: per target (colour) the nominal's hand speed in cm/s, from the hand displacement of
+        each step, against the time at the end of the step; all panels share the axes.
+    """
+    results = _nonempty(results)
+    fig, grid, place = _grid(results, 4.2, 3.4, sharex=True, sharey=True)
+    colors = _target_colors(len(results[0].targets))
     for r in results:
-        _reaches_panel(grid[designs.index(r.design), delays.index(r.delay)], r, n_paths, colors)
-    fig.suptitle(f"six-muscle arm, center-out: nominal paths, {n_paths} noisy trials per target, "
-                 f"2-sigma endpoint ellipses (N = {results[0].runs[0].x.shape[0]})")
+        ax = place(r)
+        speed = 100.0 * _hand_speed(r.plants[0], np.asarray(r.solutions.x), r.dt)          # [targets, K]
+        t_axis = r.dt * np.arange(1, speed.shape[1] + 1)
+        for j in range(speed.shape[0]):
+            ax.plot(t_axis, speed[j], color=colors[j], lw=1.5, label=f"target {j + 1}")
+        ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms")
+        ax.grid(alpha=0.3)
+    for ax in grid[-1]:
+        ax.set_xlabel("time [s]")
+    for ax in grid[:, 0]:
+        ax.set_ylabel("hand speed [cm/s]")
+    grid[0, -1].legend(fontsize=7, loc="upper right", ncol=2)
+    fig.suptitle("six-muscle arm, center-out: hand speed of the nominal reaches")
+    return fig
+
+
+def plot_endpoints(results: Sequence):
+    """Endpoints of the noisy trials relative to their targets, in mm, one panel per delay and design.
+
+    Args:
+        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects.
+
+    Returns:
+        A Figure: per target (colour) the endpoints of the trials that did not diverge minus the
+        target (dots), their mean (cross) and 2-sigma ellipse; each panel is scaled to its largest
+        ellipse (the spreads differ by orders of magnitude across delays), equal axes.
+    """
+    results = _nonempty(results)
+    fig, grid, place = _grid(results, 4.2, 4.2)
+    colors = _target_colors(len(results[0].targets))
+    for r in results:
+        ax = place(r)
+        half = 0.5
+        for j, t in enumerate(r.targets):
+            kept = ~t.diverged & np.all(np.isfinite(t.endpoints), axis=1)
+            rel = 1e3 * (t.endpoints[kept] - t.target)                                    # mm
+            if rel.shape[0] < 3:
+                continue
+            ax.scatter(rel[:, 0], rel[:, 1], s=3, color=colors[j], alpha=0.25)
+            mean = rel.mean(axis=0)
+            ax.scatter([mean[0]], [mean[1]], marker="x", s=40, color=colors[j], zorder=5)
+            ellipse(ax, rel, colors[j], label=f"target {j + 1}")
+            half = max(half, float(np.max(np.abs(mean)) + 2.4 * np.sqrt(np.max(np.linalg.eigvalsh(
+                np.cov(rel, rowvar=False))))))
+        ax.scatter([0.0], [0.0], marker="+", s=80, color="k", zorder=6)
+        ax.set_xlim(-half, half)
+        ax.set_ylim(-half, half)
+        ax.set_aspect("equal")
+        ax.set_xlabel("endpoint x - target x [mm]")
+        ax.set_ylabel("endpoint y - target y [mm]")
+        ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms")
+        ax.grid(alpha=0.3)
+    grid[0, 0].legend(fontsize=7, loc="upper left", ncol=2)
+    fig.suptitle(f"six-muscle arm, center-out: endpoints relative to the target (N = "
+                 f"{results[0].runs[0].x.shape[0]} per target), 2-sigma ellipses, mean as a cross")
+    return fig
+
+
+def plot_center_out_vs_delay(results: Sequence):
+    """Cost and endpoint spread against the delay, one series per design.
+
+    Args:
+        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects (several delays).
+
+    Returns:
+        A Figure with two axes. Left: the Monte Carlo mean cost over all targets' trials that did
+        not diverge, with its bootstrap 95 % interval (:func:`~delayed_ilqr.statistics.sample_stats`,
+        log scale), and the mean over targets of the design's predicted E[J] (open markers,
+        dashed). Right: the endpoint spread (1-sigma major axis of each target's endpoint
+        covariance) in mm: mean over targets, bars from the smallest to the largest target.
+    """
+    results = _nonempty(results)
+    fig = figure(figsize=(11.5, 4.8), layout="constrained")
+    ax_cost, ax_spread = fig.subplots(1, 2)
+    designs = list(dict.fromkeys(r.design for r in results))
+    for i, design in enumerate(designs):
+        rows = sorted((r for r in results if r.design == design), key=lambda r: r.delay)
+        color = _DESIGN_COLORS.get(design, f"C{i}")
+        tau = np.array([1e3 * r.delay for r in rows]) + (i - (len(designs) - 1) / 2) * 1.5
+        stats = [sample_stats(np.concatenate([t.mc_cost for t in r.targets]),
+                              np.concatenate([t.diverged for t in r.targets])) for r in rows]
+        mean = np.array([s.mean for s in stats])
+        ci = np.array([s.ci95 for s in stats]).T
+        ax_cost.errorbar(tau, mean, yerr=np.abs(ci - mean), fmt="o-", color=color, capsize=4,
+                         label=f"{design}: Monte Carlo mean, 95 % CI")
+        ax_cost.plot(tau, [np.mean([t.predicted_cost for t in r.targets]) for r in rows], ls="--", marker="o",
+                     mfc="white", color=color, label=f"{design}: predicted E[J]")
+        spread = np.array([[1e3 * t.spread for t in r.targets] for r in rows])          # [delays, targets] mm
+        mid = spread.mean(axis=1)
+        ax_spread.errorbar(tau, mid, yerr=[mid - spread.min(axis=1), spread.max(axis=1) - mid], fmt="o-",
+                           color=color, capsize=4, label=f"{design}: mean over targets [range]")
+    for ax, label, title in ((ax_cost, "cost J (eq. 2)", "expected cost"),
+                             (ax_spread, "endpoint spread, 1-sigma major axis [mm]", "endpoint spread")):
+        ax.set_yscale("log")
+        ax.set_xlabel("input delay [ms]")
+        ax.set_ylabel(label)
+        ax.set_title(title)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.suptitle("six-muscle arm, center-out: what the delay costs")
     return fig
 
 
@@ -87,7 +265,7 @@ def plot_excitations(result):
     for j, (ax, target) in enumerate(zip(axes, result.targets)):
         for m, name in enumerate(MUSCLES):
             ax.step(t_axis, u[j, :, m], where="post", lw=1.2, label=name)
-        ax.set_title(f"target {j + 1} ({1e3 * target.hand_error:.2f} mm)", fontsize=9)
+        ax.set_title(f"target {j + 1}: nominal misses by {1e3 * target.hand_error:.2f} mm", fontsize=9)
         ax.set_ylim(-0.05, 1.05)
         ax.grid(alpha=0.3)
     for ax in axes[n:]:
@@ -95,15 +273,23 @@ def plot_excitations(result):
     axes[0].legend(fontsize=7, loc="upper right")
     for ax in axes[-cols:]:
         ax.set_xlabel("time sent [s]")
+    for ax in axes[::cols]:
+        ax.set_ylabel("excitation")
     fig.suptitle(f"six-muscle arm: nominal excitations per target, {result.design} design, "
                  f"delay {1e3 * result.delay:g} ms")
     return fig
 
 
 def center_out_figures(results: Sequence) -> dict:
-    """The center-out figures by file name: center_out_hand_paths.png and, per delay and design,
-    center_out_excitations_<design>_<delay>ms.png."""
-    figures = {"center_out_hand_paths.png": plot_center_out(results)}
+    """The center-out figures by file name: center_out_hand_paths.png, center_out_speed.png,
+    center_out_endpoints.png, center_out_vs_delay.png (with more than one delay) and, per delay and
+    design, center_out_excitations_<design>_<delay>ms.png (captions: :data:`CAPTIONS`)."""
+    results = _nonempty(results)
+    figures = {"center_out_hand_paths.png": plot_center_out(results),
+               "center_out_speed.png": plot_speed_profiles(results),
+               "center_out_endpoints.png": plot_endpoints(results)}
+    if len({r.delay for r in results}) > 1:
+        figures["center_out_vs_delay.png"] = plot_center_out_vs_delay(results)
     for r in results:
         figures[f"center_out_excitations_{r.design}_{1e3 * r.delay:g}ms.png"] = plot_excitations(r)
     return figures

@@ -74,8 +74,32 @@ def _endpoints_panel(ax, zoom, unit: str):
     ax.set_ylabel(f"endpoint y - target y [{unit}]")
 
 
+def _speed_panel(ax, group, n_paths: int):
+    """Per controller: the task-space speed of its nominal (thick) and of ``n_paths`` trials (thin)
+    against time, from the displacement of each step (display units per second: cm/s for metres).
+    Returns the nominals' largest speed (the caller scales the row to it; wild trials are clipped)."""
+    task = task_space(group[0].problem)
+    dt = group[0].problem.dt
+    top = 0.0
+    for r in group:
+        color = COLORS.get(r.controller, None)
+        for x, lw, alpha, label in ((r.runs.x[:n_paths], 0.6, 0.45, None),
+                                    (r.solution.x[None], 2.2, 1.0, f"{controller_label(r.controller)} nominal")):
+            p = task_position(r.problem, x)
+            speed = 100.0 * np.linalg.norm(np.diff(p, axis=-2), axis=-1) / dt
+            t_axis = dt * np.arange(1, speed.shape[-1] + 1)
+            for j in range(speed.shape[0]):
+                ax.plot(t_axis, speed[j], color=color, lw=lw, alpha=alpha, label=label if j == 0 else None)
+        top = max(top, float(np.nanmax(speed)))                  # the nominal, drawn last
+    unit = "cm/s" if task.unit == "m" else f"{task.unit}/s x 100"
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(f"{task.point} speed [{unit}]")
+    return top
+
+
 def plot_hand_paths(results: Sequence, n_paths: int = 10):
-    """Hand paths of the arms (task-space paths) and the spread of their endpoints, per delay and controller.
+    """Hand paths of the arms (task-space paths), their speed profiles and the spread of their
+    endpoints, per delay and controller.
 
     Args:
         results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects of a model
@@ -84,12 +108,13 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
         n_paths: Monte Carlo paths drawn per controller.
 
     Returns:
-        A Figure with two rows and one column per delay. Top: hand paths in the plane (shoulder at
+        A Figure with three rows and one column per delay. Top: hand paths in the plane (shoulder at
         the origin; per controller its nominal, thick, and ``n_paths`` trials, thin), start and
-        target, viewed around the nominal paths (trials that wander off are clipped). Bottom: every
-        trial's endpoint relative to the target (mm) with the 2-sigma covariance ellipse of the
-        trials that did not diverge; the view is set by the tightest controller and legends count the
-        endpoints outside it.
+        target, viewed around the nominal paths (trials that wander off are clipped). Middle: the
+        hand speed of the same paths against time (cm/s; y-axis shared across delays). Bottom:
+        every trial's endpoint relative to the target (mm) with the 2-sigma covariance ellipse of
+        the trials that did not diverge; the view is set by the tightest controller and legends
+        count the endpoints outside it.
 
     Raises:
         ValueError: when the results are not of such a model.
@@ -98,24 +123,33 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
     if not results:
         raise ValueError("results must hold at least one ControllerResult; got none")
     delays = sorted({r.delay for r in results})
-    fig = figure(figsize=(5.0 * len(delays), 9.0), layout="constrained")
-    axes = fig.subplots(2, len(delays), squeeze=False)
+    fig = figure(figsize=(5.0 * len(delays), 13.0), layout="constrained")
+    axes = fig.subplots(3, len(delays), squeeze=False)
+    for ax in axes[1, 1:]:
+        ax.sharey(axes[1, 0])
+    fastest = 0.0
     for col, tau in enumerate(delays):
         group = [r for r in results if r.delay == tau]
-        top, bottom = axes[0, col], axes[1, col]
+        top, middle, bottom = axes[:, col]
         zoom, drawn = _paths_panel(top, group, n_paths)
         task = task_space(group[0].problem)
         top.set_xlabel(f"{task.point} x [{task.unit}]")
         top.set_ylabel(f"{task.point} y [{task.unit}]")
-        top.set_title(f"delay {1e3 * tau:g} ms: {task.point} paths ({drawn} trials each)")
+        top.set_title(f"{1e3 * tau:g} ms: {task.point} paths")
         top.grid(alpha=0.3)
         top.legend(loc="lower left", fontsize=8, framealpha=0.9)
+        fastest = max(fastest, _speed_panel(middle, group, n_paths))
+        middle.set_title(f"{1e3 * tau:g} ms: {task.point} speed")
+        middle.grid(alpha=0.3)
+        middle.legend(loc="upper right", fontsize=7)
         _endpoints_panel(bottom, zoom, unit_scale(task.unit)[1])
-        bottom.set_title(f"delay {1e3 * tau:g} ms: final {task.point} positions (N = {group[0].runs.x.shape[0]})")
+        bottom.set_title(f"{1e3 * tau:g} ms: endpoints (N = {group[0].runs.x.shape[0]})")
         bottom.grid(alpha=0.3)
         bottom.legend(loc="upper left", fontsize=7)
+    axes[1, 0].set_ylim(0.0, 1.3 * fastest)
     noise = "noisy" if results[0].noise else "deterministic"
-    fig.suptitle(f"{results[0].model}: reaching with delayed commands ({noise} plant)")
+    fig.suptitle(f"{results[0].model}: reaching with delayed commands ({noise} plant; thin lines: "
+                 f"{drawn} Monte Carlo trials per controller)")
     return fig
 
 
@@ -139,6 +173,15 @@ def _series(ax, tau, stats, scale, color, c, ci):
                         xytext=(8, 6 - 14 * ci), fontsize=8, color=color)
 
 
+def _spread(r) -> float:
+    """The 1-sigma major axis of the final task positions of the trials that did not diverge."""
+    ends = task_position(r.problem, r.runs.x[:, -1])
+    kept = ~diverged_trials(r.runs.cost, r.divergence_bound) & np.all(np.isfinite(ends), axis=1)
+    if np.count_nonzero(kept) < 3:
+        return math.nan
+    return math.sqrt(float(np.max(np.linalg.eigvalsh(np.cov(ends[kept], rowvar=False)))))
+
+
 def _finish(ax, ylabel: str, title: str):
     ax.set_yscale("log")
     ax.set_xlabel("input delay [ms]")
@@ -158,14 +201,18 @@ def plot_delay_study(results: Sequence):
         A Figure with two axes. Left: Monte Carlo mean cost over the trials that did not diverge with
         its bootstrap 95 % interval (filled markers, log scale) and the controller's own predicted
         E[J] (open markers, dashed); the number of diverged trials (one definition,
-        :mod:`delayed_ilqr.statistics`) is written next to a point that has some. Right: the
-        endpoint error (mm for lengths in metres) over the same trials, likewise.
+        :mod:`delayed_ilqr.statistics`) is written next to a point that has some. Middle: the
+        endpoint error (mm for lengths in metres) over the same trials, likewise. Right, for a model
+        with a task space (the arms): the endpoint spread, the 1-sigma major axis of the covariance
+        of those trials' final task positions.
     """
     results = list(results)
     if not results:
         raise ValueError("results must hold at least one ControllerResult; got none")
-    fig = figure(figsize=(12.5, 5.8), layout="constrained")
-    ax_cost, ax_err = fig.subplots(1, 2)
+    spread = draws_paths(results[0].problem)
+    fig = figure(figsize=(18.0 if spread else 12.5, 5.8), layout="constrained")
+    axes = fig.subplots(1, 3 if spread else 2)
+    ax_cost, ax_err = axes[:2]
     controllers = list(dict.fromkeys(r.controller for r in results))
     scale, unit_text = unit_scale(results[0].endpoint_unit)
     offsets = np.linspace(-1, 1, len(controllers)) * (0.6 if len(controllers) > 1 else 0.0)
@@ -179,9 +226,15 @@ def plot_delay_study(results: Sequence):
         _series(ax_err, tau, [r.endpoint_error for r in rows], scale, color, c, ci)
         ax_cost.plot(tau, np.array([r.predicted_cost for r in rows]), ls="--", marker="o", mfc="white", color=color,
                      ms=7, label=f"{controller_label(c)}: its own predicted E[J]")
+        if spread:
+            axes[2].plot(tau, [scale * _spread(r) for r in rows], marker="o", ms=7, color=color,
+                         label=f"{controller_label(c)}: Monte Carlo")
     _finish(ax_cost, "cost J (eq. 2)", "expected cost")
     label = results[0].endpoint_label
-    _finish(ax_err, f"{label}" + (f" [{unit_text}]" if unit_text else ""), f"final {label}")
+    _finish(ax_err, f"{label}" + (f" [{unit_text}]" if unit_text else ""), label)
+    if spread:
+        point = task_space(results[0].problem).point
+        _finish(axes[2], f"1-sigma major axis [{unit_text}]", f"spread of the final {point} positions")
     n = results[0].cost.n
     noise = "noisy" if results[0].noise else "deterministic"
     fig.suptitle(f"{results[0].model}: delay-aware vs delay-ignorant control, {n} {noise} trials per point")

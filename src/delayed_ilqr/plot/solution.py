@@ -122,6 +122,8 @@ def plot_convergence(solutions, title: Optional[str] = None):
         if not np.allclose(merit, cost, rtol=1e-12, equal_nan=True):
             ax.plot(it, merit, color=color, ls="--", label=f"{label}: merit (cost + noise terms)")
     ax.set_yscale("log")
+    from matplotlib.ticker import MaxNLocator
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration")
     ax.set_ylabel("cost")
     ax.grid(alpha=0.3, which="both")

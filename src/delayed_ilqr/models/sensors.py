@@ -1,0 +1,51 @@
+"""The models' default sensors (issue 20): ``sensory_delay=`` of :func:`point_mass`, :func:`arm2`
+and :func:`arm2_muscle6` attaches one (``docs/models.md`` §1.1 has the levels and their sources).
+
+The sensory noise is additive and given as a density: a component with density s has the
+per-sample standard deviation s / sqrt(dt), so that refining dt does not make the sensors more
+informative (the same convention as the motor noise's diffusion). At dt = 10 ms:
+
+=================  ==========================  ==============================================
+sensed             per-sample SD at dt = 10 ms  used by
+=================  ==========================  ==============================================
+joint angle        0.02 rad (1.15 deg)          arm2, arm2_muscle6 (proprioception)
+joint velocity     0.2 rad/s                    arm2, arm2_muscle6
+position           5 mm                         point_mass (the mass: vision of the hand)
+velocity           0.05 m/s                     point_mass
+=================  ==========================  ==============================================
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..observation import Observation
+from ._common import delay_to_steps
+
+__all__ = ["JOINT_ANGLE_DENSITY", "JOINT_VELOCITY_DENSITY", "POSITION_DENSITY", "VELOCITY_DENSITY",
+           "joint_sensors", "point_sensors"]
+
+JOINT_ANGLE_DENSITY = 0.002        # rad sqrt(s): 0.02 rad per 10 ms sample
+JOINT_VELOCITY_DENSITY = 0.02      # rad/s sqrt(s): 0.2 rad/s per 10 ms sample
+POSITION_DENSITY = 0.0005          # m sqrt(s): 5 mm per 10 ms sample
+VELOCITY_DENSITY = 0.005           # m/s sqrt(s): 0.05 m/s per 10 ms sample
+
+
+def _sensors(n_states: int, densities, sensory_delay, dt: float) -> Observation:
+    """Sensors of the first len(densities) states, each with additive noise density / sqrt(dt)."""
+    m = len(densities)
+    H = np.zeros((m, n_states))
+    H[:, :m] = np.eye(m)
+    G = np.diag(np.asarray(densities, float) / math.sqrt(dt))
+    return Observation(H, G, delay_steps=delay_to_steps(sensory_delay, dt, "sensory_delay"))
+
+
+def joint_sensors(n_states: int, sensory_delay, dt: float) -> Observation:
+    """Proprioception of an arm whose states begin [q1, q2, dq1, dq2]: joint angles and velocities."""
+    return _sensors(n_states, (JOINT_ANGLE_DENSITY,) * 2 + (JOINT_VELOCITY_DENSITY,) * 2, sensory_delay, dt)
+
+
+def point_sensors(sensory_delay, dt: float) -> Observation:
+    """The point mass's position and velocity [px, py, vx, vy]."""
+    return _sensors(4, (POSITION_DENSITY,) * 2 + (VELOCITY_DENSITY,) * 2, sensory_delay, dt)

@@ -1,0 +1,65 @@
+"""Figures of a perturbation study: the mean corrective responses against the sensory delay."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..models.metadata import task_position, task_space
+from ._common import figure
+
+__all__ = ["plot_perturbation", "perturbation_figures"]
+
+
+def _color(i: int, n: int):
+    from matplotlib import colormaps
+    return colormaps["viridis"](0.85 * i / max(n - 1, 1))
+
+
+def plot_perturbation(results: Sequence):
+    """Three panels, one colour per sensory delay: the mean task-space paths (solid: kicked,
+    dashed: unperturbed), the mean task-point speed against time, and the norm of the mean command
+    response |E[u_perturbed - u]| against time, with the kick (grey line) and the first command
+    that can respond, (kp + 1 + l_s) dt (dotted, per colour)."""
+    first = results[0]
+    fig = figure(figsize=(15, 4.6), layout="constrained")
+    ax_path, ax_speed, ax_u = fig.subplots(1, 3)
+    task = task_space(first.problem)
+    for i, r in enumerate(results):
+        color = _color(i, len(results))
+        problem = r.problem
+        dt = problem.dt
+        label = f"sensory delay {1000 * r.sensory_delay:.0f} ms"
+        kicked = task_position(problem, np.asarray(r.perturbed.x)).mean(axis=0)
+        calm = task_position(problem, np.asarray(r.base.x)).mean(axis=0)
+        ax_path.plot(calm[:, 0], calm[:, 1], color=color, lw=1.0, ls="--")
+        ax_path.plot(kicked[:, 0], kicked[:, 1], color=color, lw=2.0, label=label)
+        if i == 0:
+            ax_path.scatter(*calm[r.pulse_step + 1], color="k", marker="x", zorder=5, label="kick")
+        t = dt * np.arange(kicked.shape[0])
+        speed = np.linalg.norm(np.diff(kicked, axis=0), axis=1) / dt
+        ax_speed.plot(t[1:], speed, color=color, lw=1.8, label=label)
+        response = np.linalg.norm((np.asarray(r.perturbed.u) - np.asarray(r.base.u)).mean(axis=0), axis=1)
+        ax_u.plot(t[:-1], response, color=color, lw=1.8, label=label)
+        if r.latency_steps is not None:
+            ax_u.axvline(r.latency_steps * dt, color=color, ls=":", lw=1.0)
+    for ax in (ax_speed, ax_u):
+        ax.axvline((first.pulse_step + 1) * first.problem.dt, color="0.5", lw=1.0)
+        ax.set_xlabel("time [s]")
+    unit = task.unit if task is not None else ""
+    name = task.point if task is not None else "task point"
+    ax_path.set_xlabel(f"{name} x [{unit}]")
+    ax_path.set_ylabel(f"{name} y [{unit}]")
+    ax_path.set_aspect("equal", adjustable="datalim")
+    ax_path.set_title("mean paths (dashed: unperturbed)")
+    ax_speed.set_ylabel(f"{name} speed [{unit}/s]")
+    ax_speed.set_title("mean speed, kicked trials")
+    ax_u.set_ylabel("|mean command response|")
+    ax_u.set_title("corrective command (dotted: first response)")
+    ax_path.legend(fontsize=8)
+    return fig
+
+
+def perturbation_figures(results: Sequence) -> dict:
+    """The study's figures by file name."""
+    return {"perturbation.png": plot_perturbation(results)}
