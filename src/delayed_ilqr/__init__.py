@@ -29,8 +29,11 @@ The library needs float64 and says so with a ``ValueError`` that names the first
 than switching precision for its own computations (see ``_precision``). :func:`configure_cpu`
 adds two of XLA's CPU flags to ``XLA_FLAGS`` so that XLA compiles the solver's small loops as
 single functions (see ``_cpu``); it warns when it comes too late to take effect.
+:func:`enable_compilation_cache` (opt-in; the command line turns it on) keeps compiled solvers on
+disk, so that the next process reads them instead of compiling again (see ``_cache``).
 """
 from . import lqg, models
+from ._cache import default_cache_dir, enable_compilation_cache
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
 from .solution import Policy, Solution, Status, Trace
@@ -38,6 +41,6 @@ from .ilqg.solver import solve
 from .options import Options
 from .simulate import Runs, simulate
 
-__all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
+__all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
            "Solution", "Policy", "Status", "Trace", "simulate", "Runs"]
 __version__ = "0.1.0"

@@ -32,6 +32,7 @@ import jax
 import numpy as np
 
 from . import Options, Status
+from ._cache import CACHE_DIR_ENV, NO_CACHE_ENV, enable_compilation_cache
 from ._cpu import configure_cpu
 from .simulate import check_memory
 from .experiments import center_out, delay_study, engine, report, tables
@@ -179,17 +180,31 @@ class _Main(click.Group):
 @click.group(cls=_Main, context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
 @click.option("--debug", is_flag=True, help="Show the traceback of an unexpected error.")
-def main(debug):
+@click.option("--no-cache", is_flag=True, envvar=NO_CACHE_ENV, show_envvar=True,
+              help="Do not use the persistent compilation cache (every process compiles its solvers again).")
+@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=pathlib.Path), envvar=CACHE_DIR_ENV,
+              show_envvar=True, default=None,
+              help="Folder of the persistent compilation cache [default: jax in the user cache folder, "
+                   "e.g. ~/.cache/delayed-ilqr/jax].")
+def main(debug, no_cache, cache_dir):
     """iLQG with control (input) delay: solve, Monte Carlo, delay studies and figures.
 
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
     0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments
     (including an --out that cannot be created, or is not empty without --overwrite), 3 for any
     other error.
+
+    Compiled solvers are kept in a persistent cache folder (--cache-dir), so that the next process
+    does not compile them again; --no-cache turns that off.
     """
     # the process is the command's own: float64 and XLA's small-loop flags, before any computation
     jax.config.update("jax_enable_x64", True)
     configure_cpu()
+    if not no_cache:        # a second process reads the compiled solvers instead of compiling them
+        try:
+            enable_compilation_cache(cache_dir)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="'--cache-dir'") from None
 
 
 @main.command("models")
