@@ -41,6 +41,14 @@ from .ilqg.solver import solve
 from .options import Options
 from .simulate import Runs, simulate
 
-__all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
+__all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep", "Problem", "QuadraticCost", "GeneralCost", "Options", "solve",
            "Solution", "Policy", "Status", "Trace", "simulate", "Runs"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # sweep and open_sweep need the ``sweep`` extra (xarray, zarr, dask): imported on first use
+    if name in ("sweep", "open_sweep"):
+        from . import sweeps
+        return getattr(sweeps, name)
+    raise AttributeError(f"module 'delayed_ilqr' has no attribute {name!r}")

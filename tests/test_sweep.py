@@ -1,0 +1,207 @@
+"""``delayed_ilqr.sweep``: each cell equals the library's own solve and Monte Carlo, an interrupted
+or damaged store resumes to the same numbers, and a 2-worker Dask LocalCluster (also with a
+worker killed mid-sweep) gives the results of the local run, every cell once.
+
+Small problems (the noisy point mass, K = 20, 20 trials) keep it within a minute or so; the Dask
+workers share a temporary persistent compilation cache with this process, so they mostly read
+the solvers compiled here instead of compiling them again.
+"""
+import json
+import os
+import pathlib
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+xr = pytest.importorskip("xarray")
+pytest.importorskip("zarr")
+distributed = pytest.importorskip("distributed")
+
+import delayed_ilqr as di                                      # noqa: E402
+from delayed_ilqr import statistics                            # noqa: E402
+from delayed_ilqr.experiments.engine import endpoint_error     # noqa: E402
+from delayed_ilqr.models import point_mass                     # noqa: E402
+from delayed_ilqr.sweeps import compute, run, store as store_module   # noqa: E402
+
+K = 20
+TARGETS = [(0.2, 0.1, 0.0, 0.0), (0.1, 0.2, 0.0, 0.0), (0.0, 0.15, 0.0, 0.0)]
+GRID = {"delay": [0.0, 0.03], "x_target": TARGETS}
+ARGS = dict(seeds=[0, 3], trials=20, fixed={"noise": True, "horizon": K}, batch_size=4, progress=False)
+
+
+@pytest.fixture(scope="module")
+def cache_dir(tmp_path_factory):
+    """A persistent compilation cache for this module (this process and the Dask workers); JAX's
+    setting is restored afterwards."""
+    from jax.experimental.compilation_cache import compilation_cache as cc
+    before = jax.config.jax_compilation_cache_dir
+    folder = di.enable_compilation_cache(tmp_path_factory.mktemp("jax-cache"))
+    yield folder
+    cc.reset_cache()
+    jax.config.update("jax_compilation_cache_dir", before)
+
+
+@pytest.fixture(scope="module")
+def reference(cache_dir):
+    """The sweep computed here, in memory."""
+    return di.sweep("point_mass", GRID, **ARGS)
+
+
+def test_every_cell_is_the_librarys_own_solve_and_monte_carlo(reference):
+    ds = reference
+    assert dict(ds.sizes) == {"delay": 2, "x_target": 3, "seed": 2, "x_target_component": 4}
+    assert ds.delay.attrs["units"] == "s" and ds.mc_endpoint_error_mean.attrs["units"] == "m"
+    np.testing.assert_array_equal(ds.x_target_value.values, np.asarray(TARGETS))
+    for i, delay in enumerate(GRID["delay"]):
+        for j, target in enumerate(TARGETS):
+            problem = point_mass(delay=delay, x_target=target, noise=True, horizon=K)
+            sol = di.solve(problem)                              # one plain solve, not the sweep's vmap
+            cell = ds.isel(delay=i, x_target=j)
+            assert int(cell.status) == int(sol.status) and int(cell.iterations) == int(sol.iterations)
+            np.testing.assert_allclose(float(cell.cost), float(sol.cost), rtol=1e-10)
+            np.testing.assert_allclose(float(cell.expected_cost), float(sol.expected_cost), rtol=1e-10)
+            np.testing.assert_allclose(float(cell.endpoint_error),
+                                       endpoint_error(problem, np.asarray(sol.x)[-1:])[0], rtol=1e-8)
+            bound = statistics.divergence_bound(problem)
+            for k, seed in enumerate(ARGS["seeds"]):
+                runs = di.simulate(problem, sol.policy, ARGS["trials"], seed=seed)
+                stats = statistics.sample_stats(runs.cost, statistics.diverged_trials(runs.cost, bound))
+                got = cell.isel(seed=k)
+                assert int(got.mc_diverged) == stats.n_diverged
+                np.testing.assert_allclose([float(got.mc_cost_mean), float(got.mc_cost_median),
+                                            float(got.mc_cost_ci_low), float(got.mc_cost_ci_high)],
+                                           [stats.mean, stats.median, *stats.ci95], rtol=1e-8)
+    # seeds differ: the Monte Carlo is not one sample repeated
+    assert not np.array_equal(ds.mc_cost_mean.isel(seed=0).values, ds.mc_cost_mean.isel(seed=1).values)
+
+
+class Interrupted(Exception):
+    pass
+
+
+def test_an_interrupted_sweep_resumes_computing_only_what_is_missing_with_identical_results(
+        reference, tmp_path, monkeypatch):
+    path = tmp_path / "store"
+    real = compute.compute_batch
+    computed = []
+
+    def interrupt_after_one(settings, batch):
+        if len(computed) == 1:
+            raise Interrupted
+        computed.append(batch.number)
+        return real(settings, batch)
+
+    monkeypatch.setattr(run, "compute_batch", interrupt_after_one)
+    with pytest.raises(Interrupted):
+        di.sweep("point_mass", GRID, store=path, **ARGS)
+    partial = di.open_sweep(path)
+    # batches (same delay together, at most 4): [(0,0), (0,1), (0,2)], [(1,0), (1,1), (1,2)]
+    assert int(partial.finished.sum()) == 3 and np.isnan(partial.cost.values[partial.finished.values == 0]).all()
+
+    computed.clear()
+    monkeypatch.setattr(run, "compute_batch", lambda s, b: (computed.append(b.number), real(s, b))[1])
+    resumed = di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert computed == [1]                      # only the batch that had not been written
+    xr.testing.assert_identical(resumed, reference)
+    computed.clear()
+    again = di.sweep("point_mass", GRID, store=path, **ARGS)    # a re-run computes nothing
+    assert computed == [] and int(di.open_sweep(path).finished.sum()) == 6
+    xr.testing.assert_identical(again, reference)
+
+
+def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp_path, monkeypatch):
+    path = tmp_path / "store"
+    di.sweep("point_mass", GRID, store=path, **ARGS)
+    # a write interrupted between the data and the marker: batch 0's marker is gone
+    (path / "cells" / "batch-0.json").unlink()
+    # a chunk damaged after its marker was written: cell (1, 1)'s cost
+    chunk = path / "results.zarr" / "cost" / "c" / "1" / "1"
+    chunk.write_bytes(b"\x00garbage")
+    # a cell whose value changed (a checksum mismatch): cell (1, 2)'s iterations, readable but wrong
+    import zarr
+    zarr.open_group(path / "results.zarr", mode="r+")["iterations"][1, 2] = 99
+    finished = di.open_sweep(path).finished.values
+    np.testing.assert_array_equal(finished, [[0, 0, 0], [1, 0, 0]])
+    real, computed = compute.compute_batch, []
+    monkeypatch.setattr(run, "compute_batch", lambda s, b: (computed.append(b.number), real(s, b))[1])
+    repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert computed == [0, 1]             # batch 1 again for cells (1, 1), (1, 2); its cell (1, 0) is kept
+    xr.testing.assert_identical(repaired, reference)
+    markers = [json.loads(p.read_text())["cells"] for p in sorted((path / "cells").glob("batch-*.json"))]
+    keys = [k for m in markers for k in m]
+    assert sorted(keys) == sorted(f"{i},{j}" for i in range(2) for j in range(3))   # each cell once
+
+
+def test_a_store_of_another_sweep_is_refused_unless_overwrite(reference, tmp_path):
+    path = tmp_path / "store"
+    di.sweep("point_mass", {"delay": [0.0]}, store=path, **ARGS)
+    with pytest.raises(ValueError, match="holds another sweep"):
+        di.sweep("point_mass", {"delay": [0.03]}, store=path, **ARGS)
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "plain" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="is not a sweep store"):
+        di.sweep("point_mass", {"delay": [0.0]}, store=tmp_path / "plain", **ARGS)
+    ds = di.sweep("point_mass", {"delay": [0.03]}, store=path, overwrite=True, **ARGS)
+    np.testing.assert_array_equal(ds.cost.values, reference.cost.sel(delay=[0.03]).isel(x_target=0).values)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    (dict(grid={"seed": [0]}), ValueError, "not 'seed'"),
+    (dict(grid={"delay": []}), ValueError, r"grid\['delay'\] must hold at least one value"),
+    (dict(grid={"delay": [0.0, 0.0]}), ValueError, "must not repeat"),
+    (dict(grid={"delay": [0.0, 0.025]}), ValueError, r"grid cell \{'delay': 0.025\}: delay must be a whole number"),
+    (dict(grid={"delay": [0.0]}, fixed={"delay": 0.0}), ValueError, "fixed and grid must not name"),
+    (dict(grid={"delay": [0.0]}, seeds=[1, 1]), ValueError, "no seed twice"),
+    (dict(grid={"delay": [0.0]}, trials=0), ValueError, "trials"),
+    (dict(grid={"delay": [0.0]}, design="clever"), ValueError, "design must be one of"),
+])
+def test_bad_arguments_name_the_argument(kwargs, error, match):
+    args = dict(seeds=[0], trials=5, progress=False) | kwargs
+    grid = args.pop("grid")
+    with pytest.raises(error, match=match):
+        di.sweep("point_mass", grid, **args)
+
+
+# -- Dask ------------------------------------------------------------------------------------------
+
+def dying_point_mass(flag, **kwargs):
+    """point_mass, except that the first call inside a Dask worker kills that worker's process."""
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return point_mass(**kwargs)                       # not on a worker: the sweep's own checks
+    try:
+        os.close(os.open(flag, os.O_CREAT | os.O_EXCL))    # once over all workers
+    except FileExistsError:
+        return point_mass(**kwargs)
+    os._exit(1)
+
+
+@pytest.fixture(scope="module")
+def client(cache_dir):
+    import cloudpickle
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])      # the workers cannot import tests/
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    with distributed.Client(cluster) as c:
+        yield c
+    cluster.close()
+
+
+def test_a_two_worker_local_cluster_gives_the_local_results(reference, client, cache_dir, tmp_path):
+    ds = di.sweep("point_mass", GRID, store=tmp_path / "store", scheduler=client, cache_dir=cache_dir, **ARGS)
+    xr.testing.assert_identical(ds, reference)
+    assert len(client.scheduler_info()["workers"]) == 2
+
+
+def test_a_worker_killed_mid_sweep_and_every_cell_is_there_once(reference, client, cache_dir, tmp_path):
+    flag, path = tmp_path / "died", tmp_path / "store"
+    args = dict(ARGS, fixed=dict(ARGS["fixed"], flag=str(flag)))
+    ds = di.sweep(dying_point_mass, GRID, store=path, scheduler=client, cache_dir=cache_dir, **args)
+    assert flag.exists()                                  # a worker did die
+    xr.testing.assert_identical(ds.drop_attrs(), reference.drop_attrs())
+    markers = [json.loads(p.read_text())["cells"] for p in sorted((path / "cells").glob("batch-*.json"))]
+    keys = [k for m in markers for k in m]
+    assert len(keys) == 6 and len(set(keys)) == 6
+    assert int(di.open_sweep(path).finished.sum()) == 6
