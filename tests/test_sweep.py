@@ -54,7 +54,7 @@ def test_every_cell_is_the_librarys_own_solve_and_monte_carlo(reference):
     assert dict(ds.sizes) == {"delay": 2, "x_target": 3, "seed": 2, "x_target_component": 4}
     assert ds.delay.attrs["units"] == "s" and ds.mc_endpoint_error_mean.attrs["units"] == "m"
     np.testing.assert_array_equal(ds.x_target_value.values, np.asarray(TARGETS))
-    for i, delay in enumerate(GRID["delay"]):
+    for i, delay in [(1, 0.03)]:                   # one delay: each plain solve compiles for its delay
         for j, target in enumerate(TARGETS):
             problem = point_mass(delay=delay, x_target=target, noise=True, horizon=K)
             sol = di.solve(problem)                              # one plain solve, not the sweep's vmap
@@ -136,15 +136,18 @@ def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp
 
 def test_a_store_of_another_sweep_is_refused_unless_overwrite(reference, tmp_path):
     path = tmp_path / "store"
-    di.sweep("point_mass", {"delay": [0.0]}, store=path, **ARGS)
+    first = {"delay": [0.0], "x_target": TARGETS}            # shapes compiled for the reference
+    di.sweep("point_mass", first, store=path, **ARGS)
     with pytest.raises(ValueError, match="holds another sweep"):
-        di.sweep("point_mass", {"delay": [0.03]}, store=path, **ARGS)
+        di.sweep("point_mass", {"delay": [0.03], "x_target": TARGETS}, store=path, **ARGS)
+    with pytest.raises(ValueError, match="holds another sweep"):
+        di.sweep("point_mass", first, store=path, **dict(ARGS, trials=21))
     (tmp_path / "plain").mkdir()
     (tmp_path / "plain" / "notes.txt").write_text("mine")
     with pytest.raises(ValueError, match="is not a sweep store"):
-        di.sweep("point_mass", {"delay": [0.0]}, store=tmp_path / "plain", **ARGS)
-    ds = di.sweep("point_mass", {"delay": [0.03]}, store=path, overwrite=True, **ARGS)
-    np.testing.assert_array_equal(ds.cost.values, reference.cost.sel(delay=[0.03]).isel(x_target=0).values)
+        di.sweep("point_mass", first, store=tmp_path / "plain", **ARGS)
+    ds = di.sweep("point_mass", {"delay": [0.03], "x_target": TARGETS}, store=path, overwrite=True, **ARGS)
+    xr.testing.assert_identical(ds.drop_attrs(), reference.isel(delay=[1]).drop_attrs())
 
 
 @pytest.mark.parametrize("kwargs, error, match", [
@@ -189,19 +192,51 @@ def client(cache_dir):
     cluster.close()
 
 
-def test_a_two_worker_local_cluster_gives_the_local_results(reference, client, cache_dir, tmp_path):
-    ds = di.sweep("point_mass", GRID, store=tmp_path / "store", scheduler=client, cache_dir=cache_dir, **ARGS)
-    xr.testing.assert_identical(ds, reference)
-    assert len(client.scheduler_info()["workers"]) == 2
-
-
-def test_a_worker_killed_mid_sweep_and_every_cell_is_there_once(reference, client, cache_dir, tmp_path):
+def test_a_two_worker_local_cluster_gives_the_local_results_also_when_a_worker_dies(reference, client, cache_dir,
+                                                                                    tmp_path):
+    """Two LocalCluster workers; the first batch to start kills its worker (os._exit) when it
+    builds its problems. The scheduler runs that batch again, and the sweep completes with the
+    local run's numbers, every cell written once."""
     flag, path = tmp_path / "died", tmp_path / "store"
     args = dict(ARGS, fixed=dict(ARGS["fixed"], flag=str(flag)))
     ds = di.sweep(dying_point_mass, GRID, store=path, scheduler=client, cache_dir=cache_dir, **args)
     assert flag.exists()                                  # a worker did die
-    xr.testing.assert_identical(ds.drop_attrs(), reference.drop_attrs())
+    assert len(client.scheduler_info()["workers"]) == 2    # and its nanny started a new one
+    xr.testing.assert_identical(ds.drop_attrs(), reference.drop_attrs())    # attrs: the factory's name
     markers = [json.loads(p.read_text())["cells"] for p in sorted((path / "cells").glob("batch-*.json"))]
     keys = [k for m in markers for k in m]
     assert len(keys) == 6 and len(set(keys)) == 6
     assert int(di.open_sweep(path).finished.sum()) == 6
+
+
+# -- the command line ------------------------------------------------------------------------------
+
+def test_the_sweep_command_writes_the_store_and_figure_resumes_and_refuses_bad_arguments(reference, tmp_path):
+    from click.testing import CliRunner
+    from delayed_ilqr import cli
+    out = tmp_path / "out"
+    targets = ";".join(json.dumps(list(t)) for t in TARGETS)
+    args = ["sweep", "point_mass", "--grid", "delay=0:0.03:0.03", "--grid", f"x_target={targets}", "--set",
+            f"horizon={K}", "--seeds", "0,3", "--trials", "20", "--batch-size", "4", "--no-progress", "--out", out]
+
+    def invoke(*a):
+        return CliRunner().invoke(cli.main, [str(x) for x in a], catch_exceptions=False)
+
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert "CONVERGED" in result.output and (out / "sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["settings"]["grid"]["delay"] == [0.0, 0.03] and manifest["settings"]["fixed"]["noise"] is True
+    xr.testing.assert_identical(di.open_sweep(out / "store").drop_vars("finished"), reference)
+    again = invoke(*args)                                   # the same command: resumed, nothing to compute
+    assert again.exit_code == 0 and "CONVERGED" in again.output
+    other = invoke(*args[:-2], "--trials", "21", "--out", out)
+    assert other.exit_code == 2 and "holds another sweep" in other.output
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    refused = invoke(*args[:-1], tmp_path / "mine")
+    assert refused.exit_code == 2 and "holds no sweep" in refused.output
+    bad = invoke("sweep", "point_mass", "--grid", "delay0.1", "--out", tmp_path / "bad")
+    assert bad.exit_code == 2 and "NAME=VALUES" in bad.output
+    refused_delay = invoke("sweep", "point_mass", "--grid", "delay=0.025", "--out", tmp_path / "bad")
+    assert refused_delay.exit_code == 2 and "whole number of steps" in refused_delay.output

@@ -10,6 +10,7 @@ position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.
 :mod:`.solution`            states and commands against time; convergence of solves
 :mod:`.delay_study`         cost and endpoint error against the delay; task-space (hand) paths
 :mod:`.center_out`          center-out hand paths and ellipses; excitation patterns
+:mod:`.sweep`               a sweep's Dataset: Monte Carlo cost and endpoint error against a grid axis
 ==========================  ===================================================================
 
 ``delay_study_figures`` and ``center_out_figures`` give a study's figures by file name.
@@ -18,7 +19,8 @@ from ._common import COLORS
 from .center_out import center_out_figures, plot_center_out, plot_excitations
 from .delay_study import delay_study_figures, draws_paths, plot_delay_study, plot_hand_paths
 from .solution import plot_convergence, plot_trajectories, state_labels
+from .sweep import plot_sweep
 
 __all__ = ["plot_trajectories", "plot_hand_paths", "plot_delay_study", "plot_convergence", "plot_center_out",
-           "plot_excitations", "delay_study_figures", "center_out_figures", "draws_paths", "state_labels",
+           "plot_excitations", "delay_study_figures", "center_out_figures", "draws_paths", "state_labels", "plot_sweep",
            "COLORS"]
