@@ -87,11 +87,11 @@ def test_an_interrupted_sweep_resumes_computing_only_what_is_missing_with_identi
     real = compute.compute_batch
     computed = []
 
-    def interrupt_after_one(settings, batch):
+    def interrupt_after_one(settings, batch, plants=None):
         if len(computed) == 1:
             raise Interrupted
         computed.append(batch.number)
-        return real(settings, batch)
+        return real(settings, batch, plants)
 
     monkeypatch.setattr(run, "compute_batch", interrupt_after_one)
     with pytest.raises(Interrupted):
@@ -101,7 +101,7 @@ def test_an_interrupted_sweep_resumes_computing_only_what_is_missing_with_identi
     assert int(partial.finished.sum()) == 3 and np.isnan(partial.cost.values[partial.finished.values == 0]).all()
 
     computed.clear()
-    monkeypatch.setattr(run, "compute_batch", lambda s, b: (computed.append(b.number), real(s, b))[1])
+    monkeypatch.setattr(run, "compute_batch", lambda s, b, p=None: (computed.append(b.number), real(s, b, p))[1])
     resumed = di.sweep("point_mass", GRID, store=path, **ARGS)
     assert computed == [1]                      # only the batch that had not been written
     xr.testing.assert_identical(resumed, reference)
@@ -125,7 +125,7 @@ def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp
     finished = di.open_sweep(path).finished.values
     np.testing.assert_array_equal(finished, [[0, 0, 0], [1, 0, 0]])
     real, computed = compute.compute_batch, []
-    monkeypatch.setattr(run, "compute_batch", lambda s, b: (computed.append(b.number), real(s, b))[1])
+    monkeypatch.setattr(run, "compute_batch", lambda s, b, p=None: (computed.append(b.number), real(s, b, p))[1])
     repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
     assert computed == [0, 1]             # batch 1 again for cells (1, 1), (1, 2); its cell (1, 0) is kept
     xr.testing.assert_identical(repaired, reference)

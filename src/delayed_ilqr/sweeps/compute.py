@@ -82,10 +82,12 @@ def prepare_process(cache_dir=None, cache: bool = True) -> None:
         enable_compilation_cache(cache_dir)
 
 
-def compute_batch(settings: Settings, batch: Batch) -> list[tuple[tuple[int, ...], dict]]:
+def compute_batch(settings: Settings, batch: Batch, plants=None) -> list[tuple[tuple[int, ...], dict]]:
     """The batch's cells with their results: [(cell index, {variable name: value})], a value
-    a scalar or, for a per-seed variable, an array [len(seeds)]."""
-    plants = [settings.problem(cell) for cell in batch.cells]
+    a scalar or, for a per-seed variable, an array [len(seeds)]. ``plants``: the cells' problems
+    when already built (else built here, on the worker, from the factory)."""
+    if plants is None:
+        plants = [settings.problem(cell) for cell in batch.cells]
     made = [designs.design(p, settings.design, settings.options) for p in plants]
     problems, options = [m[0] for m in made], made[0][1]
     u_init = default_u_init(problems[0])
@@ -94,7 +96,7 @@ def compute_batch(settings: Settings, batch: Batch) -> list[tuple[tuple[int, ...
         solutions = [solve(problems[0], u_init, options)]
     else:
         padded = problems + [problems[-1]] * (batch.size - len(problems))
-        stacked = solve_batch(padded, options, u_init)
+        stacked = jax.tree_util.tree_map(np.asarray, solve_batch(padded, options, u_init))   # one transfer
         solutions = [take(stacked, j) for j in range(len(problems))]
     return [(cell.index, _cell_results(settings, plant, sol)) for cell, plant, sol in zip(batch.cells, plants, solutions)]
 

@@ -109,7 +109,7 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         done = target.finished([c.index for c in all_cells])
         target.done = done
         todo = [b for b in plan if any(c.index not in done for c in b.cells)]
-    _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, len(all_cells))
+    _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, len(all_cells), problems)
     return target.dataset()
 
 
@@ -143,7 +143,7 @@ class _InMemory:
         return self.ds
 
 
-def _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, n_cells):
+def _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, n_cells, problems):
     from tqdm.auto import tqdm
     bar = tqdm(total=n_cells, initial=n_cells - sum(len(b.cells) for b in todo), unit="cell",
                disable=not progress, desc="sweep")
@@ -158,7 +158,7 @@ def _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progres
     try:
         if scheduler is None:
             for batch in todo:
-                finish(batch, compute_batch(settings, batch))
+                finish(batch, compute_batch(settings, batch, [problems[c.index] for c in batch.cells]))
         else:
             from distributed import as_completed
             from .cluster import client_for
