@@ -568,7 +568,8 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
     try:
         ds = sweep(model, grid, seeds, trials, fixed=fixed, design=design, store=store, overwrite=overwrite,
                    scheduler=executor, n_workers=max(workers, 1), batch_size=batch_size, progress=progress,
-                   cache_dir=jax.config.jax_compilation_cache_dir,
+                   # a LocalCluster's workers share this process's cache; a remote cluster's use their own
+                   cache_dir=None if scheduler else jax.config.jax_compilation_cache_dir,
                    cache=jax.config.jax_compilation_cache_dir is not None)
     except (ValueError, TypeError) as exc:
         raise click.UsageError(str(exc)) from None

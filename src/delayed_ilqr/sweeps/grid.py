@@ -35,7 +35,7 @@ class Batch(NamedTuple):
     size: int
 
 
-def check_grid(grid: Mapping[str, Sequence], factory: Callable) -> dict[str, list]:
+def check_grid(grid: Mapping[str, Sequence]) -> dict[str, list]:
     """The grid as {name: list of values}, checked: non-empty names that are not ``seed``, each
     with at least one value, and no value repeated along a dimension."""
     if not isinstance(grid, Mapping) or not grid:

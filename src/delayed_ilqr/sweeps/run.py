@@ -76,7 +76,7 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
     """
     _precision.require_x64("sweep")
     factory, model_name = _factory(model)
-    grid = check_grid(grid, factory)
+    grid = check_grid(grid)
     fixed = dict(fixed or {})
     overlap = set(fixed) & set(grid)
     if overlap:
