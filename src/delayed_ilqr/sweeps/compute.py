@@ -9,14 +9,17 @@ library), or a Dask worker, which :func:`prepare_process` sets up.
 from __future__ import annotations
 
 import dataclasses
+from functools import partial
 from typing import Callable, NamedTuple, Optional
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .. import Options, Status
 from ..experiments import designs
-from ..experiments.engine import endpoint_error, monte_carlo, solve_batch, take
+from ..experiments.engine import endpoint_error, solve_batch, take
+from ..simulate import _simulate, check_memory
 from ..models.metadata import default_u_init
 from ..statistics import divergence_bound, diverged_trials, sample_stats
 from .grid import Batch, Cell
@@ -91,27 +94,47 @@ def compute_batch(settings: Settings, batch: Batch, plants=None) -> list[tuple[t
     made = [designs.design(p, settings.design, settings.options) for p in plants]
     problems, options = [m[0] for m in made], made[0][1]
     u_init = default_u_init(problems[0])
+    padded = plants + [plants[-1]] * (batch.size - len(plants))
     if batch.size == 1:
         from .. import solve
-        solutions = [solve(problems[0], u_init, options)]
+        solved = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], solve(problems[0], u_init, options))
     else:
-        padded = problems + [problems[-1]] * (batch.size - len(problems))
-        stacked = jax.tree_util.tree_map(np.asarray, solve_batch(padded, options, u_init))   # one transfer
-        solutions = [take(stacked, j) for j in range(len(problems))]
-    return [(cell.index, _cell_results(settings, plant, sol)) for cell, plant, sol in zip(batch.cells, plants, solutions)]
+        padded_designs = problems + [problems[-1]] * (batch.size - len(problems))
+        solved = jax.tree_util.tree_map(np.asarray, solve_batch(padded_designs, options, u_init))  # one transfer
+    stacked_plants = _stack(padded)
+    check_memory(plants[0], settings.trials * batch.size, settings.substeps)
+    monte_carlo = [_monte_carlo(stacked_plants, solved.policy, settings.trials, settings.substeps,
+                                jax.random.PRNGKey(seed)) for seed in settings.seeds]
+    return [(cell.index, _cell_results(plant, take(solved, j), [(c[j], x[j]) for c, x in monte_carlo]))
+            for j, (cell, plant) in enumerate(zip(batch.cells, plants))]
 
 
-def _cell_results(settings: Settings, plant, sol) -> dict:
+def _stack(trees):
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
+
+
+@partial(jax.jit, static_argnames=("n_trials", "substeps"))
+def _monte_carlo(plants, policies, n_trials: int, substeps: int, key):
+    """``simulate`` of each (plant, policy) pair of a batch with the same key, one after another in
+    one compiled loop (as the solver's batching rule): per cell the same computation, and the same
+    numbers, as ``simulate(plant, policy, n_trials, seed)``. Returns costs [B, N], final states [B, N, n]."""
+    def one(pair):
+        runs = _simulate(pair[0], pair[1], n_trials, substeps, key)
+        return runs.cost, runs.x[:, -1]
+    return jax.lax.map(one, (plants, policies))
+
+
+def _cell_results(plant, sol, monte_carlo) -> dict:
+    """A cell's values from its solution and, per seed, its trials' (costs [N], final states [N, n])."""
     status = Status(int(sol.status))
     out = dict(status=np.int32(status), converged=np.int8(status.converged), iterations=np.int32(sol.iterations),
                cost=np.float64(sol.cost), expected_cost=np.float64(sol.expected_cost),
                endpoint_error=np.float64(endpoint_error(plant, np.asarray(sol.x)[-1][None])[0]))
     bound = divergence_bound(plant)
     per_seed = {v.name: [] for v in VARIABLES if v.per_seed}
-    for seed in settings.seeds:
-        trials = monte_carlo(plant, sol.policy, settings.trials, seed, settings.substeps)
-        diverged = diverged_trials(trials.runs.cost, bound)
-        cost, error = sample_stats(trials.runs.cost, diverged), sample_stats(trials.errors, diverged)
+    for costs, finals in monte_carlo:
+        diverged = diverged_trials(costs, bound)
+        cost, error = sample_stats(costs, diverged), sample_stats(endpoint_error(plant, finals), diverged)
         for name, value in (("mc_cost_mean", cost.mean), ("mc_cost_ci_low", cost.ci95[0]),
                             ("mc_cost_ci_high", cost.ci95[1]), ("mc_cost_median", cost.median),
                             ("mc_diverged", cost.n_diverged), ("mc_endpoint_error_mean", error.mean),

@@ -141,9 +141,20 @@ class Store:
     def write(self, batch_number: int, results: list[tuple[tuple, dict]], previous: Optional[dict] = None) -> None:
         """Writes the cells' values, then the batch's marker (atomically). ``previous``: checksums of
         the batch's cells that were already finished and are kept (not written again)."""
-        for index, values in results:
+        if results:                          # one call per variable: zarr writes the cells' chunks concurrently
+            coords = np.array([index for index, _ in results]).T                       # [grid dims, cells]
             for v in VARIABLES:
-                self.group[v.name][tuple(index)] = values[v.name]
+                array = self.group[v.name]
+                data = np.stack([np.asarray(values[v.name], v.dtype) for _, values in results])
+                n_seeds = data.shape[1] if v.per_seed else 1
+                at = tuple(np.repeat(c, n_seeds) for c in coords)
+                if v.per_seed:                    # every (cell, seed) pair
+                    at += (np.tile(np.arange(n_seeds), len(results)),)
+                try:
+                    array.vindex[at] = data.reshape(-1)
+                except Exception:                 # a damaged chunk, which a point write reads first: whole chunks
+                    for (index, _), row in zip(results, data):
+                        array[tuple(index)] = row
         cells = dict(previous or {})
         cells.update({_key(index): checksum(values) for index, values in results})
         _write_atomically(self.path / MARKERS / f"batch-{batch_number}.json",
