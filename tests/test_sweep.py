@@ -136,20 +136,23 @@ def test_an_interrupted_sweep_resumes_computing_only_what_is_missing_with_identi
 def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp_path, monkeypatch):
     path = tmp_path / "store"
     di.sweep("point_mass", GRID, store=path, **ARGS)
-    # a write interrupted between the data and the marker: batch 0's marker is gone
-    (path / "cells" / "batch-0.json").unlink()
-    # a chunk damaged after its marker was written: cell (1, 1)'s cost
-    chunk = path / "results.zarr" / "cost" / "c" / "1" / "1"
-    chunk.write_bytes(b"\x00garbage")
-    # a cell whose value changed (a checksum mismatch): cell (1, 2)'s iterations, readable but wrong
-    import zarr
-    zarr.open_group(path / "results.zarr", mode="r+")["iterations"][1, 2] = 99
-    finished = di.open_sweep(path).finished.values
-    np.testing.assert_array_equal(finished, [[0, 0, 0], [1, 0, 0]])
     real, computed = compute.compute_batch, []
     monkeypatch.setattr(run, "compute_batch", lambda s, b, p=None: (computed.append(b.number), real(s, b, p))[1])
+    # a write interrupted between the data and the marker: batch 0's (delay 0) marker is gone
+    (path / "cells" / "batch-0.json").unlink()
+    # a value changed after its marker was written (a checksum mismatch): cell (1, 2)'s iterations
+    import zarr
+    zarr.open_group(path / "results.zarr", mode="r+")["iterations"][1, 2] = 99
+    np.testing.assert_array_equal(di.open_sweep(path).finished.values, [[0, 0, 0], [1, 1, 0]])
     repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
-    assert computed == [0, 1]             # batch 1 again for cells (1, 1), (1, 2); its cell (1, 0) is kept
+    assert computed == [0, 1]             # batch 1 again for cell (1, 2); its other cells are kept
+    xr.testing.assert_identical(repaired, reference)
+    # a damaged chunk (row 1 of the costs: 3 cells in one chunk) cannot be decoded: its cells again
+    (path / "results.zarr" / "cost" / "c" / "1" / "0").write_bytes(b"\x00garbage")
+    np.testing.assert_array_equal(di.open_sweep(path).finished.values, [[1, 1, 1], [0, 0, 0]])
+    computed.clear()
+    repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert computed == [1]
     xr.testing.assert_identical(repaired, reference)
     markers = [json.loads(p.read_text())["cells"] for p in sorted((path / "cells").glob("batch-*.json"))]
     keys = [k for m in markers for k in m]

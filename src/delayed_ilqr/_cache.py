@@ -30,7 +30,7 @@ NO_CACHE_ENV = "DELAYED_ILQR_NO_CACHE"
 
 # Every compilation is written, also the small programs of eager jax.numpy calls: a process
 # compiles dozens of them, together about as long as the solver, and reading a file back is far
-# cheaper (JAX's default threshold, 1 s, keeps little more than the solver:
+# cheaper (a threshold of 0.1 s, or JAX's default of 1 s, keeps only the solver:
 # docs/performance.md#compilation-cache).
 MIN_COMPILE_SECONDS = 0.0
 

@@ -107,7 +107,7 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         from .store import Store
         target = Store.open(store, template, _store_settings(template, batch_size), overwrite)
         done = target.finished([c.index for c in all_cells])
-        target.done = done
+        target.done, target.known = done, target.markers()
         todo = [b for b in plan if any(c.index not in done for c in b.cells)]
     _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, len(all_cells), problems)
     return target.dataset()
@@ -172,10 +172,10 @@ def _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progres
 
 def _previous(target, batch) -> Optional[dict]:
     """Checksums of the batch's cells that were finished before this run (kept in its marker)."""
-    if not hasattr(target, "markers"):
+    if not hasattr(target, "known"):
         return None
     from .store import _key
-    marked = target.markers()
+    marked = target.known
     return {_key(c.index): marked[_key(c.index)] for c in batch.cells
             if c.index in target.done and _key(c.index) in marked}
 

@@ -5,7 +5,8 @@ A batch's cells are written first, then its marker, atomically (a temporary file
 marker lists each cell with the SHA-256 of its values as written. A cell counts as finished only
 when a marker names it and the values read back from the store have that checksum, so a write
 that was interrupted (no marker yet), a chunk damaged afterwards (checksum mismatch, or a chunk
-that cannot be decoded) or a marker without its data is detected, and the cell is computed again.
+that cannot be decoded: all its cells) or a marker without its data is detected, and the cell is
+computed again. Only the process that runs the sweep writes (Dask workers return numbers).
 The store itself is created atomically (built beside ``path``, then renamed), with the sweep's
 settings (``sweep.json``): a store of another sweep is refused, so that cells of two different
 sweeps never mix.
@@ -27,6 +28,11 @@ __all__ = ["Store", "checksum"]
 
 RESULTS, MARKERS, SETTINGS = "results.zarr", "cells", "sweep.json"
 
+# Cells per Zarr chunk along the last grid dimension (1 along the others): a file per cell and
+# variable costs more to create, write and read than the cells' numbers (docs/performance.md,
+# "sweep throughput"). A damaged chunk makes its cells unfinished; they are computed again.
+CHUNK_CELLS = 256
+
 
 def checksum(values: dict) -> str:
     """SHA-256 of a cell's values, variable by variable in the order of :data:`VARIABLES`, each as
@@ -36,6 +42,12 @@ def checksum(values: dict) -> str:
         h.update(v.name.encode())
         h.update(np.ascontiguousarray(values[v.name], np.dtype(v.dtype).newbyteorder("<")).tobytes())
     return h.hexdigest()
+
+
+def _chunks(dims, sizes) -> tuple:
+    """One chunk per CHUNK_CELLS cells along the last grid dimension, all seeds in it."""
+    grid = [d for d in dims if d != "seed"]
+    return tuple(sizes[d] if d == "seed" else (min(sizes[d], CHUNK_CELLS) if d == grid[-1] else 1) for d in dims)
 
 
 def _key(index) -> str:
@@ -79,8 +91,7 @@ class Store:
         shutil.rmtree(staging, ignore_errors=True)
         staging.mkdir(parents=True)
         try:
-            encoding = {name: {"chunks": tuple(1 if d != "seed" else template.sizes[d] for d in var.dims)}
-                        for name, var in template.data_vars.items()}
+            encoding = {name: {"chunks": _chunks(var.dims, template.sizes)} for name, var in template.data_vars.items()}
             template.to_zarr(staging / RESULTS, mode="w", encoding=encoding, consolidated=False)
             (staging / MARKERS).mkdir()
             _write_atomically(staging / SETTINGS, settings_text)
@@ -152,13 +163,33 @@ class Store:
                     at += (np.tile(np.arange(n_seeds), len(results)),)
                 try:
                     array.vindex[at] = data.reshape(-1)
-                except Exception:                 # a damaged chunk, which a point write reads first: whole chunks
-                    for (index, _), row in zip(results, data):
-                        array[tuple(index)] = row
+                except Exception:                 # a damaged chunk, which a partial write reads first
+                    self._rewrite_chunks(array, v, [index for index, _ in results], data)
         cells = dict(previous or {})
         cells.update({_key(index): checksum(values) for index, values in results})
         _write_atomically(self.path / MARKERS / f"batch-{batch_number}.json",
                           json.dumps(dict(batch=batch_number, cells=cells), sort_keys=True))
+
+    @staticmethod
+    def _rewrite_chunks(array, variable, indices, data) -> None:
+        """Writes whole chunks: what can still be read of each, with the new cells in it (an
+        unreadable chunk's other cells become missing; they were unfinished, so this run
+        computes them too)."""
+        chunks = array.chunks
+        regions = {}
+        for index, row in zip(indices, data):
+            start = tuple(i - i % c for i, c in zip(index, chunks))
+            regions.setdefault(start, []).append((index, row))
+        for start, cells in regions.items():
+            region = tuple(slice(s, min(s + c, n)) for s, c, n in zip(start, chunks, array.shape))
+            try:
+                block = np.asarray(array[region])
+            except Exception:
+                block = np.full([r.stop - r.start for r in region],
+                                np.nan if variable.dtype.startswith("float") else -1, variable.dtype)
+            for index, row in cells:
+                block[tuple(i - s for i, s in zip(index, start))] = row
+            array[region] = block
 
     def dataset(self):
         """The results as an xarray Dataset, loaded into memory."""
