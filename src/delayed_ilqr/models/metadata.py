@@ -11,11 +11,9 @@ dataclasses or module-level functions.
 """
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 from typing import Callable, Optional
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -109,26 +107,12 @@ def task_space(problem) -> Optional[TaskSpace]:
     return None if meta is None else meta.task
 
 
-def _compiled(task_map: Callable) -> Callable:
-    """``task_map`` compiled (once per map and input shape): eagerly, each of its jax.numpy
-    operations is dispatched on its own, which studies that judge thousands of endpoints pay for."""
-    try:
-        return _jitted(task_map)
-    except TypeError:                    # an unhashable map: run it as it is
-        return task_map
-
-
-@functools.lru_cache(maxsize=64)
-def _jitted(task_map: Callable) -> Callable:
-    return jax.jit(task_map)
-
-
 def task_position(problem, x) -> Optional[np.ndarray]:
     """Task-space positions [..., m] of states x [..., n], or None without a task space."""
     task = task_space(problem)
     if task is None:
         return None
-    return np.asarray(_compiled(task.map)(jnp.asarray(x)))
+    return np.asarray(task.map(jnp.asarray(x)))
 
 
 def task_target(problem) -> Optional[np.ndarray]:
@@ -139,7 +123,7 @@ def task_target(problem) -> Optional[np.ndarray]:
     if task.target is not None:
         return np.asarray(task.target(problem))
     x_target = getattr(problem.cost, "x_target", None)
-    return None if x_target is None else np.asarray(_compiled(task.map)(jnp.asarray(x_target)))
+    return None if x_target is None else np.asarray(task.map(jnp.asarray(x_target)))
 
 
 def default_u_init(problem):
