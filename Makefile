@@ -15,6 +15,9 @@ $(STAMP): pyproject.toml
 
 # Each command writes its folder atomically and replaces it whole with --overwrite: the demo
 # replaces out/ (the previous out/center_out with it), then center-out writes out/center_out.
+# The command line keeps its compiled solvers in a persistent cache (~/.cache/delayed-ilqr/jax,
+# or $DELAYED_ILQR_CACHE_DIR), so a second `make demo` does not compile them again;
+# DELAYED_ILQR_NO_CACHE=1 turns that off.
 demo: $(STAMP)
 	$(BIN)/delayed-ilqr demo --overwrite --out out
 	$(BIN)/delayed-ilqr center-out --allow-unconverged --overwrite --out out/center_out

@@ -11,6 +11,11 @@ import delayed_ilqr
 jax.config.update("jax_enable_x64", True)
 delayed_ilqr.configure_cpu()
 
+# the command line turns JAX's persistent compilation cache on by default; the in-process CLI tests
+# must not write into the user's cache folder (tests/test_compilation_cache.py turns it on in
+# subprocesses, with a temporary folder)
+os.environ.setdefault("DELAYED_ILQR_NO_CACHE", "1")
+
 from hypothesis import HealthCheck, settings  # noqa: E402
 
 # Every distinct array shape recompiles the jitted solvers (about a second each on a small CPU),

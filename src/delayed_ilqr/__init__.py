@@ -31,8 +31,11 @@ The library needs float64 and says so with a ``ValueError`` that names the first
 than switching precision for its own computations (see ``_precision``). :func:`configure_cpu`
 adds two of XLA's CPU flags to ``XLA_FLAGS`` so that XLA compiles the solver's small loops as
 single functions (see ``_cpu``); it warns when it comes too late to take effect.
+:func:`enable_compilation_cache` (opt-in; the command line turns it on) keeps compiled solvers on
+disk, so that the next process reads them instead of compiling again (see ``_cache``).
 """
 from . import lqg, models
+from ._cache import default_cache_dir, enable_compilation_cache
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
 from .observation import Observation
@@ -42,6 +45,15 @@ from .options import Options
 from .simulate import Runs, simulate
 from .saving import load, load_metadata
 
-__all__ = ["lqg", "models", "configure_cpu", "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options",
-           "solve", "Solution", "Policy", "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
+__all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
+           "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve", "Solution", "Policy",
+           "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # sweep and open_sweep need the ``sweep`` extra (xarray, zarr, dask): imported on first use
+    if name in ("sweep", "open_sweep"):
+        from . import sweeps
+        return getattr(sweeps, name)
+    raise AttributeError(f"module 'delayed_ilqr' has no attribute {name!r}")

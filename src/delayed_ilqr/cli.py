@@ -2,8 +2,8 @@
 :mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
 (:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
-Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out`` and ``perturb``
-(``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
+Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``
+and ``sweep`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
@@ -41,9 +41,10 @@ import jax
 import numpy as np
 
 from . import Options, Status
+from ._cache import CACHE_DIR_ENV, NO_CACHE_ENV, enable_compilation_cache
 from ._cpu import configure_cpu
 from .simulate import check_memory
-from .experiments import center_out, delay_study, engine, perturbation, report, tables
+from .experiments import center_out, delay_study, designs, engine, perturbation, report, tables
 from .models import REGISTRY, arm2_muscle6
 from .models.arm2 import SIGMA_U_HUMAN
 from .models.metadata import default_u_init
@@ -276,17 +277,31 @@ class _Main(click.Group):
 @click.group(cls=_Main, context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
 @click.option("--debug", is_flag=True, help="Show the traceback of an unexpected error.")
-def main(debug):
+@click.option("--no-cache", is_flag=True, envvar=NO_CACHE_ENV, show_envvar=True,
+              help="Do not use the persistent compilation cache (every process compiles its solvers again).")
+@click.option("--cache-dir", type=click.Path(file_okay=False, path_type=pathlib.Path), envvar=CACHE_DIR_ENV,
+              show_envvar=True, default=None,
+              help="Folder of the persistent compilation cache [default: jax in the user cache folder, "
+                   "e.g. ~/.cache/delayed-ilqr/jax].")
+def main(debug, no_cache, cache_dir):
     """iLQG with control (input) delay: solve, Monte Carlo, delay studies and figures.
 
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
     0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments
     (including an --out that cannot be created, or is not empty without --overwrite), 3 for any
     other error.
+
+    Compiled solvers are kept in a persistent cache folder (--cache-dir), so that the next process
+    does not compile them again; --no-cache turns that off.
     """
     # the process is the command's own: float64 and XLA's small-loop flags, before any computation
     jax.config.update("jax_enable_x64", True)
     configure_cpu()
+    if not no_cache:        # a second process reads the compiled solvers instead of compiling them
+        try:
+            enable_compilation_cache(cache_dir)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="'--cache-dir'") from None
 
 
 @main.command("models")
@@ -636,6 +651,165 @@ def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed
         click.echo(f"warning: the solve at sensory delay {r.sensory_delay:g} s did not converge "
                    f"({r.solution.status})", err=True)
     if failed:
+        sys.exit(1)
+
+
+class _GridAxis(click.ParamType):
+    """``NAME=VALUES``: one grid dimension of ``sweep``. VALUES is ``a,b,c`` (numbers, true/false or
+    words), ``start:stop:step`` (numbers from start to stop inclusive), or vectors ``[..];[..]``."""
+
+    name = "NAME=VALUES"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        name, sep, text = str(value).partition("=")
+        name = name.strip()
+        if not sep or not name.isidentifier() or not text.strip():
+            self.fail(f"must be NAME=VALUES such as delay=0,0.05,0.1 or delay=0:0.15:0.01; got {value!r}", param, ctx)
+        try:
+            if text.count(":") == 2 and "[" not in text:
+                start, stop, step = (float(v) for v in text.split(":"))
+                if not (step > 0 and stop >= start):
+                    raise ValueError("start:stop:step needs step > 0 and stop >= start")
+                count = int(math.floor((stop - start) / step + 1e-9)) + 1
+                values = [round(start + i * step, 12) for i in range(count)]
+            elif "[" in text:
+                values = [tuple(json.loads(v)) for v in text.split(";") if v.strip()]
+            else:
+                values = [_scalar(v) for v in text.split(",") if v.strip()]
+        except (ValueError, TypeError) as exc:
+            self.fail(f"cannot read the values of {name!r} in {value!r}: {exc}", param, ctx)
+        return name, values
+
+
+def _scalar(text: str):
+    """A command-line value: a JSON number, true/false, or else the word itself."""
+    try:
+        return json.loads(text.strip())
+    except ValueError:
+        return text.strip()
+
+
+class _Setting(click.ParamType):
+    """``NAME=VALUE``: a factory argument held fixed over the sweep."""
+
+    name = "NAME=VALUE"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        name, sep, text = str(value).partition("=")
+        if not sep or not name.strip().isidentifier():
+            self.fail(f"must be NAME=VALUE such as sigma_u=0.01; got {value!r}", param, ctx)
+        text = text.strip()
+        return name.strip(), tuple(json.loads(text)) if text.startswith("[") else _scalar(text)
+
+
+class _IntList(click.ParamType):
+    name = "N[,N...]"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (list, tuple)):
+            return list(value)
+        try:
+            return [int(v) for v in str(value).split(",") if v.strip()]
+        except ValueError:
+            self.fail(f"must be comma-separated non-negative integers such as 0,1,2; got {value!r}", param, ctx)
+
+
+SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
+
+
+@main.command("sweep")
+@click.argument("model", type=_ModelType(), metavar="MODEL")
+@click.option("--grid", "axes", type=_GridAxis(), multiple=True, required=True,
+              help="A grid dimension over an argument of the model's factory, repeatable: NAME=a,b,c, "
+                   "NAME=start:stop:step (inclusive) or NAME=[..];[..] for vectors, e.g. --grid delay=0:0.15:0.01 "
+                   "--grid sigma_u=0.01,0.02.")
+@click.option("--set", "settings_", type=_Setting(), multiple=True,
+              help="A factory argument held fixed, repeatable: NAME=VALUE, e.g. --set sigma_u=0.01.")
+@click.option("--noise/--no-noise", default=True, show_default=True,
+              help="The stochastic plant or the deterministic one (the factory's noise argument).")
+@click.option("--seeds", type=_IntList(), default="0", show_default=True,
+              help="Comma-separated Monte Carlo seeds (the Dataset's seed dimension).")
+@click.option("--trials", type=click.IntRange(min=1), default=100, show_default=True,
+              help="Monte Carlo trials per cell and seed.")
+@click.option("--design", type=click.Choice(sorted(designs.REGISTRY)), default="aware", show_default=True,
+              help="The controller design (experiments.designs): aware is Theorem 1 on the plant.")
+@click.option("--batch-size", type=click.IntRange(min=1), default=16, show_default=True,
+              help="At most this many cells of equal structure per vmapped solve.")
+@click.option("--workers", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Run on a dask.distributed LocalCluster of this many worker processes (0: in this process).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Run on the Dask cluster of this scheduler, e.g. tcp://host:8786 (docs/sweeps.md).")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar over the cells.")
+@_out_option(required=True, help="Folder of the sweep: store/ (results.zarr and completion markers; a second "
+                                 "run of the same command resumes it), sweep.png, manifest.json.")
+def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_size, workers, scheduler, progress,
+                  out, overwrite):
+    """Solve and simulate MODEL on every cell of a grid over its factory's arguments.
+
+    Each cell is solved (cells of equal structure together, one vmap), run --trials times per seed,
+    and its statistics written to --out/store as soon as its batch is done: an interrupted sweep
+    resumes where it stopped when the same command runs again, and finished cells are not
+    computed twice. Prints a summary table and draws --out/sweep.png against the first --grid
+    dimension. Exits 1 when some cell did not converge.
+    """
+    from . import plot
+    from .sweeps import sweep
+    grid = dict(axes)
+    if len(grid) != len(axes):
+        raise click.BadParameter("names a dimension twice", param_hint="'--grid'")
+    fixed = dict(settings_)
+    if "noise" not in grid and "noise" not in fixed:
+        fixed["noise"] = noise
+    if workers and scheduler:
+        raise click.BadParameter("give either --workers (a LocalCluster) or --scheduler (a running cluster)",
+                                 param_hint="'--workers'")
+    executor = scheduler if scheduler else ("local" if workers else None)
+    store = out / SWEEP_STORE
+    if out.is_dir() and any(out.iterdir()) and not (store / "sweep.json").is_file() and not overwrite:
+        raise click.BadParameter(f"{out} is not empty and holds no sweep; pass --overwrite to replace it whole",
+                                 param_hint="'--out'")
+    if overwrite and out.is_dir() and not (store / "sweep.json").is_file():
+        shutil.rmtree(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise click.BadParameter(f"cannot create {out}: {exc.strerror or exc}", param_hint="'--out'") from None
+    start = time.perf_counter()
+    try:
+        # a built-in model by name (what the store records); a user's factory as the function
+        ds = sweep(model.name if model.name in REGISTRY else model.factory, grid, seeds, trials, fixed=fixed,
+                   design=design, store=store, overwrite=overwrite,
+                   scheduler=executor, n_workers=max(workers, 1), batch_size=batch_size, progress=progress,
+                   # a LocalCluster's workers share this process's cache; a remote cluster's use their own
+                   cache_dir=None if scheduler else jax.config.jax_compilation_cache_dir,
+                   cache=jax.config.jax_compilation_cache_dir is not None)
+    except (ValueError, TypeError) as exc:
+        raise click.UsageError(str(exc)) from None
+    elapsed = time.perf_counter() - start
+    click.echo(tables.text_table(tables.sweep_rows(ds)))
+    figure = plot.plot_sweep(ds)
+    tmp = out / f".{SWEEP_FIGURE}.tmp-{os.getpid()}.png"
+    figure.savefig(tmp, dpi=report.DPI)
+    os.replace(tmp, out / SWEEP_FIGURE)
+    files = sorted(str(f.relative_to(out)) for f in out.rglob("*") if f.is_file() and f.name != "manifest.json")
+    manifest = dict(command=["delayed-ilqr"] + sys.argv[1:], version=importlib.metadata.version("delayed-ilqr"),
+                    created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                    settings=dict(model=model.name, grid={k: [list(v) if isinstance(v, tuple) else v for v in vs]
+                                                     for k, vs in grid.items()},
+                                  fixed=fixed, seeds=seeds, trials=trials, design=design, batch_size=batch_size,
+                                  elapsed_seconds=elapsed), files=len(files))
+    tmp = out / f".manifest.json.tmp-{os.getpid()}"
+    tmp.write_text(json.dumps(manifest, indent=2, default=repr) + "\n")
+    os.replace(tmp, out / "manifest.json")
+    n_failed = int((ds.converged.values != 1).sum())
+    click.echo(f"wrote {SWEEP_STORE}/, {SWEEP_FIGURE}, manifest.json to {out} ({elapsed:.1f} s)")
+    if n_failed:
+        click.echo(f"warning: {n_failed} of {ds.converged.size} cells did not converge (status in the Dataset)",
+                   err=True)
         sys.exit(1)
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple, Optional
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -50,9 +51,16 @@ def divergence_bound(problem) -> float:
     starts at its target, or blows up by itself), no finite bound is meaningful and only non-finite
     costs count (``inf`` is returned).
     """
-    us = jnp.zeros((problem.horizon, problem.n_controls), problem.x0.dtype)
-    rest = float(trajectory_cost(problem, rollout(problem, us), us))
+    rest = float(_rest_cost(problem))
     return DIVERGENCE_FACTOR * rest if math.isfinite(rest) and rest > 0 else math.inf
+
+
+@jax.jit
+def _rest_cost(problem):
+    """The cost of all commands zero; compiled once per problem structure (an eager ``lax.scan``
+    compiles its loop again on every call, a sweep's largest cost per cell)."""
+    us = jnp.zeros((problem.horizon, problem.n_controls), problem.x0.dtype)
+    return trajectory_cost(problem, rollout(problem, us), us)
 
 
 def diverged_trials(cost, bound: float = math.inf) -> np.ndarray:

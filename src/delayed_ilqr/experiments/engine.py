@@ -18,7 +18,7 @@ import numpy as np
 from .. import Options, Policy, Problem, Runs, Solution, simulate, solve
 from ..models.metadata import default_u_init, task_position, task_space, task_target
 
-__all__ = ["Timed", "Trials", "timed_solve", "timed_batched_solve", "monte_carlo", "endpoint_error",
+__all__ = ["Timed", "Trials", "timed_solve", "solve_batch", "timed_batched_solve", "monte_carlo", "endpoint_error",
            "endpoint_description", "take"]
 
 
@@ -63,6 +63,16 @@ def timed_solve(problem: Problem, options: Optional[Options] = None, u_init=None
 # Module level, so that a later study with the same shapes (delay, number of problems) reuses the
 # compilation instead of tracing a new function.
 _batched_solve = jax.jit(jax.vmap(solve, in_axes=(0, None, None)), static_argnums=2)
+
+
+def solve_batch(problems: Sequence[Problem], options: Optional[Options] = None, u_init=None) -> Solution:
+    """One compiled, vmapped solve of problems that differ only in their arrays (e.g. targets);
+    the solution's leaves carry a leading axis over ``problems``. ``u_init`` [K, d] is shared
+    (default: the model's, :func:`~delayed_ilqr.models.metadata.default_u_init` of the first)."""
+    if u_init is None:
+        u_init = default_u_init(problems[0])
+    stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
+    return _batched_solve(stacked, u_init, Options() if options is None else options)
 
 
 def timed_batched_solve(problems: Sequence[Problem], options: Options, u_init=None) -> Timed:

@@ -16,7 +16,7 @@ from .delay_study import ControllerResult
 from .designs import REGISTRY
 
 __all__ = ["num", "unit_scale", "delay_study_rows", "center_out_rows", "records_table", "text_table",
-           "markdown_table", "pairs", "solve_summary", "simulate_summary"]
+           "markdown_table", "pairs", "solve_summary", "simulate_summary", "sweep_rows"]
 
 Table = tuple[list[str], list[list[str]]]
 
@@ -102,6 +102,31 @@ def records_table(records: Sequence[dict]) -> Table:
     header = list(records[0])
     cell = lambda v: "-" if v is None else (num(v) if isinstance(v, float) else str(v))
     return header, [[cell(r[h]) for h in header] for r in records]
+
+
+def sweep_rows(ds) -> Table:
+    """One row per cell of a sweep's Dataset (:func:`delayed_ilqr.sweep`): its grid values, the
+    solve (status, iterations, predicted E[J]) and the Monte Carlo pooled over the seeds (mean of
+    the seeds' mean costs, their diverged trials, the median endpoint error)."""
+    dims = list(ds["status"].dims)
+    scale, unit = unit_scale(ds.mc_endpoint_error_median.attrs.get("units", ""))
+    header = dims + ["status", "iter", "predicted E[J]", "MC mean J", "diverged",
+                     f"median endpoint error [{unit}]" if unit else "median endpoint error"]
+    trials = int(ds.attrs.get("trials", 0)) * ds.sizes.get("seed", 1)
+    rows = []
+    for index in np.ndindex(*(ds.sizes[d] for d in dims)):
+        cell = ds.isel(dict(zip(dims, index)))
+        values = []
+        for d in dims:
+            v = np.asarray(cell[f"{d}_value"].values if f"{d}_value" in cell.coords else cell[d].values)
+            values.append(np.array2string(v, precision=3) if v.ndim else
+                          (num(float(v)) if np.issubdtype(v.dtype, np.number) else str(v)))
+        status = int(cell.status)
+        rows.append(values + [Status(status).name if status >= 0 else "missing", str(int(cell.iterations)),
+                              num(float(cell.expected_cost)), num(float(cell.mc_cost_mean.mean("seed"))),
+                              f"{int(cell.mc_diverged.sum())}/{trials}",
+                              num(scale * float(cell.mc_endpoint_error_median.mean("seed")))])
+    return header, rows
 
 
 def text_table(table: Table) -> str:

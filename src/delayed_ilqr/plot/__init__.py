@@ -12,6 +12,7 @@ position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.
 :mod:`.center_out`          center-out hand paths, speed profiles, endpoint ellipses in mm, cost
                             and spread against the delay; excitation patterns
 :mod:`.perturbation`        mean corrective responses to a kick against the sensory delay
+:mod:`.sweep`               a sweep's Dataset: Monte Carlo cost and endpoint error against a grid axis
 ==========================  ===================================================================
 
 ``delay_study_figures``, ``center_out_figures`` and ``perturbation_figures`` give a study's figures
@@ -23,8 +24,9 @@ from .center_out import (CAPTIONS, center_out_figures, plot_center_out, plot_cen
 from .delay_study import delay_study_figures, draws_paths, plot_delay_study, plot_hand_paths
 from .perturbation import perturbation_figures, plot_perturbation
 from .solution import plot_convergence, plot_trajectories, state_labels
+from .sweep import plot_sweep
 
 __all__ = ["plot_trajectories", "plot_hand_paths", "plot_delay_study", "plot_convergence", "plot_center_out",
            "plot_speed_profiles", "plot_endpoints", "plot_center_out_vs_delay", "CAPTIONS", "plot_excitations",
            "delay_study_figures", "center_out_figures", "draws_paths", "state_labels", "plot_perturbation",
-           "perturbation_figures", "COLORS"]
+           "perturbation_figures", "plot_sweep", "COLORS"]
