@@ -111,8 +111,15 @@ L_MAX_NF = 1.6
 # activation dynamics
 # ------------------------------------------------------------------------------------------------
 def activation_time_constant(u, a, t_act=T_ACT, t_deact=T_DEACT):
-    """t(u, a) = t_deact + u (t_act - t_deact) if u > a else t_deact (u clipped to [0, 1] inside)."""
-    uc = jnp.clip(u, 0.0, 1.0)
+    """t(u, a) = t_deact + u (t_act - t_deact) if u > a else t_deact (u clipped to [0, 1] inside).
+
+    The clip is written with ``where`` so that its derivative at u = 0 and u = 1 is the inward one
+    (1): ``jnp.clip`` splits the gradient of a tie in half, and an excitation at its upper bound
+    then got half its effect on t in the linearisation. The solver's steps from a bound go inward,
+    the LQG planned them with that half derivative, and the line search, measuring the true one,
+    rejected them: the noisy six-muscle reaches stalled there (derivation §12).
+    """
+    uc = jnp.where(u < 0.0, 0.0, jnp.where(u > 1.0, 1.0, u))
     return jnp.where(u > a, t_deact + uc * (t_act - t_deact), t_deact)
 
 
