@@ -11,8 +11,14 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best (scored
    as the rollouts run, then rolled out again), accept
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
-   schedule); stop when the best reduction is below tol_cost (relative); without noise that last
+   schedule); stop when the best reduction is below tol_cost (relative) and :func:`first_order`
+   certifies the nominal (lambda < 1e-5 and the Newton step's promise below tol_cost; met under a
+   larger lambda, the next pass runs at lambda = 0 to confirm it); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
+
+With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
+lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
+convergence returns the nominal of lowest merit seen (derivation §12).
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal.
@@ -301,7 +307,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
 
     Returns:
         A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
-        reported in ``status`` / ``message``, never raised. Works under ``jax.vmap`` over problems
+        reported in ``status`` / ``message``, never raised; a converged status is certified
+        first-order (``first_order``), and a noisy solve that does not converge returns the
+        nominal of lowest merit it met, with that nominal's policy (derivation §12). Works under ``jax.vmap`` over problems
         that differ only in their arrays (x0, cost arrays or parameters, limits); on CPU the
         batch is solved one problem after another in one compiled loop (``_one_after_another``).
     """
