@@ -94,7 +94,11 @@ class Policy(NamedTuple):
 
 
 class Status(enum.IntEnum):
-    """Exit statuses of :func:`delayed_ilqr.solve`; ``Status.X.message`` says what to change."""
+    """Exit statuses of :func:`delayed_ilqr.solve`; ``Status.X.message`` says what to change.
+
+    The two converged statuses are certified first-order points (``Options``, derivation §12);
+    with noise, the others come with the nominal of lowest merit the solve met.
+    """
 
     CONVERGED_GRADIENT = 0
     CONVERGED_COST = 1
@@ -119,9 +123,9 @@ class Status(enum.IntEnum):
 
 
 _MESSAGES = {
-    Status.CONVERGED_GRADIENT: "converged: the feedforward step is below Options.tol_grad",
+    Status.CONVERGED_GRADIENT: "converged: the feedforward step is below Options.tol_grad (lambda < 1e-5)",
     Status.CONVERGED_COST: "converged: the cost reduction of the best step (or, without noise, the one the "
-                           "model predicts) is below Options.tol_cost",
+                           "model predicts) is below Options.tol_cost, and so is the Newton step's (lambda < 1e-5)",
     Status.MAX_ITERATIONS: "stopped at Options.max_iterations before converging; try increasing "
                            "max_iterations or a better u_init",
     Status.REGULARIZATION_LIMIT: "no descent: the regularisation exceeded Options.reg_max (H not positive "

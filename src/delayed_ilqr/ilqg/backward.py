@@ -39,7 +39,7 @@ class BackwardPass(NamedTuple):
     predicted: tuple
 
 
-def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) -> BackwardPass:
+def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float, held=None) -> BackwardPass:
     """Linearise (eq. 3-4) at the nominal (xs [K+1, n], us [K, d]) and solve the LQG with H + reg I.
 
     The structured pass linearises each step as it reaches it (``ilqg.linearize.step_models``: the model
@@ -50,8 +50,9 @@ def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) ->
     u_min - u_k <= du_k <= u_max - u_k (``ilqg.bounded``: projected Newton, epsilon-active set of
     width ``limit_margin`` (u_max - u_min)); with limits and noise the feedforward of each step
     solves its own box QP and clamped commands get no feedback (``lqg.gains.boxed_gains``, margin
-    ``limit_margin``). With noise, lambda regularises the feedforward only
-    (``lqg.gains.unregularized_feedback``).
+    ``limit_margin``), and ``held`` [K, d] bool (None: none) marks commands that get no feedback
+    whatever their nominal (the noisy solver's feedback latch, derivation §12). With noise, lambda
+    regularises the feedforward only (``lqg.gains.unregularized_feedback``).
     """
     if problem.has_limits and problem.noise is None:
         lqg = linearize(problem, xs, us)
@@ -60,7 +61,8 @@ def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float) ->
         return BackwardPass(gains, None, expected_cost, ok, predicted)
     kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:
-        kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=(problem.u_min - us, problem.u_max - us))
+        bounds = (problem.u_min - us, problem.u_max - us) + (() if held is None else (held,))
+        kw = dict(gains_fn=partial(boxed_gains, margin=limit_margin), bounds=bounds)
     if problem.noise is not None:
         kw["gains_fn"] = unregularized_feedback(kw["gains_fn"])
     if method == "augmented":

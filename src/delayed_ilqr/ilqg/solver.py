@@ -11,8 +11,14 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best (scored
    as the rollouts run, then rolled out again), accept
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
-   schedule); stop when the best reduction is below tol_cost (relative); without noise that last
+   schedule); stop when the best reduction is below tol_cost (relative) and :func:`first_order`
+   certifies the nominal (lambda < 1e-5 and the Newton step's promise below tol_cost; met under a
+   larger lambda, the next pass runs at lambda = 0 to confirm it); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
+
+With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
+lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
+convergence returns the nominal of lowest merit seen (derivation §12).
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal. For a
@@ -52,6 +58,24 @@ _RUNNING = -1
 _DEFAULT_OPTIONS = Options()
 
 
+class _Latch(NamedTuple):
+    """The noisy solver's feedback latch (with noise and limits only; derivation §12)."""
+
+    feedback: jax.Array          # [K, d] bool: the command got feedback in the last backward pass
+    toggles: jax.Array           # [K, d] int32: how often that has switched since the best merit improved
+    stall: jax.Array             # int32: iterations since the best merit improved
+    held: jax.Array              # [K, d] bool: no feedback from now on
+
+
+class _Best(NamedTuple):
+    """The nominal of lowest merit (under its own S) seen so far (with noise only)."""
+
+    us: jax.Array
+    xs: jax.Array
+    cost: jax.Array
+    merit: jax.Array
+
+
 class _State(NamedTuple):
     us: jax.Array
     xs: jax.Array
@@ -64,6 +88,8 @@ class _State(NamedTuple):
     gains: SlotGains             # from the last backward pass
     expected_cost: jax.Array     # its J(0)
     trace: Trace
+    latch: _Latch | None         # None without noise or without limits
+    best: _Best | None           # None without noise
 
 
 def grad_norm(gains: SlotGains, us):
@@ -71,29 +97,77 @@ def grad_norm(gains: SlotGains, us):
     return jnp.mean(jnp.max(jnp.abs(gains.feedforward) / (jnp.abs(us) + 1.0), axis=1))
 
 
+# Below this lambda the regularised step is taken for the (projected) Newton step of the LQG
+# model: the gradient test and the cost tests count as convergence only there (Tassa's 1e-5).
+NEWTON_REG = 1e-5
+
+#: With noise and limits, when the best merit has not improved for LATCH_STALL iterations, every
+#: command whose feedback has been switched on and off again (at least LATCH_TOGGLES switches
+#: between successive backward passes) in that time gets no feedback for the rest of the solve:
+#: the latch that turns the noisy iteration's cycles into a fixed point (derivation §12).
+LATCH_STALL = 10
+LATCH_TOGGLES = 2
+
+
+def first_order(o: Options, bp: BackwardPass, reg, merit_now):
+    """The first-order certificate every convergence status requires (issue 22, item 8).
+
+    With lambda < NEWTON_REG the feedforward is the (box-projected) Newton step of the LQG model,
+    and its full step (alpha = 1) promises the merit reduction -(a + b) = g' H^-1 g / 2 (the
+    squared Newton decrement over two, projected with the limits): the model's first-order
+    optimality measure. The certificate is: H + lambda I positive definite, lambda < NEWTON_REG
+    and that promise below tol_cost |merit|. A large lambda or tiny step sizes make every promise
+    small, so neither can end a solve as converged.
+    """
+    newton = -(bp.predicted[0] + bp.predicted[1])
+    return bp.positive_definite & (reg < NEWTON_REG) & (newton < o.tol_cost * jnp.abs(merit_now))
+
+
+def _feedback_mask(gains: SlotGains):
+    """[K, d] bool: the commands whose feedback row (L_k and every M_k^i) is not zero."""
+    return jnp.any(gains.feedback != 0, axis=-1)
+
+
+def _latched(latch: _Latch, gains: SlotGains, counts, improved) -> _Latch:
+    """The latch after a backward pass with ``gains`` (its switches counted where ``counts``), at a
+    nominal that ``improved`` the best merit or not."""
+    feedback = _feedback_mask(gains)
+    toggles = latch.toggles + (counts & (feedback != latch.feedback)).astype(jnp.int32)
+    stall = latch.stall + 1
+    fire = stall >= LATCH_STALL
+    held = latch.held | (fire & (toggles >= LATCH_TOGGLES))
+    reset = improved | fire
+    return _Latch(jnp.where(counts, feedback, latch.feedback), jnp.where(reset, 0, toggles),
+                  jnp.where(reset, 0, stall), held)
+
+
 class _Search(NamedTuple):
     searched: jax.Array          # bool: the line search ran
-    flat: jax.Array              # bool: the model predicts too little to search
+    flat: jax.Array              # bool: the model predicts too little to search (and is certified)
+    promise_small: jax.Array     # bool: it predicts too little, certified or not
     model_best: jax.Array        # the model's best reduction over the alphas
     outcome: LineSearch
 
 
-def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search) -> _Search:
+def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search,
+            certified) -> _Search:
     """The line search, where ``may_search`` and the model predicts enough; else :func:`no_step`.
 
     Without noise, a model that promises less than tol_cost |cost| for every alpha ends the solve
-    before the line search (crocoddyl's stopping test): the step it would find is one the solver
-    does not take (``small`` in :func:`_iteration`; docs/performance.md#tol_cost).
+    before the line search (crocoddyl's stopping test) when :func:`first_order` certifies it: the
+    step it would find is one the solver does not take (``small`` in :func:`_iteration`;
+    docs/performance.md#tol_cost).
     """
     alphas = jnp.asarray(o.alphas)
     model_best = jnp.max(-(alphas * bp.predicted[0] + alphas ** 2 * bp.predicted[1]))
-    flat = bp.positive_definite & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) \
+    promise_small = bp.positive_definite & (model_best >= 0) & (model_best < o.tol_cost * jnp.abs(merit_now)) \
         & (problem.noise is None)
+    flat = promise_small & certified
     search = may_search & ~flat
     ls = jax.lax.cond(search, lambda: line_search(problem, bp.gains, bp.S, st.xs, st.us, merit_now, o.alphas, o.z_min,
                                                       bp.predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
-    return _Search(search, flat, model_best, ls)
+    return _Search(search, flat, promise_small, model_best, ls)
 
 
 def _stop_status(o: Options, converged, small, accept, reg, all_non_finite, pd, it):
@@ -126,19 +200,26 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     backward pass only, so that the returned policy belongs to the returned nominal. The loop
     body is the only place the backward pass is traced, which keeps compilation short.
     """
-    bp = backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin)
+    held = None if st.latch is None else st.latch.held
+    bp = backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin, held)
     pd = bp.positive_definite
     running = st.status == _RUNNING
     gnorm = grad_norm(bp.gains, st.us)
-    converged = pd & (gnorm < o.tol_grad) & (st.reg < 1e-5)
+    converged = pd & (gnorm < o.tol_grad) & (st.reg < NEWTON_REG)
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, bp.S, st.xs)[1]
+    certified = first_order(o, bp, st.reg, merit_now)
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
-    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd)
+    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd, certified)
     ls = s.outcome
     accept = s.searched & ls.accepted
     reg, dreg = regularization.update(st.reg, st.dreg, accept, converged | s.flat, o)
-    small = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
+    small_step = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
+    small = small_step & certified
+    # a cost test met under a large lambda (a shortened gradient step, not a Newton step) is
+    # confirmed or refuted by the next pass at lambda = 0
+    confirm = (s.promise_small | small_step) & (st.reg >= NEWTON_REG)
+    reg, dreg = jnp.where(confirm, 0.0, reg), jnp.where(confirm, 1.0, dreg)
     # Without noise a step too small to count is not taken: the cost it would remove is below
     # tol_cost |cost|, the nominal keeps the policy of this iteration's backward pass, and the
     # solve needs no further pass for it. With noise the merit is flat along the cost/noise
@@ -148,10 +229,25 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     status = _stop_status(o, converged, s.flat | small, accept, reg, ls.all_non_finite, pd, it)
     keep = lambda new, old: jnp.where(move, new, old)      # a failed step leaves the nominal as it was
     trace = _record(st.trace, it, keep, move, s, converged, merit_now, st, gnorm)
+    us, xs, cost = keep(ls.us, st.us), keep(ls.xs, st.xs), keep(ls.cost, st.cost)
+    best, restore, improved = st.best, jnp.asarray(False), None
+    if best is not None:
+        # With noise the merit of successive nominals is each under its own S, and an iteration
+        # that does not converge may end above a nominal it passed: a stop without convergence
+        # returns the best nominal whose merit is known (this one's, or an earlier one's).
+        better = pd & (merit_now < best.merit)
+        improved = pd & (merit_now < best.merit - o.tol_cost * jnp.abs(best.merit))
+        best = jax.tree_util.tree_map(lambda a, b: jnp.where(better, a, b), _Best(st.us, st.xs, st.cost, merit_now),
+                                      best)
+        failed = (status != _RUNNING) & ~((status == Status.CONVERGED_GRADIENT) | (status == Status.CONVERGED_COST))
+        us, xs, cost = (jnp.where(failed, a, b) for a, b in ((best.us, us), (best.xs, xs), (best.cost, cost)))
+        restore = failed & ~better
+        move = move & ~failed
+    latch = st.latch if st.latch is None else _latched(st.latch, bp.gains, pd & (st.iteration > 0), improved)
     # one more pass when the stop moved the nominal, or left gains from a failed factorisation
-    final_pass = (status != _RUNNING) & (move | ~pd)
-    iterated = _State(keep(ls.us, st.us), keep(ls.xs, st.xs), keep(ls.cost, st.cost), reg, dreg, it, status,
-                      final_pass, bp.gains, bp.expected_cost, trace)
+    final_pass = (status != _RUNNING) & (move | ~pd | restore)
+    iterated = _State(us, xs, cost, reg, dreg, it, status, final_pass, bp.gains, bp.expected_cost, trace, latch,
+                      best)
     finished = st._replace(final_pass=jnp.asarray(False), gains=bp.gains, expected_cost=bp.expected_cost)
     return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), iterated, finished)
 
@@ -168,9 +264,14 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
     no_gains = SlotGains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx + l * nd)))
     # a non-finite start stops at once, with one backward pass for the policy it reports
+    noisy = problem.noise is not None
+    latch = _Latch(jnp.zeros((K, nd), bool), jnp.zeros((K, nd), jnp.int32), jnp.asarray(0, jnp.int32),
+                   jnp.zeros((K, nd), bool)) \
+        if noisy and problem.has_limits else None
+    best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
                   jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
-                  ~ok, no_gains, jnp.asarray(jnp.nan), trace)
+                  ~ok, no_gains, jnp.asarray(jnp.nan), trace, latch, best)
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
     policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
@@ -211,7 +312,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
 
     Returns:
         A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
-        reported in ``status`` / ``message``, never raised. Works under ``jax.vmap`` over problems
+        reported in ``status`` / ``message``, never raised; a converged status is certified
+        first-order (``first_order``), and a noisy solve that does not converge returns the
+        nominal of lowest merit it met, with that nominal's policy (derivation §12). Works under ``jax.vmap`` over problems
         that differ only in their arrays (x0, cost arrays or parameters, limits); on CPU the
         batch is solved one problem after another in one compiled loop (``_one_after_another``).
     """

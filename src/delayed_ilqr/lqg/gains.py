@@ -40,8 +40,11 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     were planned on that feedback, then miss: the first-order prediction fails for every step
     size and the solve crawls. The feedforward still moves them inward, and at the solution
     (I = 0) the stationarity conditions do not depend on the gains (derivation §13).
+
+    ``bounds`` is (lower, upper) or (lower, upper, held): ``held`` [d] bool marks commands that
+    get no feedback whatever their nominal (the noisy solver's feedback latch, derivation §12).
     """
-    lower, upper = bounds
+    lower, upper = bounds[:2]
     H_reg = H + reg * jnp.eye(H.shape[0], dtype=H.dtype)
     # The QP's stopping tests are absolute (|grad| < 1e-8): scaled as given (H ~ dt Q ~ 1e-6 in
     # motor tasks) it stops far from the optimum, with a wrong active set. The same QP divided by
@@ -53,7 +56,10 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     clamped = jnp.where(qp.free, 0.0, qp.x)
     I = jnp.clip(clamped + free_solve(H_reg, qp.free, g + H_reg @ clamped), lower, upper)
     eps = margin * (upper - lower)
-    Kfb = free_solve(H_reg, qp.free & (lower < -eps) & (upper > eps), G)
+    feedback = qp.free & (lower < -eps) & (upper > eps)
+    if len(bounds) > 2:
+        feedback = feedback & ~bounds[2]
+    Kfb = free_solve(H_reg, feedback, G)
     ok = (qp.status != -1) & jnp.all(jnp.isfinite(Kfb)) & jnp.all(jnp.isfinite(I))
     return ok, I, Kfb
 

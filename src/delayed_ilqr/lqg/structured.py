@@ -134,7 +134,7 @@ def _padded_rows(rows, bounds, steps: int):
                                                  else jnp.full((steps,) + x.shape[1:], fill, x.dtype)])
     rows = jax.tree_util.tree_map(grow, rows)
     if bounds is not None:
-        bounds = (grow(bounds[0], -1.0), grow(bounds[1], 1.0))
+        bounds = (grow(bounds[0], -1.0), grow(bounds[1], 1.0), *(grow(b, False) for b in bounds[2:]))
     return rows, bounds
 
 

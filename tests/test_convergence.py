@@ -1,0 +1,148 @@
+"""A solve reported as converged satisfies the first-order conditions (issue 22, item 8), and a
+noisy solve that does not converge returns its best iterate (issue 19, item 3).
+
+The certificate (``ilqg.solver.first_order``): with lambda < 1e-5 the full step of the LQG model
+promises g' H^-1 g / 2 < tol_cost |J| (projected with the limits). On the point mass the plant is
+linear and the cost quadratic, so the model is exact and the check here is independent of the
+solver: the gradient and Hessian of J(u) by autodiff through the rollout, projected on the
+commands that are not held at a limit, with the right sign at the ones that are. With noise the
+function is the merit of derivation §12 (S and F's states frozen at the returned nominal), by
+autodiff as well.
+"""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import delayed_ilqr as di
+from delayed_ilqr.ilqg.backward import backward
+from delayed_ilqr.ilqg.line_search import merit
+from delayed_ilqr.ilqg.linearize import noise_columns, rollout, trajectory_cost
+from delayed_ilqr.models import arm2, point_mass
+
+# settings that each made a solve stop with CONVERGED_COST at the initial cost before the fix: a
+# large lambda, tiny step sizes or a z_min near 1 make every promise (or every accepted step) small
+FALSE_STOPS = [di.Options(reg_init=1e20), di.Options(reg_init=1e4), di.Options(alphas=(1e-300,), max_iterations=15),
+               di.Options(z_min=0.99, max_iterations=15), di.Options(z_min=0.999999, max_iterations=15)]
+PATHS = FALSE_STOPS + [di.Options(), di.Options(reg_init=1.0), di.Options(max_iterations=1),
+                       di.Options(tol_cost=1e-3), di.Options(tol_grad=1e-2)]
+_id = lambda o: f"{o.reg_init:g}-{o.alphas[0]:g}-{o.z_min:g}-{o.max_iterations}-{o.tol_cost:g}-{o.tol_grad:g}"
+
+
+def _first_order_gap(f, u, lo, hi):
+    """(Newton decrement g_F' H_FF^-1 g_F / 2 of f on the free commands, worst wrong-signed gradient at a limit)."""
+    shape = u.shape
+    F = lambda v: f(v.reshape(shape))
+    v = jnp.ravel(u)
+    g, H = np.asarray(jax.grad(F)(v)), np.asarray(jax.hessian(F)(v))
+    lo, hi = np.ravel(np.broadcast_to(lo, shape)), np.ravel(np.broadcast_to(hi, shape))
+    at_lo, at_hi = np.asarray(v) <= lo + 1e-9, np.asarray(v) >= hi - 1e-9
+    free = ~(at_lo | at_hi)
+    decrement = 0.5 * g[free] @ np.linalg.solve(H[np.ix_(free, free)], g[free])
+    wrong_sign = max(np.max(-g[at_lo], initial=0.0), np.max(g[at_hi], initial=0.0))
+    return float(decrement), float(wrong_sign)
+
+
+def _cost(problem):
+    return lambda u: trajectory_cost(problem, rollout(problem, u), u)
+
+
+def _frozen_merit(problem, sol):
+    """u -> J(u) + sum c(x_bar, u)' S c(x_bar, u), S and x_bar of the returned nominal (derivation §12)."""
+    S = backward(problem, sol.x, sol.u, 0.0, "structured", 1e-5).S
+    def f(u):
+        c = noise_columns(problem, sol.x, u)
+        return _cost(problem)(u) + jnp.einsum("kpn,knm,kpm->", c, S[1:], c)
+    return f
+
+
+@pytest.mark.parametrize("limited", [False, True])
+@pytest.mark.parametrize("options", PATHS, ids=_id)
+def test_a_converged_status_satisfies_the_first_order_conditions(options, limited):
+    problem = point_mass(delay=0.03)
+    if limited:
+        problem = problem.replace(u_min=-np.full(2, 0.5), u_max=np.full(2, 0.5))
+    sol = di.solve(problem, options=options)
+    if options in FALSE_STOPS[:3]:
+        # the step cannot get anywhere (or the model is nowhere near: z_min): no convergence may be claimed at u_init
+        assert not (sol.converged and float(sol.cost) >= float(sol.trace.cost[0]))
+    if not sol.converged:
+        assert sol.status in (di.Status.MAX_ITERATIONS, di.Status.REGULARIZATION_LIMIT), sol.status
+        return
+    decrement, wrong_sign = _first_order_gap(_cost(problem), sol.u, problem.u_min, problem.u_max)
+    assert decrement < options.tol_cost * float(sol.cost), sol.status
+    assert wrong_sign <= 1e-9
+
+
+@pytest.mark.parametrize("options", [di.Options(reg_init=1e20), di.Options(alphas=(1e-300,), max_iterations=15),
+                                     di.Options(z_min=0.999999, max_iterations=15), di.Options(max_iterations=2, reg_init=1.0)],
+                         ids=_id)
+def test_the_false_stops_are_not_converged(options):
+    """Item 8's cases: every step rejected (or none possible) must not end as converged."""
+    problem = point_mass(delay=0.03)
+    sol = di.solve(problem, options=options)
+    if sol.converged:       # reg_init=1e20 is confirmed at lambda = 0 and then solves the problem
+        decrement, _ = _first_order_gap(_cost(problem), sol.u, -np.inf, np.inf)
+        assert decrement < options.tol_cost * float(sol.cost)
+    else:
+        assert float(sol.cost) <= float(sol.trace.cost[0])
+    if options.alphas == (1e-300,) or options.max_iterations == 2:
+        assert not sol.converged, sol.status
+
+
+@pytest.mark.parametrize("options", [di.Options(), di.Options(reg_init=1e4), di.Options(alphas=(1e-300,), max_iterations=15),
+                                     di.Options(reg_init=1.0), di.Options(tol_cost=1e-6)], ids=_id)
+@pytest.mark.parametrize("limited", [False, True])
+def test_a_converged_noisy_solve_satisfies_the_first_order_conditions_of_its_merit(options, limited):
+    """P2-noisy (signal-dependent noise): converged means a first-order point of the merit with
+    S frozen at the returned nominal, measured here by autodiff (independent of the LQG)."""
+    problem = arm2(delay=0.03, noise=True)
+    if limited:
+        problem = problem.replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
+    sol = di.solve(problem, options=options)
+    if not sol.converged:
+        assert sol.status in (di.Status.MAX_ITERATIONS, di.Status.REGULARIZATION_LIMIT), sol.status
+        return
+    f = _frozen_merit(problem, sol)
+    decrement, wrong_sign = _first_order_gap(f, sol.u, problem.u_min, problem.u_max)
+    # the merit's Hessian here is the exact one (with the dynamics' second derivatives), the
+    # solver's the LQG's: the decrements agree to first order, a factor 10 is the margin
+    assert decrement < 10 * options.tol_cost * abs(float(f(sol.u))), (sol.status, decrement)
+    assert wrong_sign <= 1e-9
+
+
+def test_a_noisy_solve_that_stops_early_returns_its_best_iterate():
+    """With noise the merit of successive nominals (each under its own S) need not fall: a stop
+    without convergence returns the nominal of lowest merit seen, with the policy of that nominal."""
+    problem = arm2(delay=0.03, noise=True).replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
+
+    def own_merit(x, u):
+        bp = backward(problem, x, u, 0.0, "structured", 1e-5)
+        return float(merit(problem, x, u, bp.S, x)[1]), bp
+
+    u0 = np.zeros((problem.horizon, 2))
+    best = own_merit(rollout(problem, u0), u0)[0]
+    for n in range(1, 5):
+        sol = di.solve(problem, options=di.Options(max_iterations=n, reg_init=1.0))
+        assert sol.status == di.Status.MAX_ITERATIONS
+        m, bp = own_merit(sol.x, sol.u)
+        assert m <= best * (1 + 1e-12), (n, m, best)
+        best = m
+        # the policy is the one of the returned nominal
+        np.testing.assert_array_equal(sol.policy.u_nominal, sol.u)
+        np.testing.assert_array_equal(sol.policy.x_nominal, sol.x)
+        np.testing.assert_allclose(sol.x, rollout(problem, sol.u), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6)])
+def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
+    """Two reaches of the issue-19 grid (docs/results/noise_aware_convergence.md): the first cycled
+    with period 9 at lambda = 0 (a command's feedback switching on and off: the latch), the
+    second stopped "converged" under lambda = 1e5 (an excitation at its bound planned with half
+    its derivative, then optima on the activation switch's kink)."""
+    from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
+    problem = arm2_muscle6(delay=delay, target=tuple(center_out_targets()[k]), noise=True, sigma_u=sigma_u)
+    sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=300))
+    assert sol.converged, sol.status
+    n = int(sol.iterations)
+    assert float(sol.trace.reg[n]) < 1e-5
