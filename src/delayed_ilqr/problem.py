@@ -283,16 +283,31 @@ def _limits(u_min, u_max, nd):
     return jnp.asarray(lo), jnp.asarray(hi), bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
 
 
+def _data_or_static(fn):
+    """(data, static) of a dynamics or noise callable: one registered as a JAX pytree (a dataclass
+    registered with ``jax.tree_util.register_dataclass``, an equinox module) is data, so its array
+    fields are leaves (differentiable, and problems that differ only in them share one compiled
+    solver); any other callable is static, hashed into the compilation as before."""
+    if fn is None or jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(fn)):
+        return None, fn
+    return fn, None
+
+
 def _problem_flatten(p: Problem):
-    return (p.x0, p.cost, p.u_min, p.u_max), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                               p.n_controls, p.name, p._has_limits, p.metadata)
+    dynamics, dynamics_static = _data_or_static(p.dynamics)
+    noise, noise_static = _data_or_static(p.noise)
+    return (p.x0, p.cost, p.u_min, p.u_max, dynamics, noise), (dynamics_static, noise_static, p.dt, p.horizon,
+                                                               p.delay_steps, p.n_controls, p.name, p._has_limits,
+                                                               p.metadata)
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
-    (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
+    (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
      new._has_limits, new.metadata) = aux
-    new.x0, new.cost, new.u_min, new.u_max = data
+    new.x0, new.cost, new.u_min, new.u_max, dynamics, noise = data
+    new.dynamics = dynamics_static if dynamics is None else dynamics
+    new.noise = noise_static if noise is None else noise
     return new
 
 
