@@ -234,7 +234,7 @@ def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
         x = gmres(pa, pb, KRYLOV_TOL, KRYLOV_MAXITER)
         # the Krylov method reports no failure: check the residual, and say so with NaN
         miss = ~(jnp.linalg.norm(pa(x) - pb) <= RESIDUAL_CHECK * jnp.linalg.norm(pb))
-        return jnp.where(miss, jnp.nan, x)
+        return x * jnp.where(miss, jnp.nan, 1.0)
 
     return jax.lax.custom_linear_solve(matvec, -rhs, krylov, transpose_solve=krylov, symmetric=symmetric)
 
@@ -275,7 +275,10 @@ def differentiable(plain_solve):
         _, (dx, dcost, dexpected, dgains) = jax.jvp(lambda p, u: _outputs(p, u, margin), (problem, sol.u),
                                                     (dproblem, du))
         ok = (sol.status == Status.CONVERGED_GRADIENT) | (sol.status == Status.CONVERGED_COST)
-        unreliable = lambda t: jnp.where(ok, t, jnp.nan)
+        # a factor, not a select: the tangent must stay linear, and JAX's transpose of
+        # where(ok, t, nan) would drop the constant NaN (reverse mode would report zeros)
+        flag = jnp.where(ok, 1.0, jnp.nan)
+        unreliable = lambda t: t * flag
         dsol = Solution(x=dx, u=du, cost=dcost, expected_cost=dexpected, status=_zero_tangent(sol.status),
                         iterations=_zero_tangent(sol.iterations),
                         policy=Policy(dx, du, *dgains),
