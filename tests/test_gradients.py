@@ -103,7 +103,8 @@ def test_arm_delayed_matches_finite_differences():
 
 @pytest.mark.slow
 def test_arm_noisy_delayed_matches_finite_differences():
-    """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves."""
+    """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
+    not symmetric, so reverse mode solves the transposed system (right-preconditioned)."""
     check_against_fd("arm noisy 50 ms", arm2(delay=0.05, noise=True), None, h=6e-4, rtol=1e-5)
 
 
