@@ -381,17 +381,31 @@ def _observation(observation, x0, horizon):
     return observation
 
 
+def _data_or_static(fn):
+    """(data, static) of a dynamics or noise callable: one registered as a JAX pytree (a dataclass
+    registered with ``jax.tree_util.register_dataclass``, an equinox module) is data, so its array
+    fields are leaves (differentiable, and problems that differ only in them share one compiled
+    solver); any other callable is static, hashed into the compilation as before."""
+    if fn is None or jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(fn)):
+        return None, fn
+    return fn, None
+
+
 def _problem_flatten(p: Problem):
-    return (p.x0, p.cost, p.u_min, p.u_max, p.observation), (p.dynamics, p.noise, p.dt, p.horizon, p.delay_steps,
-                                                             p.n_controls, p.name, p._has_limits, p.metadata,
-                                                             p.time_dependent)
+    dynamics, dynamics_static = _data_or_static(p.dynamics)
+    noise, noise_static = _data_or_static(p.noise)
+    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise),
+            (dynamics_static, noise_static, p.dt, p.horizon, p.delay_steps, p.n_controls, p.name, p._has_limits,
+             p.metadata, p.time_dependent))
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
-    (new.dynamics, new.noise, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
+    (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
      new._has_limits, new.metadata, new.time_dependent) = aux
-    new.x0, new.cost, new.u_min, new.u_max, new.observation = data
+    new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise = data
+    new.dynamics = dynamics_static if dynamics is None else dynamics
+    new.noise = noise_static if noise is None else noise
     return new
 
 

@@ -102,7 +102,19 @@ def _batchable(fused, dot):
         multiply_adds = math.prod(a.shape) * (b.shape[-1] if b.ndim == a.ndim else 1)
         return (dot if multiply_adds > FUSED_MAX else product)(a, b), True
 
-    return product
+    # JAX cannot linearise a custom_vmap (reverse mode fails), so the product carries its own
+    # derivative: bilinear, its tangent is two products in plain operations, which JAX transposes
+    # and batches by itself (derivatives through the backward pass, ilqg/implicit.py)
+    @jax.custom_jvp
+    def differentiable(a, b):
+        return product(a, b)
+
+    @differentiable.defjvp
+    def _tangent(primals, tangents):
+        (a, b), (da, db) = primals, tangents
+        return product(a, b), fused(da, b) + fused(a, db)
+
+    return differentiable
 
 
 _fused_matvec = _batchable(_sum_matvec, _dot_matvec)

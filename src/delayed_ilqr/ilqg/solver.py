@@ -42,7 +42,7 @@ from ..lqg.r_update import DEFER_MIN_LD
 from ..options import Options
 from ..problem import Problem
 from ..solution import Policy, Solution, Status, Trace
-from . import regularization
+from . import implicit, regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
 from .estimation import with_estimator, without_observation
@@ -340,8 +340,17 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return sol._replace(status=Status(int(sol.status)))
-    # inside jit or vmap: XLA's options are the outermost compilation's (JAX refuses them on a
-    # nested jit, so not _solve_large), and on CPU a vmap runs the problems one after another
+    return _differentiable(problem, u_init, options)
+
+
+def _traced(problem: Problem, u_init, options: Options) -> Solution:
+    """The solve inside jit, vmap or differentiation. XLA's options are the outermost compilation's
+    (JAX refuses them on a nested jit, so not _solve_large), and on CPU a vmap runs the problems one
+    after another."""
     if jax.default_backend() == "cpu":
         return _one_after_another(options)(problem, u_init)
     return _solve(problem, u_init, options)
+
+
+# derivatives of the traced solve by implicit differentiation at its solution (ilqg/implicit.py)
+_differentiable = implicit.differentiable(_traced)

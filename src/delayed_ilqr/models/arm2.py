@@ -38,6 +38,7 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from .._kernels.dense import small_matvec
@@ -202,6 +203,11 @@ class Arm2Noise:
     def __call__(self, x, u, ud):
         lower = mass_matrix_inverse(x[:2], self.params) * (self.sigma_u * ud)[None, :]
         return jnp.concatenate([jnp.zeros_like(lower), lower], axis=0)
+
+
+# sigma_u is data (a pytree leaf): derivatives with respect to the noise scale, and problems that
+# differ only in it share one compiled solver; the arm's parameters stay static
+jax.tree_util.register_dataclass(Arm2Noise, data_fields=["sigma_u"], meta_fields=["params"])
 
 
 def _check_params(params) -> Arm2Params:

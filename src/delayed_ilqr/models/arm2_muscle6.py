@@ -79,6 +79,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -135,6 +136,11 @@ class Arm2Muscle6Noise:
         a = x[4:]
         gain = self.sigma_u * ud / _muscle.activation_time_constant(ud, a, self.t_act, self.t_deact)
         return jnp.concatenate([jnp.zeros((4, 6), gain.dtype), jnp.diag(gain)], axis=0)
+
+
+# sigma_u is data (a pytree leaf): derivatives with respect to the noise scale, and problems that
+# differ only in it share one compiled solver
+jax.tree_util.register_dataclass(Arm2Muscle6Noise, data_fields=["sigma_u"], meta_fields=["t_act", "t_deact"])
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,301 @@
+"""Derivatives of a converged solve with respect to the problem's arrays, by implicit differentiation
+of the optimality conditions at the solution (docs/derivation.md §16).
+
+The solver's nominal u* [K, d] is a root of the stationarity conditions ``F(u, theta) = 0``
+(:func:`stationarity`), theta being the problem's leaves (x0, the cost's arrays or ``params``, the
+limits, the fields of a dynamics or noise callable registered as a pytree, e.g. the models' noise
+scale ``sigma_u``). The tangent of u* solves
+
+    dF/du du = -dF/dtheta dtheta                                                    (16.1)
+
+by GMRES on exact products with dF/du (``jax.jvp``), preconditioned by the Gauss-Newton
+delayed LQ solve at the solution (:func:`preconditioner`: the structured backward pass of Theorem 1
+on the linearisation, and the linear closed loop forward). Everything else the solve returns (x,
+cost, the policy's gains, expected_cost) is a differentiable function of (u*, theta), recomputed
+under ``jax.jvp``: one rollout and one backward pass. Reverse mode transposes this (the Krylov
+solve through ``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the
+iterations of the solve.
+
+Without noise, F is the gradient of the cost (2) on the free commands and dF/du is its exact,
+symmetric Hessian (the dynamics' second derivatives included, which the Gauss-Newton backward pass
+leaves out). With noise, the nominal is the fixed point of "minimise cost +
+noise cost with the value Hessians S frozen" (derivation §12), F is the gradient of that merit
+with S = S(u, theta) from the backward pass at u, and dF/du is not symmetric. Commands
+within the solver's margin of a limit are fixed there: their derivative is that of the limit.
+"""
+from __future__ import annotations
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..lqg.boxqp import free_solve
+from ..lqg.frame import SlotGains, from_slots, slot_offsets
+from ..lqg.gains import unconstrained_gains
+from ..lqg.structured import structured_slot_scan
+from ..options import Options
+from ..problem import Problem
+from ..solution import Policy, Solution, Status
+from .closed_loop import closed_loop_step
+from .line_search import noise_cost
+from .linearize import linearize, rollout, step_models, trajectory_cost
+
+__all__ = ["stationarity", "fixed_commands", "value_at", "preconditioner", "implicit_tangent",
+           "differentiable", "KRYLOV_TOL", "KRYLOV_MAXITER", "RESIDUAL_CHECK"]
+
+# The Krylov solve of (16.1) stops at this relative (preconditioned) residual; with the
+# Gauss-Newton preconditioner it takes a few iterations (docs/performance.md#krylov_tol).
+KRYLOV_TOL = 1e-10
+KRYLOV_MAXITER = 50
+# A tangent whose residual in (16.1) exceeds this (relative) is NaN: the Krylov solve failed.
+RESIDUAL_CHECK = 1e-6
+
+
+# -- the optimality conditions -------------------------------------------------------------------
+
+def fixed_commands(problem: Problem, us, margin: float):
+    """([K, d] bool fixed, [K, d] bound): commands within ``margin`` (times the width of the box,
+    or times 1 for a half-infinite one) of a finite limit, held there, and the limit's value
+    (0 where free). These have the derivative of the limit; the others solve (16.1)."""
+    K, nd = us.shape
+    if not problem.has_limits:
+        return jnp.zeros((K, nd), bool), jnp.zeros((K, nd), us.dtype)
+    lo, hi = problem.u_min, problem.u_max
+    width = hi - lo
+    eps = margin * jnp.where(jnp.isfinite(width), width, 1.0)
+    at_lo = jnp.isfinite(lo) & (us - lo <= eps)
+    at_hi = jnp.isfinite(hi) & (hi - us <= eps) & ~at_lo
+    bound = jnp.where(at_lo, jnp.where(jnp.isfinite(lo), lo, 0.0), jnp.where(at_hi, jnp.where(jnp.isfinite(hi), hi, 0.0),
+                                                                            0.0))
+    return at_lo | at_hi, bound
+
+
+def _masked_gains(free_of):
+    """A gain rule (``lqg.gains``) with a given free set: du_f = -(H_ff)^{-1} (g + G y)_f, zero on
+    the others; ``free_of(bounds) -> [d] bool``. At a converged nominal this is the box rule's
+    outcome (``lqg.gains.boxed_gains``: I = 0, no feedback on commands at a limit), written without
+    its iterative QP, so that JAX can differentiate it in reverse mode."""
+    def gains(H, reg, g, G, bounds, warm=None):
+        free = free_of(bounds)
+        H = H + reg * jnp.eye(H.shape[0], dtype=H.dtype)
+        I, Kfb = free_solve(H, free, g), free_solve(H, free, G)
+        return jnp.all(jnp.isfinite(Kfb)) & jnp.all(jnp.isfinite(I)), I, Kfb
+    return gains
+
+
+def _solver_free(margin):
+    """The solver's feedback set (``lqg.gains.boxed_gains``): farther than margin * (upper - lower)
+    from both limits."""
+    def free(bounds):
+        lower, upper = bounds
+        eps = margin * (upper - lower)
+        return (lower < -eps) & (upper > eps)
+    return free
+
+
+def value_at(problem: Problem, xs, us, margin: float):
+    """The unregularised backward pass at the nominal (xs, us), differentiably: (gains, s_tilde
+    [K], s [K, n], S [K+1, n, n]). With limits, commands at a limit get no feedback, as in the
+    solver's pass at a converged nominal."""
+    kw = dict(gains_fn=unconstrained_gains)
+    if problem.has_limits:
+        kw = dict(gains_fn=_masked_gains(_solver_free(margin)), bounds=(problem.u_min - us, problem.u_max - us))
+    models = step_models(problem, xs, us)
+    gains, (s_tilde, s, S), _ = structured_slot_scan(models, 0.0, store_value=False, store_S=True, **kw)
+    return gains, s_tilde, s, jnp.concatenate([S, models.terminal[2][None]])
+
+
+def _cost_gradient(problem: Problem, us, margin: float):
+    """G(u, theta): the gradient of the cost (2) in the commands, or, with noise, of the merit
+    cost + sum c' S c with S from the backward pass at u and F's state frozen at u's rollout
+    (derivation §12): the fixed point of the noise-aware iteration is G = 0 on the free commands."""
+    if problem.noise is None:
+        return jax.grad(lambda v: trajectory_cost(problem, rollout(problem, v), v))(us)
+    xs = rollout(problem, us)
+    _, _, _, S = value_at(problem, xs, us, margin)
+    merit = lambda v: trajectory_cost(problem, rollout(problem, v), v) + noise_cost(problem, xs, v, S)
+    return jax.grad(merit)(us)
+
+
+def stationarity(problem: Problem, us, fixed, bound, margin: float):
+    """F(u, theta) [K, d], zero at the solution: G (of :func:`_cost_gradient`) on the free commands,
+    evaluated with the fixed ones at their limits, and u - limit on the fixed ones. Written so that
+    dF/du is symmetric where the Hessian is: v -> [v_fixed; H_ff v_free]."""
+    bound = jnp.where(fixed, bound, 0.0)
+    held = jnp.where(fixed, bound, us)
+    return jnp.where(fixed, us - bound, _cost_gradient(problem, held, margin))
+
+
+# -- the preconditioner: the Gauss-Newton delayed LQ solve ------------------------------------------
+
+def _linear_closed_loop(lqg, gains: SlotGains):
+    """The commands du [K, d] of the delayed law run on the LQ dynamics from dx_0 = 0, nothing pending."""
+    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
+    K = lqg.horizon
+
+    def step(y, row):
+        A, B0, B1, I, Fb, slot = row
+
+        def plant(x, du, du_delayed):
+            acting = (B0 + B1) @ du if du_delayed is None else B0 @ du + B1 @ du_delayed
+            return A @ x + acting, du, du
+
+        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx)
+
+    y0 = jnp.zeros(nx + l * nd, lqg.A.dtype)
+    _, du = jax.lax.scan(step, y0, (lqg.A, lqg.B0, lqg.B1, gains.feedforward, gains.feedback,
+                                     slot_offsets(K, l, nd)))
+    return du
+
+
+def preconditioner(problem: Problem, xs, us, fixed):
+    """r [K, d] -> the Gauss-Newton solve: on the free commands the open-loop minimiser of the
+    delayed LQ model at the nominal with linear terms -r (eq. 4: e = -r / 2, d = 0, no noise
+    columns c), i.e. H_GN^{-1} r over the free commands with the fixed ones held; r itself on the
+    fixed ones. One structured backward pass and one linear closed loop per application."""
+    lqg = linearize(problem, xs, us)
+    lqg = lqg.replace(c=jnp.zeros_like(lqg.c), d=jnp.zeros_like(lqg.d), d_tilde=jnp.zeros_like(lqg.d_tilde))
+    held = (jnp.where(fixed, 0.0, -jnp.inf), jnp.where(fixed, 0.0, jnp.inf))
+    gains_fn = _masked_gains(lambda bounds: bounds[0] < bounds[1])
+
+    def apply(r):
+        model = lqg.replace(e=jnp.where(fixed, 0.0, -0.5 * r))
+        gains, _, _ = structured_slot_scan(model, 0.0, store_value=False, store_S=False, gains_fn=gains_fn,
+                                           bounds=held)
+        return jnp.where(fixed, r, _linear_closed_loop(model, gains))
+
+    return apply
+
+
+# -- (16.1) ------------------------------------------------------------------------------------
+
+def gmres(A, b, tol: float, maxiter: int):
+    """x with |A x - b| <= tol |b|, or the best in ``maxiter`` steps: GMRES from x = 0 (Arnoldi
+    with Gram-Schmidt run twice, the least-squares problem kept triangular by Givens rotations).
+    ``jax.scipy.sparse.linalg.gmres`` cannot serve here: it wraps itself in
+    ``custom_linear_solve``, which would transpose A as a primal function (the backward pass's
+    products cannot be), and its batched form runs every step of a restart whatever the residual."""
+    shape, b = b.shape, b.ravel()
+    m = maxiter
+    beta = jnp.linalg.norm(b)
+    safe = lambda v, n: v / jnp.where(n > 0, n, 1.0)
+    V = jnp.zeros((m + 1, b.size), b.dtype).at[0].set(safe(b, beta))
+
+    def rotate(i, h, cs, sn):
+        hi, hj = h[i], h[i + 1]
+        return h.at[i].set(cs[i] * hi + sn[i] * hj).at[i + 1].set(cs[i] * hj - sn[i] * hi)
+
+    def step(carry):
+        k, V, R, g, cs, sn = carry
+        w = A(V[k].reshape(shape)).ravel()
+        live = jnp.arange(m + 1) <= k
+        h = jnp.where(live, V @ w, 0.0)
+        w = w - h @ V
+        h2 = jnp.where(live, V @ w, 0.0)
+        w, h = w - h2 @ V, h + h2
+        norm = jnp.linalg.norm(w)
+        V = V.at[k + 1].set(safe(w, norm))
+        h = jax.lax.fori_loop(0, k, lambda i, h: rotate(i, h, cs, sn), h.at[k + 1].set(norm))
+        r = jnp.hypot(h[k], h[k + 1])
+        c, s = jnp.where(r > 0, h[k] / jnp.where(r > 0, r, 1.0), 1.0), jnp.where(r > 0, h[k + 1] / jnp.where(r > 0, r, 1.0), 0.0)
+        cs, sn = cs.at[k].set(c), sn.at[k].set(s)
+        R = R.at[:, k].set(h[:m].at[k].set(r))
+        g = g.at[k + 1].set(-s * g[k]).at[k].set(c * g[k])
+        return k + 1, V, R, g, cs, sn
+
+    zeros = jnp.zeros(m, b.dtype)
+    init = (jnp.asarray(0), V, jnp.zeros((m, m), b.dtype), jnp.zeros(m + 1, b.dtype).at[0].set(beta), zeros, zeros)
+    k, V, R, g, _, _ = jax.lax.while_loop(lambda c: (c[0] < m) & (jnp.abs(c[3][c[0]]) > tol * beta), step, init)
+    used = jnp.arange(m) < k
+    R = jnp.where(used[None, :] & used[:, None], R, jnp.eye(m, dtype=b.dtype))
+    y = jax.scipy.linalg.solve_triangular(R, jnp.where(used, g[:m], 0.0), lower=False)
+    return (y @ V[:m]).reshape(shape)
+
+
+def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
+    """du* [K, d] for the problem tangent ``dproblem`` (a :class:`Problem` of tangents), by (16.1),
+    at the converged nominal (xs, us); NaN where the Krylov solve missed :data:`RESIDUAL_CHECK`.
+    Linear in ``dproblem`` and transposable (reverse mode)."""
+    fixed, _ = fixed_commands(problem, us, margin)
+    F = lambda p, u: stationarity(p, u, fixed, fixed_commands(p, us, margin)[1], margin)
+    _, rhs = jax.jvp(lambda p: F(p, us), (problem,), (dproblem,))
+    matvec = lambda v: jax.jvp(lambda u: F(problem, u), (us,), (v,))[1]
+    precondition = preconditioner(problem, xs, us, fixed)
+    symmetric = problem.noise is None
+
+    def checked(A, b, x):
+        # the Krylov method reports no failure: check the residual, and say so with NaN
+        miss = ~(jnp.linalg.norm(A(x) - b) <= RESIDUAL_CHECK * jnp.linalg.norm(b))
+        return x * jnp.where(miss, jnp.nan, 1.0)
+
+    def krylov(mv, b):
+        # left-preconditioned, P A x = P b: P A is close to I, and the stopping test is in the
+        # preconditioned residual (the plain residual of the Hessian's products carries rounding of
+        # cond(H) eps, ~1e-8 on the arm, far above KRYLOV_TOL)
+        pa = lambda v: precondition(mv(v))
+        pb = precondition(b)
+        return checked(pa, pb, gmres(pa, pb, KRYLOV_TOL, KRYLOV_MAXITER))
+
+    def krylov_transposed(vm, b):
+        # the transposed system A' w = b right-preconditioned, A' P z = b, w = P z: A' P = (P A)' is
+        # the forward operator's transpose and as well conditioned, where P A' (left) is similar to
+        # it only through P (cond ~ cond(H)), and a small preconditioned residual left errors of
+        # 1e-4 in w (the noisy arm)
+        ap = lambda z: vm(precondition(z))
+        return precondition(checked(ap, b, gmres(ap, b, KRYLOV_TOL, KRYLOV_MAXITER)))
+
+    return jax.lax.custom_linear_solve(matvec, -rhs, krylov, transpose_solve=krylov_transposed, symmetric=symmetric)
+
+
+# -- the differentiable solve ---------------------------------------------------------------------
+
+def _outputs(problem: Problem, us, margin: float):
+    """(x, cost, expected_cost, Policy's gains) as functions of (theta, u*): what the tangent of a
+    solution is the tangent of."""
+    xs = rollout(problem, us)
+    gains, s_tilde, _, _ = value_at(problem, xs, us, margin)
+    return xs, trajectory_cost(problem, xs, us), s_tilde[0], from_slots(gains, problem.n_states)
+
+
+def _zero_tangent(x):
+    x = jnp.asarray(x)
+    if jnp.issubdtype(x.dtype, jnp.inexact):
+        return jnp.zeros_like(x)
+    return np.zeros(x.shape, jax.dtypes.float0)
+
+
+def differentiable(plain_solve):
+    """``plain_solve(problem, u_init, options) -> Solution`` made differentiable in ``problem``
+    (forward and reverse mode, under ``vmap`` too): the primal is ``plain_solve`` unchanged; the
+    tangent is (16.1) and the outputs' recomputation at (theta, u*). Tangents of an unconverged
+    solve (``status`` not converged) are NaN: its nominal is not a root of F."""
+    @partial(jax.custom_jvp, nondiff_argnums=(2,))
+    def run(problem, u_init, options: Options):
+        return plain_solve(problem, u_init, options)
+
+    @run.defjvp
+    def run_jvp(options, primals, tangents):
+        problem, u_init = primals
+        dproblem, _ = tangents
+        sol = run(problem, u_init, options)
+        margin = options.limit_margin
+        du = implicit_tangent(problem, sol.x, sol.u, dproblem, margin)
+        _, (dx, dcost, dexpected, dgains) = jax.jvp(lambda p, u: _outputs(p, u, margin), (problem, sol.u),
+                                                    (dproblem, du))
+        ok = (sol.status == Status.CONVERGED_GRADIENT) | (sol.status == Status.CONVERGED_COST)
+        # a factor, not a select: the tangent must stay linear, and JAX's transpose of
+        # where(ok, t, nan) would drop the constant NaN (reverse mode would report zeros)
+        flag = jnp.where(ok, 1.0, jnp.nan)
+        unreliable = lambda t: t * flag
+        dsol = Solution(x=dx, u=du, cost=dcost, expected_cost=dexpected, status=_zero_tangent(sol.status),
+                        iterations=_zero_tangent(sol.iterations),
+                        policy=Policy(dx, du, *dgains),
+                        trace=jax.tree_util.tree_map(_zero_tangent, sol.trace))
+        dsol = dsol._replace(x=unreliable(dsol.x), u=unreliable(dsol.u), cost=unreliable(dsol.cost),
+                             expected_cost=unreliable(dsol.expected_cost),
+                             policy=jax.tree_util.tree_map(unreliable, dsol.policy))
+        return sol, dsol
+
+    return run

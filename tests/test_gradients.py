@@ -1,0 +1,196 @@
+"""Derivatives of ``solve`` (ilqg/implicit.py, docs/derivation.md §16) against central finite
+differences of re-solves, and the optimal cost's gradient in x0 against the value function's 2 s_0.
+
+The finite differences re-solve with tight tolerances and are Richardson-extrapolated over two
+steps (the truncation error of a central difference is O(h^2); the re-solves are accurate to about
+1e-9 relative, which bounds h from below). Every problem's arrays move at once along one random
+direction (x0, targets, weights, limits, the noise scale sigma_u), so one pair of re-solves checks
+the derivative in all of them.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from delayed_ilqr import Options, Problem, QuadraticCost, Status, solve
+from delayed_ilqr.ilqg import implicit
+from delayed_ilqr.models import arm2, arm2_muscle6
+from delayed_ilqr.models.arm2_muscle6 import rest_commands
+
+from comparisons import WorstDifference, rel_err
+
+worst = WorstDifference("derivative against finite differences of re-solves")
+report_worst = worst.fixture()
+
+TIGHT = Options(tol_grad=1e-13, tol_cost=1e-15, max_iterations=400)
+
+
+def direction(problem: Problem, seed: int = 0) -> Problem:
+    """A random tangent of the problem's leaves, relative to their size: symmetric for matrices
+    (weights stay symmetric), zero for infinite limits."""
+    rng = np.random.default_rng(seed)
+
+    def one(leaf):
+        leaf = np.asarray(leaf, float)
+        r = rng.standard_normal(leaf.shape)
+        if leaf.ndim == 2:
+            return 0.5 * (r + r.T) * np.abs(leaf)
+        return np.where(np.isfinite(leaf), r * (np.abs(leaf) + (0.1 if leaf.ndim == 1 else 0.0)), 0.0)
+
+    return jax.tree_util.tree_map(one, problem)
+
+
+def along(problem: Problem, tangent: Problem, t):
+    return jax.tree_util.tree_map(lambda a, b: jnp.where(jnp.isfinite(a), a + t * b, a), problem, tangent)
+
+
+def outputs(sol):
+    """The solution's differentiable outputs, by name."""
+    return dict(u=sol.u, x=sol.x, cost=sol.cost, expected_cost=sol.expected_cost, L=sol.policy.state_feedback,
+                M=sol.policy.delay_feedback)
+
+
+def richardson(f, h):
+    """(4 D(h/2) - D(h)) / 3 of the central differences D of f (a dict of arrays) at 0."""
+    def central(step):
+        plus, minus = f(step), f(-step)
+        return {k: (plus[k] - minus[k]) / (2 * step) for k in plus}
+    coarse, fine = central(h), central(h / 2)
+    return {k: (4 * fine[k] - coarse[k]) / 3 for k in fine}
+
+
+def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
+    """Forward mode (every output) along one random direction against Richardson-extrapolated
+    finite differences and, with ``reverse``, reverse mode (random weighted sums of every output)
+    against forward mode."""
+    tangent = direction(problem, seed)
+    solve_at = jax.jit(lambda t: solve(along(problem, tangent, t), u_init, TIGHT))
+    base = solve_at(0.0)
+    assert Status(int(base.status)).converged, base.status
+    fd = richardson(lambda t: outputs(solve_at(t)), h)
+    _, forward = jax.jit(lambda t: jax.jvp(lambda s: outputs(solve(along(problem, tangent, s), u_init, TIGHT)),
+                                           (t,), (1.0,)))(0.0)
+    for key, value in fd.items():
+        if value.size == 0 or not np.any(value):
+            continue
+        err = rel_err(forward[key], value)
+        worst.record(err, f"{name} forward {key}")
+        assert err < rtol, (name, key, err)
+    if not reverse:
+        return
+    # reverse mode against forward mode: the transposed computation, checked to the Krylov solve's
+    # accuracy (the finite differences above already tie forward mode to the re-solves)
+    rng = np.random.default_rng(seed + 1)
+    weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in fd.items()}
+    sums = lambda sol: jnp.stack([jnp.sum(weights[k] * v) for k, v in outputs(sol).items()])
+    backward = jax.jit(jax.jacrev(lambda t: sums(solve(along(problem, tangent, t), u_init, TIGHT))))(0.0)
+    for key, got in zip(fd, np.asarray(backward)):
+        products = weights[key] * np.asarray(forward[key])
+        if not np.any(products):
+            continue
+        err = abs(got - np.sum(products)) / np.sum(np.abs(products))
+        worst.record(err, f"{name} reverse {key}")
+        assert err < 1e-8, (name, key, err)
+
+
+def test_arm_delayed_matches_finite_differences():
+    check_against_fd("arm 50 ms", arm2(delay=0.05), None, h=6e-4, rtol=1e-5)
+
+
+@pytest.mark.slow
+def test_arm_noisy_delayed_matches_finite_differences():
+    """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
+    not symmetric, so reverse mode solves the transposed system (right-preconditioned)."""
+    check_against_fd("arm noisy 50 ms", arm2(delay=0.05, noise=True), None, h=6e-4, rtol=1e-5)
+
+
+@pytest.mark.slow
+def test_arm_limits_delayed_matches_finite_differences():
+    """Commands at a limit follow the limit; the free ones solve (16.1) with those held. The
+    limits are 0.7 of the unlimited optimum's largest commands, so that about 30 commands bind;
+    h is small enough that no command crosses into or out of the active set."""
+    free = arm2(delay=0.05)
+    top = 0.7 * np.max(np.abs(np.asarray(solve(free, None, TIGHT).u)), axis=0)
+    problem = free.replace(u_min=-top, u_max=top)
+    fixed, _ = implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)
+    assert int(np.sum(fixed)) > 10
+    check_against_fd("arm limits 50 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
+
+
+def test_cost_gradient_in_x0_is_the_value_gradient(delay=0.0):
+    """dJ*/dx0 = 2 s_0 (eq. 7's value function in the factor-2 convention): the envelope theorem,
+    s_0 from the structured backward pass at the solution."""
+    problem = arm2(delay=delay)
+    grad = jax.grad(lambda dx0: solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT).cost)(jnp.zeros(4))
+    sol = solve(problem, None, TIGHT)
+    _, _, s, _ = implicit.value_at(problem, sol.x, sol.u, TIGHT.limit_margin)
+    err = rel_err(grad, 2 * s[0])
+    worst.record(err, f"dJ/dx0 = 2 s_0 at {delay} s")
+    assert err < 1e-7, err
+
+
+def _only_x0(problem, dx0):
+    """A tangent that moves x0 by dx0 and nothing else."""
+    zero = jax.tree_util.tree_map(jnp.zeros_like, problem)
+    zero.x0 = dx0
+    return zero
+
+
+def test_unconverged_solve_gives_nan_derivatives():
+    """A solve stopped by the iteration limit is not at a root of the optimality conditions: its
+    derivatives are NaN, and its status says why."""
+    problem = arm2(delay=0.05)
+    opts = Options(max_iterations=2)
+    value, grad = jax.value_and_grad(lambda x0: solve(along(problem, _only_x0(problem, x0), 1.0), None, opts).cost)(
+        jnp.zeros(4))
+    assert np.isfinite(value)
+    assert np.all(np.isnan(grad))
+    assert solve(problem, None, opts).status == Status.MAX_ITERATIONS
+
+
+def test_gradient_under_vmap():
+    """vmap of a gradient over problems equals the gradients one at a time."""
+    problem = arm2()
+    targets = problem.cost.x_target + jnp.array([[0.0, 0.0, 0.0, 0.0], [0.05, -0.05, 0.0, 0.0]])
+
+    def final_speed(target):
+        cost = problem.cost._replace(x_target=target)
+        sol = solve(along(problem.replace(cost=cost), _only_x0(problem, jnp.zeros(4)), 0.0), None, TIGHT)
+        return jnp.sum(sol.x[-1, 2:] ** 2) + sol.cost
+
+    batched = jax.vmap(jax.grad(final_speed))(targets)
+    for target, row in zip(targets, batched):
+        assert rel_err(row, jax.grad(final_speed)(target)) < 1e-9
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class DampedMass:
+    """A point mass with viscous damping b (a pytree leaf: differentiable) and delayed force."""
+
+    b: float
+
+    def __call__(self, x, u, ud):
+        return jnp.array([x[1], ud[0] - self.b * x[1]])
+
+
+def test_dynamics_parameter_of_a_pytree_dynamics():
+    """The fields of a dynamics registered as a pytree are leaves of the Problem, differentiable."""
+    cost = QuadraticCost(P=jnp.zeros((2, 2)), Q=1e-2 * jnp.eye(1), P_final=jnp.diag(jnp.array([10.0, 1.0])),
+                         x_target=jnp.array([1.0, 0.0]))
+    problem = Problem(DampedMass(0.5), x0=jnp.zeros(2), dt=0.05, horizon=30, delay_steps=3, cost=cost)
+    assert any(leaf is problem.dynamics.b for leaf in jax.tree_util.tree_leaves(problem))
+
+    def cost_at(b):
+        return solve(Problem(DampedMass(b), x0=jnp.zeros(2), dt=0.05, horizon=30, delay_steps=3, cost=cost),
+                     None, TIGHT)
+
+    grad = jax.grad(lambda b: cost_at(b).expected_cost + jnp.sum(cost_at(b).u ** 2))(0.5)
+    fd = richardson(lambda t: {"f": cost_at(0.5 + t).expected_cost + jnp.sum(cost_at(0.5 + t).u ** 2)}, 1e-3)["f"]
+    err = abs(grad - fd) / abs(fd)
+    worst.record(err, "damped mass, d/db")
+    assert err < 1e-6, err
