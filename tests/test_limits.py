@@ -112,8 +112,10 @@ def test_commands_at_or_near_a_bound_get_no_feedback():
     G = jnp.array([[1.0, -2.0, 0.5], [0.3, 0.1, -1.0]])
     full = -jnp.linalg.solve(H, G)
     alone = -G[1] / H[1, 1]                                     # command 1's feedback with command 0 fixed
+    # upper_0 = inf: command 0 bounded below only, far from its bound (a margin relative to an
+    # infinite range would take its feedback however far it is)
     for upper_0, margin, feedback_0 in [(0.0, 0.0, False), (1e-7, 0.0, True), (1e-7, 1e-5, False),
-                                        (1.0, 1e-5, True)]:
+                                        (1.0, 1e-5, True), (jnp.inf, 1e-5, True)]:
         bounds = (jnp.array([-2.0, -2.0]), jnp.array([upper_0, 2.0]))
         ok, I, K = boxed_gains(H, 0.0, g, G, bounds, jnp.zeros(2), margin=margin)
         assert bool(ok)
@@ -126,10 +128,13 @@ def test_commands_at_or_near_a_bound_get_no_feedback():
             np.testing.assert_allclose(K[1], alone, rtol=1e-12)
 
 
-def test_limits_that_never_bind_change_nothing():
-    problem = point_mass(delay=0.03)
+@pytest.mark.parametrize("noise", [False, True])
+@pytest.mark.parametrize("u_max", [1e5, np.inf])
+def test_limits_that_never_bind_change_nothing(u_max, noise):
+    # u_max = inf: limits on one side only (the bounded step without noise, the box QP with it)
+    problem = point_mass(delay=0.03, noise=noise)
     free = di.solve(problem)
-    wide = di.solve(problem.replace(u_min=[-1e5, -1e5], u_max=[1e5, 1e5]))
+    wide = di.solve(problem.replace(u_min=[-1e5, -1e5], u_max=[u_max, u_max]))
     assert float(jnp.max(jnp.abs(wide.trace.grad_norm[1]))) < 1e3     # the first step stays far inside
     assert int(free.iterations) == int(wide.iterations)
     np.testing.assert_allclose(np.asarray(wide.u), np.asarray(free.u), rtol=1e-10, atol=1e-12)

@@ -31,7 +31,8 @@ class Options:
             solve stops when lambda exceeds reg_max).
         z_min: minimal accepted ratio of actual to expected reduction, in [0, 1).
         limit_margin: with control limits, the width limit_margin * (u_max - u_min) of the
-            epsilon-active set: without noise, that of the projected Newton method on the box
+            epsilon-active set (limit_margin itself, in the command's unit, for a command
+            bounded on one side only: ``lqg.gains.margin_width``): without noise, that of the projected Newton method on the box
             (``ilqg.bounded``); with noise, commands whose nominal lies that close to a bound get
             no feedback (``lqg.gains.boxed_gains``).
 

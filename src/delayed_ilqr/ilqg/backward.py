@@ -11,7 +11,7 @@ import jax.numpy as jnp
 
 from ..lqg.augmented import augmented_scan
 from ..lqg.frame import SlotGains, to_slots
-from ..lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
+from ..lqg.gains import boxed_gains, margin_width, unconstrained_gains, unregularized_feedback
 from ..lqg.structured import structured_slot_scan
 from ..problem import Problem
 from .bounded import bounded_step
@@ -56,8 +56,9 @@ def backward(problem: Problem, xs, us, reg, method: str, limit_margin: float, he
     """
     if problem.has_limits and problem.noise is None:
         lqg = linearize(problem, xs, us)
-        gains, expected_cost, ok, predicted = bounded_step(lqg, reg, problem.u_min - us, problem.u_max - us,
-                                                           limit_margin * (problem.u_max - problem.u_min), method)
+        eps = margin_width(limit_margin, problem.u_min, problem.u_max)
+        gains, expected_cost, ok, predicted = bounded_step(lqg, reg, problem.u_min - us, problem.u_max - us, eps,
+                                                           method)
         return BackwardPass(gains, None, expected_cost, ok, predicted)
     kw = dict(gains_fn=unconstrained_gains)
     if problem.has_limits:

@@ -113,7 +113,7 @@ def bounded_step(lqg: DelayedLQG, reg, lower, upper, eps, method: str = "structu
         lqg: the iteration's model (stored: the Newton iterations reuse it).
         reg: lambda, added to every H_k of the backward passes.
         lower, upper: [K, d] bounds on du (u_min - u_bar, u_max - u_bar; lower <= 0 <= upper).
-        eps: [d] width of the epsilon-active set (``Options.limit_margin`` (u_max - u_min)).
+        eps: [d] width of the epsilon-active set (``lqg.gains.margin_width``).
         method: "structured" or "augmented", the backward pass to use.
 
     Returns:

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..lqg.boxqp import free_solve
 from ..lqg.frame import SlotGains, from_slots, slot_offsets
-from ..lqg.gains import unconstrained_gains
+from ..lqg.gains import margin_width, unconstrained_gains
 from ..lqg.structured import structured_slot_scan
 from ..options import Options
 from ..problem import Problem
@@ -86,11 +86,11 @@ def _masked_gains(free_of):
 
 
 def _solver_free(margin):
-    """The solver's feedback set (``lqg.gains.boxed_gains``): farther than margin * (upper - lower)
-    from both limits."""
+    """The solver's feedback set (``lqg.gains.boxed_gains``): farther than
+    ``lqg.gains.margin_width`` from both limits."""
     def free(bounds):
         lower, upper = bounds
-        eps = margin * (upper - lower)
+        eps = margin_width(margin, lower, upper)
         return (lower < -eps) & (upper > eps)
     return free
 

@@ -27,6 +27,15 @@ def unconstrained_gains(H, reg, g, G, bounds=None, warm=None):
     return ok, -sol[:, 0], -sol[:, 1:]
 
 
+def margin_width(margin, lower, upper):
+    """The width of the epsilon-active set: ``margin`` times the box's width upper - lower (the
+    range u_max - u_min of each command), or ``margin`` itself (in the command's unit) for a
+    command bounded on one side only, whose range is infinite (an infinite width would take the
+    feedback of every such command, however far from its bound)."""
+    width = upper - lower
+    return margin * jnp.where(jnp.isfinite(width), width, 1.0)
+
+
 def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     """Control-limited step (Tassa, Mansard & Todorov 2014): the feedforward solves the box QP
     min du'(H + reg I) du + 2 du'g over lower <= du <= upper (warm-started from the next step's),
@@ -34,7 +43,7 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     clamped commands.
 
     Commands whose nominal lies at a bound, or within ``margin * (upper - lower)`` of one (lower or
-    upper within that distance of du = 0), get no feedback either, even when the QP frees them to
+    upper within that distance of du = 0; :func:`margin_width`), get no feedback either, even when the QP frees them to
     move inward (an epsilon-active set, as in Bertsekas' projected Newton method). Their feedback would
     push them outside as often as inside, the forward pass clips it, and the steps upstream, which
     were planned on that feedback, then miss: the first-order prediction fails for every step
@@ -55,7 +64,7 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     # once the active set is known, the free part is one exact Newton solve
     clamped = jnp.where(qp.free, 0.0, qp.x)
     I = jnp.clip(clamped + free_solve(H_reg, qp.free, g + H_reg @ clamped), lower, upper)
-    eps = margin * (upper - lower)
+    eps = margin_width(margin, lower, upper)
     feedback = qp.free & (lower < -eps) & (upper > eps)
     if len(bounds) > 2:
         feedback = feedback & ~bounds[2]
