@@ -107,4 +107,8 @@ def test_vmap_on_cpu_solves_one_problem_after_another():
     problems = [point_mass(delay=0.1, x0=(0.0, x, 0.0, 0.0)) for x in (0.0, 0.1, 0.2)]
     stacked = jax.tree_util.tree_map(lambda *leaves: jax.numpy.stack(leaves), *problems)
     jaxpr = jax.make_jaxpr(jax.vmap(di.solve))(stacked).jaxpr
-    assert [eqn.primitive.name for eqn in jaxpr.eqns if eqn.primitive.name in ("scan", "while")] == ["scan"]
+    # traced, solve is the differentiable one (ilqg.implicit: a custom_jvp around the solver)
+    [wrapper] = jaxpr.eqns
+    assert wrapper.primitive.name == "custom_jvp_call"
+    inner = wrapper.params["call_jaxpr"].jaxpr
+    assert [eqn.primitive.name for eqn in inner.eqns if eqn.primitive.name in ("scan", "while")] == ["scan"]
