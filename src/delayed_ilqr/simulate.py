@@ -70,6 +70,24 @@ class Runs(NamedTuple):
         return summarize(self.cost, self.x[:, -1])
 
 
+def _plant_step(problem: Problem, x, u, ud, xi, t, substeps: int):
+    """One step of the plant from x under the held commands (u, ud): ``substeps`` Euler-Maruyama
+    sub-steps of h = dt / substeps with the noise samples xi [substeps, p], at the times
+    t + j h (t: t_k, None for a problem without time)."""
+    h = problem.dt / substeps
+    root_h = math.sqrt(h)
+
+    def substep(x, sub):
+        xi_j, t_j = sub
+        x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
+        if problem.noise is not None:
+            x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
+        return x_new, None
+
+    t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
+    return jax.lax.scan(substep, x, (xi, t_sub))[0]
+
+
 def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
     """The scan body of one trial: the state and the last m = max(l, l_p) sent commands and their
     nominals in time order, so that the policy's delay l_p need not be the plant's l. The law is
@@ -78,8 +96,6 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
     not the solver's slot frame: under the vmap over trials it runs faster
     (docs/performance.md#simulate-pending-commands-in-time-order)."""
     l = problem.delay_steps
-    h = problem.dt / substeps
-    root_h = math.sqrt(h)
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
@@ -90,15 +106,7 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
         ud = sent[m - l] if l > 0 else u
 
-        def substep(x, sub):
-            xi_j, t_j = sub
-            x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
-            if problem.noise is not None:
-                x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
-            return x_new, None
-
-        t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
-        x_new, _ = jax.lax.scan(substep, x, (xi, t_sub))
+        x_new = _plant_step(problem, x, u, ud, xi, t, substeps)
         if disturbance:
             x_new = x_new + disturbance[0]
         if m > 0:
@@ -142,8 +150,6 @@ def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, sub
     order: the plant reads u_{k-l}, the law u_{k-l_p}..u_{k-1}, the filter the deviations
     du_{k-l_s_e-l_p}..du_k."""
     l, obs = problem.delay_steps, problem.observation
-    h = problem.dt / substeps
-    root_h = math.sqrt(h)
     B, window = buffer, ls_e + l_p + 1
 
     def step(carry, data):
@@ -158,15 +164,7 @@ def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, sub
                      problem.u_min, problem.u_max)
         ud = sent[B - l] if l > 0 else u
 
-        def substep(x, sub):
-            xi_j, t_j = sub
-            x_new = x + h * problem.dynamics_at(x, u, ud, t_j)
-            if problem.noise is not None:
-                x_new = x_new + root_h * problem.noise_at(x, u, ud, t_j) @ xi_j
-            return x_new, None
-
-        t_sub = None if t is None else t + h * jnp.arange(substeps, dtype=x.dtype)
-        x_new = jax.lax.scan(substep, x, (xi, t_sub))[0] + disturbance
+        x_new = _plant_step(problem, x, u, ud, xi, t, substeps) + disturbance
         sent = jnp.concatenate([sent[1:], u[None]])
         nominal = jnp.concatenate([nominal[1:], u_bar[None]])
         # the filter moves with the commands actually sent (after clipping)
