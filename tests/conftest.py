@@ -47,3 +47,13 @@ def _no_persistent_cache_leaks():
         from jax.experimental.compilation_cache import compilation_cache
         compilation_cache.reset_cache()
         jax.config.update("jax_compilation_cache_dir", before)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_executables():
+    """Each test file compiles hundreds of solvers, and XLA's CPU executables stay loaded in the
+    process until JAX's caches are cleared. The whole suite in one process died, at the same test
+    each time, with a segmentation fault inside an XLA compile that the test alone does not
+    have; clearing after each file bounds what one process holds."""
+    yield
+    jax.clear_caches()
