@@ -36,19 +36,6 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 import pytest  # noqa: E402
 
 
-@pytest.fixture(autouse=True)
-def _no_persistent_cache_leaks():
-    """JAX's persistent compilation cache is process-global: a test that turns it on in this
-    process (the command line in-process, a sweep) must not leave it on for the tests after it,
-    whose compilations would then be written into a temporary folder that is gone."""
-    before = jax.config.jax_compilation_cache_dir
-    yield
-    if jax.config.jax_compilation_cache_dir != before:
-        from jax.experimental.compilation_cache import compilation_cache
-        compilation_cache.reset_cache()
-        jax.config.update("jax_compilation_cache_dir", before)
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_executables():
     """Each test file compiles hundreds of solvers, and XLA's CPU executables stay loaded in the
