@@ -62,7 +62,7 @@ def main():
         u0 = rest_commands(plant)
         t_full = timed(lambda: di.solve(full, u_init=u0, options=DEFAULT_OPTIONS))
         sol = di.solve(full, u_init=u0, options=DEFAULT_OPTIONS)
-        t_design = timed(lambda: with_estimator(plant, sol))
+        t_design = timed(lambda: with_estimator(plant, sol, DEFAULT_OPTIONS))
         rows.append({"sensory delay [ms]": 1000 * ls, "iterations": int(sol.iterations),
                      "full-state solve": t_full, "filter design + exact cost": t_design,
                      "added": t_design / t_full})

@@ -32,6 +32,13 @@ def delay_steps(value, name: str = "delay_steps") -> int:
     return int(value)
 
 
+def non_negative_int(value, name: str) -> int:
+    static(value, name)
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)) or value < 0:
+        raise ValueError(f"{name} must be a non-negative integer; got {value!r}")
+    return int(value)
+
+
 def positive_int(value, name: str) -> int:
     static(value, name)
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)) or value < 1:

@@ -35,6 +35,12 @@ class Options:
             bounded on one side only: ``lqg.gains.margin_width``): without noise, that of the projected Newton method on the box
             (``ilqg.bounded``); with noise, commands whose nominal lies that close to a bound get
             no feedback (``lqg.gains.boxed_gains``).
+        max_alternations: for a problem with delayed sensors (``Problem.observation``) and
+            signal-dependent motor noise, the limit on Todorov's alternation between the filter
+            and the feedback at the returned nominal (``lqg.alternation``, derivation §14); it
+            stops earlier when an alternation lowers the exact expected cost by less than
+            tol_cost times its value. 0 keeps the separation design (iLQG's feedback on the
+            Kalman filter of the nominal commands' noise).
 
     A convergence status (``Status.converged``) is reported only at a first-order point of the LQG
     model: lambda < 1e-5 (the step is the Newton step, projected with the limits) and, for
@@ -54,11 +60,13 @@ class Options:
     reg_factor: float = 1.6
     z_min: float = 0.0
     limit_margin: float = 1e-5
+    max_alternations: int = 20
 
     def __post_init__(self):
         if self.method not in ("structured", "augmented"):
             raise ValueError(f"method must be 'structured' or 'augmented'; got {self.method!r}")
         _validate.positive_int(self.max_iterations, "max_iterations")
+        _validate.non_negative_int(self.max_alternations, "max_alternations")
         margin = _validate.real(self.limit_margin, "limit_margin", "a number in [0, 0.5)")
         if not (np.isfinite(margin) and 0 <= margin < 0.5):
             raise ValueError(f"limit_margin must be a number in [0, 0.5); got {self.limit_margin!r}")

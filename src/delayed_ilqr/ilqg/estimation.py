@@ -2,42 +2,55 @@
 
 iLQG designs the controller with the full state, as without sensors. At the returned nominal the
 plant is linearised (eq. 3) and so are the sensors (``observation.linearized_observation``); the
-delayed Kalman filter of that linear model (``lqg.delayed_kalman``, process noise the additive
-part c c' of eq. 3 at the nominal) is the estimator, and the expected cost of the pair is exact on
-the linearisation (``lqg.output_feedback_cost``, the joint second moments, signal-dependent motor
-noise included). With additive noise the pair is the optimal output feedback of the linearisation
-(separation, ``docs/derivation.md`` §14). This runs once, after the solver's loop.
+delayed Kalman filter of that linear model (``lqg.delayed_kalman``, process noise the motor noise
+c c' of eq. 3 at the nominal commands) is the estimator. With additive noise the pair is the
+optimal output feedback of the linearisation (separation, ``docs/derivation.md`` §14). With
+signal-dependent motor noise, Todorov's alternation (``lqg.alternation``) then redesigns the filter
+and the feedback in turn, never raising the pair's exact cost; the feedforward and the nominal stay
+iLQG's, and commands without feedback (at a limit) keep none. The expected cost of the pair is exact
+on the linearisation (the joint second moments, signal-dependent motor noise included). This runs
+once, after the solver's loop.
 """
 from __future__ import annotations
+
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 
+from ..lqg.alternation import _alternate
 from ..lqg.estimator import _delayed_kalman, _process_cov
 from ..lqg.model import Gains
-from ..lqg.output_feedback import _output_feedback_cost
 from ..observation import linearized_observation
+from ..options import Options
 from ..problem import Problem
 from ..solution import Estimator, Solution
+from .closed_loop import augmented_feedback
 from .linearize import linearize
 
 __all__ = ["design_estimator", "with_estimator", "without_observation"]
 
 
-def design_estimator(problem: Problem, xs, us, gains: Gains):
-    """The delayed filter of ``problem.observation`` around the nominal (xs [K+1, n], us [K, d])
-    and the exact expected cost of the law ``gains`` on its estimate (linearised model).
+def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: int = 0, tol=1e-10):
+    """The delayed filter of ``problem.observation`` around the nominal (xs [K+1, n], us [K, d]),
+    the law ``gains`` on its estimate after at most ``max_alternations`` of Todorov's alternation
+    (run only when the motor noise is signal-dependent), and the pair's exact expected cost
+    (linearised model).
 
     Returns:
-        (:class:`~delayed_ilqr.Estimator`, expected cost []).
+        (:class:`~delayed_ilqr.Estimator`, the law :class:`~delayed_ilqr.lqg.Gains`, expected cost []).
     """
     lqg = linearize(problem, xs, us)
     obs, y_nominal = linearized_observation(problem.observation, xs)
-    fgains, cov = _delayed_kalman(lqg, obs, _process_cov(lqg), obs.measurement_cov)
-    cost = _output_feedback_cost(lqg, obs, gains, fgains)
-    estimator = Estimator(lqg.A, lqg.B0, lqg.B1, obs.H, y_nominal, fgains.delayed_gain, fgains.current_gain,
-                          cov.current, sensory_delay=obs.delay_steps)
-    return estimator, jnp.asarray(cost)
+    fgains, _ = _delayed_kalman(lqg, obs, _process_cov(lqg), obs.measurement_cov)
+    signal_dependent = jnp.any(lqg.C0 != 0) | jnp.any(lqg.C1 != 0)
+    # iLQG gives no feedback to commands at a limit (derivation §13); the alternation keeps it so
+    free = jnp.any(augmented_feedback(gains) != 0, axis=-1)
+    alt = _alternate(lqg, obs, gains, fgains, free, max_alternations, jnp.asarray(tol, lqg.A.dtype),
+                     signal_dependent)
+    estimator = Estimator(lqg.A, lqg.B0, lqg.B1, obs.H, y_nominal, alt.filter_gains.delayed_gain,
+                          alt.filter_gains.current_gain, alt.error_covariance, sensory_delay=obs.delay_steps)
+    return estimator, alt.gains, jnp.asarray(alt.expected_cost)
 
 
 def without_observation(problem: Problem) -> Problem:
@@ -48,17 +61,21 @@ def without_observation(problem: Problem) -> Problem:
     return new
 
 
-@jax.jit
-def _with_estimator(problem: Problem, sol: Solution) -> Solution:
+@partial(jax.jit, static_argnames=("max_alternations",))
+def _with_estimator(problem: Problem, sol: Solution, max_alternations: int, tol) -> Solution:
     policy = sol.policy
     gains = Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback)
-    estimator, cost = design_estimator(problem, sol.x, sol.u, gains)
-    return sol._replace(expected_cost=cost, policy=policy._replace(estimator=estimator))
+    estimator, gains, cost = design_estimator(problem, sol.x, sol.u, gains, max_alternations, tol)
+    policy = policy._replace(state_feedback=gains.state_feedback, delay_feedback=gains.delay_feedback,
+                             estimator=estimator)
+    return sol._replace(expected_cost=cost, policy=policy)
 
 
-def with_estimator(problem: Problem, sol: Solution) -> Solution:
+def with_estimator(problem: Problem, sol: Solution, options: Options) -> Solution:
     """``sol`` (the full-state solve of ``problem``) with the estimator of ``problem.observation``
-    in its policy and the exact output-feedback cost as ``expected_cost``; the status is kept."""
+    in its policy (and, with signal-dependent noise, the feedback of Todorov's alternation) and
+    the exact output-feedback cost as ``expected_cost``; the status is kept."""
     status = sol.status
-    out = _with_estimator(problem, sol._replace(status=jnp.asarray(status)))
+    out = _with_estimator(problem, sol._replace(status=jnp.asarray(status)), options.max_alternations,
+                          options.tol_cost)
     return out._replace(status=status)

@@ -24,10 +24,13 @@ The returned policy and ``expected_cost`` come from a backward pass at the retur
 converging iteration's own, or one more pass when the last iteration moved the nominal. For a
 problem with delayed sensors (``Problem.observation``) the controller is that of the same problem
 without them (one compiled solver for both), and the delayed Kalman filter of the linearisation
-at the returned nominal is added after it (``estimation.with_estimator``), with ``expected_cost``
+at the returned nominal is added after it (``estimation.with_estimator``; with signal-dependent
+noise, Todorov's alternation then redesigns the filter and the feedback), with ``expected_cost``
 the exact cost of the controller on its estimate.
 """
 from __future__ import annotations
+
+import dataclasses
 
 from functools import cache, partial
 from typing import NamedTuple
@@ -336,7 +339,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
         u_init = _validate.array(u_init, "u_init", shape, finite=False)
     if problem.observation is not None:
         # the controller is designed with the full state; the filter is added to its solution
-        return with_estimator(problem, solve(without_observation(problem), u_init, options))
+        # (max_alternations does not change that solve: the default's compiled solver serves all)
+        full_state = dataclasses.replace(options, max_alternations=_DEFAULT_OPTIONS.max_alternations)
+        return with_estimator(problem, solve(without_observation(problem), u_init, full_state), options)
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return sol._replace(status=Status(int(sol.status)))

@@ -35,6 +35,8 @@ observation      :class:`DelayedObservation`: delayed, noisy sensors dy_k = H_k 
 estimator        :func:`delayed_kalman`: the delayed Kalman filter without augmentation, and its run
 output_feedback  :func:`separation_design`, :func:`output_feedback_cost` (exact, any pair),
                  :func:`separation_cost`, :func:`simulate_output_feedback`
+alternation      :func:`alternate`: Todorov's alternation of filter and controller for
+                 signal-dependent noise (:func:`filter_step`, :func:`controller_sweep`)
 ===============  ================================================================================
 """
 from .augmented import augmented_backward_pass
@@ -45,6 +47,7 @@ from .estimator import FilterCovariances, FilterGains, delayed_kalman, filter_es
 from .output_feedback import (OutputFeedback, OutputFeedbackRuns, output_feedback_cost, separation_cost,
                               separation_design, simulate_output_feedback)
 from .structured import backward_pass
+from .alternation import Alternation, alternate, controller_sweep, filter_step
 
 __all__ = [
     "DelayedLQG",
@@ -66,4 +69,8 @@ __all__ = [
     "separation_cost",
     "output_feedback_cost",
     "simulate_output_feedback",
+    "Alternation",
+    "alternate",
+    "controller_sweep",
+    "filter_step",
 ]

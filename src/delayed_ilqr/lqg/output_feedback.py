@@ -125,12 +125,23 @@ def _moments_of(T, t0, mu, X):
     return m + t0, T @ X @ T.T + jnp.outer(m, t0) + jnp.outer(t0, m) + jnp.outer(t0, t0)
 
 
+def _error_cov(blocks, Phi, mu, X, Pi):
+    """Cov(dx_k - x_hat_k) [n, n], with dx_k - x_hat_k = a_k - x_hat_k + Phi_k eps_k + eta_k."""
+    n = blocks.n
+    eye = jnp.eye(n, dtype=mu.dtype)
+    T = jnp.zeros((n, blocks.size), mu.dtype).at[:, blocks.a()].set(eye).at[:, blocks.b()].set(-eye)
+    T = T.at[:, blocks.eps()].set(Phi)
+    m = T @ mu
+    return _sym(T @ X @ T.T - jnp.outer(m, m) + Pi)
+
+
 def _joint_step(carry, data, *, blocks, sensory_delay):
     mu, X, total, Pi, qbuf = carry
     (k, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, N, I, LM, Kd, Kc, H, R, Phi, Phi_next, A_del) = data
     n, l, ls, Nz = blocks.n, blocks.l, sensory_delay, blocks.size
     dt = mu.dtype
     mu, X = _measurement_update(mu, X, blocks, H, R, Kd, Kc, Phi)
+    moments = (mu, X, _error_cov(blocks, Phi, mu, X, Pi))      # after the measurement, before the command
     # the stage cost, with dx = a + Phi eps + eta and du = I + L x_hat + M pending
     Tx = jnp.zeros((n, Nz), dt).at[:, blocks.a()].set(jnp.eye(n, dtype=dt)).at[:, blocks.eps()].set(Phi)
     Tu = jnp.zeros((I.shape[0], Nz), dt).at[:, blocks.b()].set(LM[:, :n]).at[:, blocks.pending()].set(LM[:, n:])
@@ -170,11 +181,32 @@ def _joint_step(carry, data, *, blocks, sensory_delay):
         t0 = t0.at[Nz - nd:].set(I)
     mu, X = _moments_of(T, t0, mu, X)
     X = _sym(X.at[blocks.eps(), blocks.eps()].add(Q_eps))
-    return (mu, X, total, Pi, qbuf), None
+    return (mu, X, total, Pi, qbuf), moments + (Q_now,)
+
+
+class JointMoments(NamedTuple):
+    """The closed loop of a controller-estimator pair, step by step (:func:`joint_moments`).
+
+    Attributes:
+        mean: [K, 3n + l d] E[zeta_k] after the measurement dy_k, before du_k.
+        second: [K, 3n + l d, 3n + l d] E[zeta_k zeta_k'] there (raw, not centred).
+        error_cov: [K+1, n, n] Cov(dx_k - x_hat_k), the estimation error of the loop (row K: the
+            terminal state against the filter's prediction from I_{K-1}); with additive noise it is
+            the Kalman filter's Sigma_k (14.3) when the filter is the optimal one.
+        motor_cov: [K, n, n] E[w_k w_k'], the covariance of the motor noise of step k under the loop
+            (signal-dependent noise included).
+        expected_cost: [] the exact expected cost, as :func:`output_feedback_cost`.
+    """
+
+    mean: jax.Array
+    second: jax.Array
+    error_cov: jax.Array
+    motor_cov: jax.Array
+    expected_cost: jax.Array
 
 
 @jax.jit
-def _output_feedback_cost(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains):
+def _joint_moments(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains) -> JointMoments:
     lqg = merged_if_undelayed(lqg)
     K, n, nd, l, ls = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps, obs.delay_steps
     dt = lqg.A.dtype
@@ -187,10 +219,17 @@ def _output_feedback_cost(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains
     init = (jnp.zeros(blocks.size, dt), jnp.zeros((blocks.size,) * 2, dt), jnp.asarray(0.0, dt),
             jnp.zeros((n, n), dt), jnp.zeros((max(ls, 1), n, n), dt))
     step = partial(_joint_step, blocks=blocks, sensory_delay=ls)
-    (mu, X, total, Pi, _), _ = jax.lax.scan(step, init, data)
+    (mu, X, total, Pi, _), (mus, Xs, errs, Qs) = jax.lax.scan(step, init, data)
     Tx = jnp.zeros((n, blocks.size), dt).at[:, blocks.a()].set(jnp.eye(n, dtype=dt)).at[:, blocks.eps()].set(Phi[-1])
     Ex, Exx = _moments_of(Tx, jnp.zeros(n, dt), mu, X)
-    return total + lqg.d_tilde[-1] + 2 * lqg.d[-1] @ Ex + jnp.sum(lqg.D[-1] * (Exx + Pi))
+    total = total + lqg.d_tilde[-1] + 2 * lqg.d[-1] @ Ex + jnp.sum(lqg.D[-1] * (Exx + Pi))
+    errs = jnp.concatenate([errs, _error_cov(blocks, Phi[-1], mu, X, Pi)[None]])
+    return JointMoments(mus, Xs, errs, Qs, total)
+
+
+@jax.jit
+def _output_feedback_cost(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains):
+    return _joint_moments(lqg, obs, gains, fgains).expected_cost
 
 
 def output_feedback_cost(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains) -> jax.Array:
