@@ -27,8 +27,10 @@ class Estimator:
         A: [K, n, n]; B0, B1: [K, n, d]: the model the estimates move with.
         H: [K, m, n] dh/dx at x_nominal_{k-l_s}; y_nominal: [K, m] h(x_nominal_{k-l_s}).
         delayed_gain: [K, n, m] Kd_k; current_gain: [K, n, m] Kc_k (rows k < l_s unused).
-        error_covariance: [K+1, n, n] Sigma_k = Cov(dx_k | I_k) on the linearised model (row K:
-            the terminal state given I_{K-1}); exact for a linear plant with additive noise.
+        error_covariance: [K+1, n, n] Cov(dx_k - x_hat_k) of the linearised closed loop (row K:
+            the terminal state against its prediction from I_{K-1}), signal-dependent motor noise
+            included (``lqg.output_feedback``); with additive noise it is the Kalman filter's
+            Sigma_k = Cov(dx_k | I_k).
         sensory_delay: l_s, the delay the filter was designed for (static: a pytree's aux data).
             It may differ from the plant's (a design that ignores the sensory delay).
     """
