@@ -389,6 +389,17 @@ def test_acrobot_problem_data():
     np.testing.assert_allclose(F[:, 0], 0.1 * drift, rtol=1e-12, atol=1e-15)
 
 
+def test_delayed_acrobot_is_the_undelayed_one_driven_by_the_shifted_commands(rng):
+    # l = 2 (0.2 s): the command sent at step k acts at k + 2, and u = 0 acts before the first one arrives
+    from delayed_ilqr.ilqg.linearize import rollout
+    delayed, plain = models.acrobot(delay=0.2, limits=False), models.acrobot(limits=False)
+    us = rng.uniform(-3.0, 3.0, (plain.horizon, 1))
+    shifted = np.concatenate([np.zeros((2, 1)), us[:-2]])
+    np.testing.assert_allclose(np.asarray(rollout(delayed, jnp.asarray(us))),
+                               np.asarray(rollout(plain, jnp.asarray(shifted))), rtol=1e-13, atol=1e-13)
+    assert not np.allclose(np.asarray(rollout(delayed, jnp.asarray(us))), np.asarray(rollout(plain, jnp.asarray(us))))
+
+
 # --------------------------------------------------------------------------------------------
 # Derivatives
 # --------------------------------------------------------------------------------------------
