@@ -3,7 +3,7 @@
 Two links in a vertical plane, hinged at a fixed shoulder; only the elbow is driven. The plant,
 its parameters, time step, horizon and cost are those of trajax's test suite (google/trajax,
 ``tests/optimizers_test.py``: ``acrobot``, ``testAcrobotSolve``, ``testConstrainedAcrobotSolve``),
-which writes Gym's Acrobot-v1 ("book" dynamics of Sutton & Barto's Reinforcement Learning, after
+which writes Gym's Acrobot (the "book" dynamics of Sutton & Barto's Reinforcement Learning, after
 Spong 1995, "The swing up control problem for the Acrobot", IEEE Control Systems 15(1)). Here the
 same equations are written in Spong's manipulator form (Tedrake, Underactuated Robotics, chapter
 "Acrobots, Cart-Poles, and Quadrotors"), with I1, I2 the links' inertias about their centres of
@@ -41,8 +41,8 @@ The cost is a :class:`~delayed_ilqr.GeneralCost` (its running term tracks the ta
 :class:`~delayed_ilqr.QuadraticCost` cannot); its weights and target are ``cost.params``, data.
 Check of the transcription: the cost of u = 0 is 4959.476212, trajax's pinned value, and the
 unbounded optimum from rest is 44.513 (trajax asserts below 51). x0 = 0 with u = 0 is an
-equilibrium; the running cost's gradient starts the swing. With limits well below 5 N m the
-swing-up from rest has a poor local minimum (``docs/derivation.md`` §15: continuation on the limit).
+equilibrium; the running cost's gradient starts the swing. With elbow limits of 2.4 N m and less
+the swing-up from rest stops at a poor local minimum (``docs/derivation.md`` §15: several starts).
 """
 from __future__ import annotations
 
@@ -134,7 +134,7 @@ class AcrobotDynamics:
 
 
 def _solve_2x2(m, b):
-    """m^-1 b for a symmetric positive definite [2, 2] m (closed form: two multiplies, one divide)."""
+    """m^-1 b for a symmetric positive definite [2, 2] m, in closed form (Cramer's rule)."""
     det = m[0, 0] * m[1, 1] - m[0, 1] ** 2
     return jnp.stack([m[1, 1] * b[0] - m[0, 1] * b[1], m[0, 0] * b[1] - m[0, 1] * b[0]]) / det
 
