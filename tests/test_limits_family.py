@@ -10,16 +10,21 @@ converge in at most 3 times the unbounded problem's iterations plus 10, to a cos
 
 Box-DDP (a box QP per step) missed two arm seeds (about 100 iterations against bounds of 43 and
 46); the projected Newton step of ``ilqg.bounded`` takes at most as many iterations as the unbounded
-solve on every seed (docs/derivation.md §15). The swing-ups of the pendulum and the cart-pole from
-rest, with their default torque limits, must reach the cost of multi-start bounded L-BFGS-B.
+solve on every seed (docs/derivation.md §15). The swing-ups of the pendulum, the cart-pole and the
+acrobot from rest, with their default torque limits, must reach the cost of multi-start bounded
+L-BFGS-B. With a tight elbow limit the acrobot's swing-up from rest has a poor local minimum that
+L-BFGS-B from rest reaches too; the remedy, several starts (rest and the clipped solutions of looser
+problems) solved at once under ``vmap``, must reach the best multi-start L-BFGS-B cost.
 """
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.models import arm2, cart_pole, pendulum, point_mass
+from delayed_ilqr.models import acrobot, arm2, cart_pole, pendulum, point_mass
 
 from direct import direct_optimum   # tests/direct.py
 
@@ -59,11 +64,12 @@ def test_bounded_family_converges_fast_to_the_bounded_optimum(seed):
     assert int(sol.iterations) <= 3 * int(free.iterations) + 10, (int(sol.iterations), int(free.iterations))
 
 
-@pytest.mark.parametrize("factory", [pendulum, pytest.param(cart_pole, marks=pytest.mark.slow)])
+@pytest.mark.parametrize("factory", [pendulum, pytest.param(cart_pole, marks=pytest.mark.slow), acrobot])
 def test_swing_up_from_rest_reaches_the_multi_start_optimum(factory):
-    # the torque-limited swing-ups of models.pendulum (4 N m) and models.cart_pole (10 N) from
-    # u_init = 0: the cost of bounded L-BFGS-B from zero and from a random start in the box (five
-    # starts agree to 7 digits, docs/derivation.md §15; the cart-pole's take minutes)
+    # the torque-limited swing-ups of models.pendulum (4 N m), models.cart_pole (10 N) and
+    # models.acrobot (5 N m at the elbow) from u_init = 0: the cost of bounded L-BFGS-B from zero and
+    # from a random start in the box (five starts agree to 7 digits, docs/derivation.md §15; the
+    # cart-pole's take minutes)
     problem = factory()
     sol = di.solve(problem, options=di.Options(max_iterations=200))
     assert sol.converged, sol.message
@@ -72,3 +78,30 @@ def test_swing_up_from_rest_reaches_the_multi_start_optimum(factory):
     starts = [None, rng.uniform(-lim, lim, (problem.horizon, 1))]
     reference = min(direct_optimum(problem, u_init=u) for u in starts)
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference, (float(sol.cost), reference)
+
+
+def test_acrobot_tight_limit_poor_minimum_from_rest_and_the_several_starts_remedy():
+    # the acrobot at |u| <= 2.2 N m (docs/derivation.md §15): from rest, iLQG and bounded L-BFGS-B
+    # both stop at one local minimum (a partial swing, cost 379); L-BFGS-B from a random start in the
+    # box finds a swing-up five times cheaper, which iLQG reaches from the solution at the default
+    # 5 N m clipped to the tight limit (a continuation on the limit). The remedy solves from rest,
+    # from the clipped unbounded optimum and from the clipped 5 N m solution at once (vmap) and
+    # keeps the cheapest.
+    options = di.Options(max_iterations=200)
+    tight = acrobot(u_max=2.2)
+    lim = float(np.asarray(tight.u_max)[0])
+    rest = np.zeros((tight.horizon, 1))
+    free = di.solve(acrobot(limits=False), options=options)
+    loose = di.solve(acrobot(), options=options)
+    assert free.converged and loose.converged
+    starts = jnp.stack([jnp.asarray(rest), jnp.clip(free.u, -lim, lim), jnp.clip(loose.u, -lim, lim)])
+    sols = jax.vmap(lambda u: di.solve(tight, u, options))(starts)
+    costs = np.asarray(sols.cost)
+    assert np.all(np.asarray(sols.converged)), np.asarray(sols.status)
+    u = np.asarray(sols.u)
+    assert np.all((u >= -lim) & (u <= lim))
+    from_rest = direct_optimum(tight, u_init=rest)
+    best = direct_optimum(tight, u_init=np.random.default_rng(0).uniform(-lim, lim, (tight.horizon, 1)))
+    assert abs(costs[0] - from_rest) <= 1e-6 * from_rest, (costs[0], from_rest)   # the same local minimum
+    assert best < 0.25 * from_rest, (best, from_rest)
+    assert abs(costs.min() - best) <= 1e-6 * best, (costs, best)

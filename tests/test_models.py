@@ -1,7 +1,7 @@
 """Model zoo: each model against an independent NumPy transcription of its reference definition.
 
 References: ``docs/models.md`` §2 (P1-P4 and their noisy variants) and
-``docs/models.md`` §3 (arm) and §5 (Florian's cart-pole). The NumPy code below is
+``docs/models.md`` §3 (arm) and §5 (Florian's cart-pole, trajax's acrobot). The NumPy code below is
 written from those formulas, not from the library.
 """
 import importlib
@@ -87,6 +87,36 @@ def np_cart_pole_energy(x, mc=1.0, mp=0.1, l=1.0, g=9.80665):
     return kinetic - mp * g * l * math.cos(th)
 
 
+ACRO = dict(m1=1.0, m2=1.0, l1=1.0, lc1=0.5, lc2=0.5, I1=1.0, I2=1.0, g=9.8)
+
+
+def np_acrobot_trajax(x, a):
+    """trajax's ``tests/optimizers_test.py`` acrobot (Gym's "book" closed form), transcribed."""
+    m1, m2, l1, lc1, lc2, I1, I2, g = ACRO.values()
+    theta1, theta2, dtheta1, dtheta2 = x
+    d1 = m1 * lc1 ** 2 + m2 * (l1 ** 2 + lc2 ** 2 + 2 * l1 * lc2 * math.cos(theta2)) + I1 + I2
+    d2 = m2 * (lc2 ** 2 + l1 * lc2 * math.cos(theta2)) + I2
+    phi2 = m2 * lc2 * g * math.cos(theta1 + theta2 - math.pi / 2.0)
+    phi1 = (-m2 * l1 * lc2 * dtheta2 ** 2 * math.sin(theta2) - 2 * m2 * l1 * lc2 * dtheta2 * dtheta1 * math.sin(theta2)
+            + (m1 * lc1 + m2 * l1) * g * math.cos(theta1 - math.pi / 2) + phi2)
+    ddtheta2 = ((a + d2 / d1 * phi1 - m2 * l1 * lc2 * dtheta1 ** 2 * math.sin(theta2) - phi2)
+                / (m2 * lc2 ** 2 + I2 - d2 ** 2 / d1))
+    ddtheta1 = -(d2 * ddtheta2 + phi1) / d1
+    return np.array([dtheta1, dtheta2, ddtheta1, ddtheta2])
+
+
+def np_acrobot_energy(x):
+    """Kinetic energy of the two centres of mass and the links' rotation, and gravity; zero hanging at rest."""
+    m1, m2, l1, lc1, lc2, I1, I2, g = ACRO.values()
+    t1, t2, w1, w2 = x
+    v1 = lc1 * w1 * np.array([math.cos(t1), math.sin(t1)])          # centre 1 at lc1 (sin t1, -cos t1)
+    v2 = l1 * w1 * np.array([math.cos(t1), math.sin(t1)]) + lc2 * (w1 + w2) * np.array([math.cos(t1 + t2),
+                                                                                         math.sin(t1 + t2)])
+    kinetic = 0.5 * m1 * v1 @ v1 + 0.5 * m2 * v2 @ v2 + 0.5 * I1 * w1 ** 2 + 0.5 * I2 * (w1 + w2) ** 2
+    height1, height2 = -lc1 * math.cos(t1), -l1 * math.cos(t1) - lc2 * math.cos(t1 + t2)
+    return kinetic + g * (m1 * (height1 + lc1) + m2 * (height2 + l1 + lc2))
+
+
 def call(f, x, u, ud):
     return np.asarray(f(jnp.asarray(x), jnp.asarray(u), jnp.asarray(ud)))
 
@@ -154,6 +184,32 @@ def test_cart_pole_matches_florian_equations_after_change_of_angle(rng):
         np.testing.assert_array_equal(out, call(f, x, np.array([-3.0]), np.array([force])))
 
 
+def test_acrobot_matches_trajax_closed_form_and_only_the_delayed_elbow_torque_drives(rng):
+    f = models.acrobot().dynamics
+    for _ in range(5):
+        x = np.concatenate([rng.uniform(-np.pi, np.pi, 2), rng.normal(scale=3.0, size=2)])
+        torque = rng.normal(scale=5.0)
+        out = call(f, x, np.array([7.0]), np.array([torque]))
+        np.testing.assert_allclose(out, np_acrobot_trajax(x, torque), rtol=1e-12, atol=1e-12)
+        np.testing.assert_array_equal(out, call(f, x, np.array([-3.0]), np.array([torque])))
+        np.testing.assert_allclose(float(f.energy(jnp.asarray(x))), np_acrobot_energy(x), rtol=1e-13)
+    assert not np.allclose(out, call(f, x, np.zeros(1), np.array([torque + 1.0])))
+
+
+def test_acrobot_cost_of_rest_is_trajax_pinned_value():
+    # trajax's testAcrobotSolve: objective of U = 0 from x0 = 0 (Euler, dt = 0.1, T = 50) is 4959.476212
+    from delayed_ilqr.ilqg.linearize import rollout, trajectory_cost
+    problem = models.acrobot()
+    us = jnp.zeros((problem.horizon, 1))
+    assert abs(float(trajectory_cost(problem, rollout(problem, us), us)) - 4959.476212) < 1e-6
+    # the running cost is trajax's 0.5 * 0.1 |x - x*|^2 + 0.5 * 0.01 u^2 per step of 0.1 s
+    x, u = np.array([0.3, -0.2, 1.0, 0.5]), np.array([2.0])
+    err = x - np.array([np.pi, 0, 0, 0])
+    running = float(problem.cost.running(jnp.asarray(x), jnp.asarray(u))) * problem.dt
+    np.testing.assert_allclose(running, 0.05 * err @ err + 0.005 * u @ u, rtol=1e-14)
+    np.testing.assert_allclose(float(problem.cost.final(jnp.asarray(x))), 500.0 * err @ err, rtol=1e-14)
+
+
 def test_power_balance_of_pendulum_and_cart_pole(rng):
     """dE/dt along f equals the power of the acting input (minus damping): an exact identity."""
     pend = models.pendulum().dynamics
@@ -170,6 +226,13 @@ def test_power_balance_of_pendulum_and_cart_pole(rng):
         h = 1e-6
         dE = (np_cart_pole_energy(x + h * xdot) - np_cart_pole_energy(x - h * xdot)) / (2 * h)
         np.testing.assert_allclose(dE, ud[0] * x[2], rtol=1e-6, atol=1e-7)
+    acro = models.acrobot().dynamics
+    for _ in range(5):
+        x, ud = rng.normal(size=4), rng.normal(size=1)
+        xdot = call(acro, x, np.zeros(1), ud)
+        h = 1e-6
+        dE = (np_acrobot_energy(x + h * xdot) - np_acrobot_energy(x - h * xdot)) / (2 * h)
+        np.testing.assert_allclose(dE, ud[0] * x[3], rtol=1e-6, atol=1e-7)  # the elbow torque's power
 
 
 def _euler_energy_drift(f, energy, x0, dt, steps):
@@ -198,6 +261,28 @@ def test_cart_pole_conserves_energy_under_small_step_euler():
     e0, eT, xT = _euler_energy_drift(f, np_cart_pole_energy, [0.0, 1.0, 0.3, -0.5], 1e-5, 100_000)
     assert abs(xT[1] - 1.0) > 0.1
     assert abs(eT - e0) < 1e-3 * abs(e0 - np_cart_pole_energy(np.zeros(4))) + 1e-9
+
+
+def test_acrobot_conserves_energy_under_small_step_euler():
+    f = models.acrobot().dynamics
+    e0, eT, xT = _euler_energy_drift(f, np_acrobot_energy, [1.0, -0.5, 0.3, 0.8], 1e-5, 100_000)
+    assert abs(xT[0] - 1.0) > 0.1 and abs(xT[1] + 0.5) > 0.1
+    assert abs(eT - e0) < 1e-3 * e0
+
+
+def test_acrobot_hanging_and_upright_are_equilibria():
+    problem = models.acrobot()
+    f, z = problem.dynamics, np.zeros(1)
+    down, up = np.zeros(4), np.array([np.pi, 0.0, 0.0, 0.0])
+    np.testing.assert_allclose(call(f, down, z, z), np.zeros(4), atol=1e-15)
+    np.testing.assert_allclose(call(f, up, z, z), np.zeros(4), atol=1e-14)
+    np.testing.assert_allclose(np.asarray(problem.cost.params["x_target"]), up)
+    jac = lambda x: np.asarray(jax.jacfwd(f)(jnp.asarray(x), jnp.zeros(1), jnp.zeros(1)))  # noqa: E731
+    assert np.max(np.abs(np.linalg.eigvals(jac(down)).real)) <= 1e-12   # undamped: oscillates
+    assert np.max(np.linalg.eigvals(jac(up)).real) > 1.0
+    # the elbow torque acts on both joints through the mass matrix (underactuated: one input, two joints)
+    b = np.asarray(jax.jacfwd(f, argnums=2)(jnp.asarray(down), jnp.zeros(1), jnp.zeros(1)))[:, 0]
+    assert b[0] == 0 and b[1] == 0 and b[2] < 0 < b[3]
 
 
 @pytest.mark.parametrize("factory, n", [(models.pendulum, 2), (models.cart_pole, 4)])
@@ -287,11 +372,39 @@ def test_swing_up_problem_data(factory, n):
     np.testing.assert_allclose(F[:, 0], 0.1 * drift, rtol=1e-12, atol=1e-15)  # sigma_u ud df/dud, f affine in ud
 
 
+def test_acrobot_problem_data():
+    problem = models.acrobot()
+    sizes = (problem.n_states, problem.n_controls, problem.dt, problem.horizon, problem.delay_steps)
+    assert sizes == (4, 1, 0.1, 50, 0) and problem.name == "acrobot" and problem.n_noise == 0
+    np.testing.assert_array_equal(np.asarray(problem.x0), np.zeros(4))
+    np.testing.assert_array_equal(np.asarray(problem.u_min), [-5.0])
+    np.testing.assert_array_equal(np.asarray(problem.u_max), [5.0])
+    free = models.acrobot(limits=False, delay=0.3, dt=0.05)
+    assert not free.has_limits and (free.delay_steps, free.horizon) == (6, 100)
+    assert float(models.acrobot(u_max=2.0).u_max[0]) == 2.0
+    noisy = models.acrobot(noise=True)
+    x, ud = np.array([0.3, -1.0, 0.5, 2.0]), np.array([2.0])
+    F = call(noisy.noise, x, np.zeros(1), ud)
+    drift = call(noisy.dynamics, x, np.zeros(1), ud) - call(noisy.dynamics, x, np.zeros(1), np.zeros(1))
+    np.testing.assert_allclose(F[:, 0], 0.1 * drift, rtol=1e-12, atol=1e-15)
+
+
+def test_delayed_acrobot_is_the_undelayed_one_driven_by_the_shifted_commands(rng):
+    # l = 2 (0.2 s): the command sent at step k acts at k + 2, and u = 0 acts before the first one arrives
+    from delayed_ilqr.ilqg.linearize import rollout
+    delayed, plain = models.acrobot(delay=0.2, limits=False), models.acrobot(limits=False)
+    us = rng.uniform(-3.0, 3.0, (plain.horizon, 1))
+    shifted = np.concatenate([np.zeros((2, 1)), us[:-2]])
+    np.testing.assert_allclose(np.asarray(rollout(delayed, jnp.asarray(us))),
+                               np.asarray(rollout(plain, jnp.asarray(shifted))), rtol=1e-13, atol=1e-13)
+    assert not np.allclose(np.asarray(rollout(delayed, jnp.asarray(us))), np.asarray(rollout(plain, jnp.asarray(us))))
+
+
 # --------------------------------------------------------------------------------------------
 # Derivatives
 # --------------------------------------------------------------------------------------------
 ALL_PROBLEMS = [models.point_mass(noise=True), models.arm2(noise=True), models.pendulum(noise=True),
-                models.cart_pole(noise=True)]
+                models.cart_pole(noise=True), models.acrobot(noise=True)]
 
 
 def _central_differences(fn, args, which, h=1e-6):
@@ -347,7 +460,8 @@ def test_delay_to_steps_rejects_bad_delays():
         models.delay_to_steps(0.0, 0)
 
 
-@pytest.mark.parametrize("factory", [models.point_mass, models.arm2, models.pendulum, models.cart_pole])
+@pytest.mark.parametrize("factory", [models.point_mass, models.arm2, models.pendulum, models.cart_pole,
+                                     models.acrobot])
 def test_factories_validate_arguments_by_name(factory):
     with pytest.raises(ValueError, match=re.escape("delay must be a whole number of steps of dt=0.01 s; "
                                                    "got 0.025 s (2.5 steps)")):
@@ -384,7 +498,8 @@ def test_arm2_params_are_validated_and_presets_differ():
 # --------------------------------------------------------------------------------------------
 # Hashing by value: equal problems share one compilation
 # --------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("factory", [models.point_mass, models.arm2, models.pendulum, models.cart_pole])
+@pytest.mark.parametrize("factory", [models.point_mass, models.arm2, models.pendulum, models.cart_pole,
+                                     models.acrobot])
 def test_equal_arguments_give_equal_hashable_callables_and_no_recompilation(factory):
     a, b = factory(noise=True), factory(noise=True)
     assert a.dynamics == b.dynamics and hash(a.dynamics) == hash(b.dynamics)
@@ -409,7 +524,8 @@ def test_equal_arguments_give_equal_hashable_callables_and_no_recompilation(fact
 # Registry
 # --------------------------------------------------------------------------------------------
 def test_registry_lists_every_model_with_a_description():
-    assert set(models.REGISTRY) == {"point_mass", "arm2", "pendulum", "cart_pole", "arm2_muscle6"}
+    assert set(models.REGISTRY) == {"point_mass", "arm2", "pendulum", "cart_pole", "acrobot",
+                                    "arm2_muscle6"}
     for name, info in models.REGISTRY.items():
         assert isinstance(info.description, str) and info.description and "\n" not in info.description
         problem = info.factory(delay=0.0, noise=False)
@@ -451,6 +567,8 @@ def test_task_spaces_map_states_to_positions_and_targets():
     np.testing.assert_array_equal(default_u_init(muscle), models.rest_commands(muscle))
     assert default_u_init(arm) is None
     np.testing.assert_array_equal(task_target(models.cart_pole()), [math.pi])
+    np.testing.assert_array_equal(task_target(models.acrobot()), [math.pi, 0.0])
+    np.testing.assert_array_equal(task_target(models.acrobot(x_target=(3.0, 0.1, 0, 0))), [3.0, 0.1])
     # a plant without metadata: no task space, zero initial commands
     bare = mass.replace(metadata=None)
     assert task_target(bare) is None and task_position(bare, x) is None and default_u_init(bare) is None

@@ -17,6 +17,7 @@ arm2_muscle6   the same arm driven by six muscles through delayed excitations u 
                (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching)
 pendulum       torque-limited pendulum swing-up
 cart_pole      cart-pole swing-up (Florian's frictionless equations)
+acrobot        acrobot swing-up with a limited elbow torque (trajax's test problem, Spong's equations)
 =============  ==========================================================================
 """
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 from typing import Callable, NamedTuple
 
 from ._common import delay_to_steps
+from .acrobot import acrobot
 from .arm2 import (ARM2_PARAMS, ARM2_PARAMS_ARM_DYN, Arm2Params, arm2, coriolis, hand_jacobian, hand_position,
                    hand_velocity, joint_acceleration, mass_matrix, mass_matrix_inverse)
 from .arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
@@ -33,7 +35,7 @@ from .noise import diffusion_to_per_step, per_step_noise_to_diffusion
 from .pendulum import pendulum
 from .point_mass import point_mass
 
-__all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole",
+__all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole", "acrobot",
            "REGISTRY", "ModelInfo", "ModelMetadata", "TaskSpace", "delay_to_steps", "per_step_noise_to_diffusion",
            "diffusion_to_per_step",
            "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
@@ -59,4 +61,6 @@ REGISTRY = {
                                     "2 states, 1 control, tf=3 s"),
     "cart_pole": ModelInfo(cart_pole, "cart-pole swing-up with a delayed force limited to |u| <= 10 N "
                                       "(Florian's equations), 4 states, 1 control, tf=3 s"),
+    "acrobot": ModelInfo(acrobot, "acrobot swing-up with a delayed elbow torque limited to |u| <= 5 N m "
+                                  "(trajax's test problem), 4 states, 1 control, tf=5 s"),
 }
