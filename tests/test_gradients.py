@@ -102,10 +102,6 @@ def test_arm_delayed_matches_finite_differences():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 24): since the first-order certificate of the noisy solver, "
-                   "the re-solves at TIGHT stop with CONVERGED_COST at grad_norm ~3e-9, short of the fixed point "
-                   "by more than the finite differences need (their estimate moves from 14.6 to 24.1 with h); with "
-                   "tol_cost=1e-300 they reach grad_norm 1e-18 but end REGULARIZATION_LIMIT")
 def test_arm_noisy_delayed_matches_finite_differences():
     """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
     not symmetric, so reverse mode solves the transposed system (right-preconditioned)."""

@@ -309,3 +309,26 @@ def test_solve_validation():
         di.solve({})
     with pytest.raises(TypeError, match=r"options must be a delayed_ilqr.Options; got dict"):
         di.solve(problem, options={})
+
+
+@pytest.mark.parametrize("tol_cost", [1e-15, 1e-300])
+def test_a_tolerance_below_round_off_leaves_the_stop_to_the_gradient_test(tol_cost):
+    """P2-noisy at 50 ms: the merit cannot resolve the last steps (derivation §12). Asked for a
+    tol_cost below ROUNDOFF, the solve takes full Newton steps there and ends CONVERGED_GRADIENT
+    below tol_grad, instead of REGULARIZATION_LIMIT (1e-300) or CONVERGED_COST at a gradient
+    measure of 3e-9 (1e-15); its fixed point is the default solve's to that solve's accuracy."""
+    from delayed_ilqr.ilqg.solver import ROUNDOFF
+    problem = arm2(delay=0.05, noise=True)
+    options = di.Options(tol_cost=tol_cost, tol_grad=1e-13, max_iterations=60)
+    sol = di.solve(problem, options=options)
+    n = int(sol.iterations)
+    assert sol.status == di.Status.CONVERGED_GRADIENT, sol.message
+    assert float(sol.trace.grad_norm[n]) < 1e-13 and float(sol.trace.reg[n]) == 0.0
+    # the steps the merit could not resolve were full steps, and only they
+    promised = np.asarray(sol.trace.expected_reduction[1:n])
+    full = np.asarray(sol.trace.step_size[1:n]) == 1.0
+    merit = np.abs(np.asarray(sol.trace.merit[:n - 1]))
+    assert np.all(full[promised < ROUNDOFF * merit])
+    default = di.solve(problem)
+    assert default.converged
+    np.testing.assert_allclose(sol.u, default.u, rtol=0, atol=1e-6 * float(np.max(np.abs(sol.u))))

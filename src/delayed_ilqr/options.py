@@ -22,7 +22,9 @@ class Options:
             test stops early). Without noise that last step is not taken, so the returned policy
             is the one of the last backward pass, with no extra pass for the returned nominal; and
             when the backward pass's model predicts less than that for every alpha, the solve
-            stops before the line search.
+            stops before the line search. Below ``ilqg.solver.ROUNDOFF`` (about 2e-13) no
+            comparison of merits can resolve a step: once the Newton step promises less than that,
+            full Newton steps are taken without a line search and only tol_grad ends the solve.
         tol_grad: stop when mean_k max_i |I_k,i| / (|u_k,i| + 1) < tol_grad (and lambda < 1e-5).
         alphas: line-search step sizes, tried in parallel (default 10^linspace(0, -3, 11)).
         reg_init: initial lambda. 0 tries the exact Newton (LQG) step first, which makes a

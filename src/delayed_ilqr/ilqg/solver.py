@@ -104,6 +104,12 @@ def grad_norm(gains: SlotGains, us):
 # model: the gradient test and the cost tests count as convergence only there (Tassa's 1e-5).
 NEWTON_REG = 1e-5
 
+#: The relative change of the merit that round-off lets a line search resolve (about 1000 eps: the
+#: merit sums K running costs). When Options.tol_cost asks for less and the Newton step promises
+#: less than this, no cost comparison can certify or refute a step: the solver takes the full
+#: Newton step without a line search, and only the gradient test ends the solve (derivation §12).
+ROUNDOFF = 1e3 * float(np.finfo(np.float64).eps)
+
 #: With noise and limits, when the best merit has not improved for LATCH_STALL iterations, every
 #: command whose feedback has been switched on and off again (at least LATCH_TOGGLES switches
 #: between successive backward passes) in that time gets no feedback for the rest of the solve:
@@ -153,7 +159,7 @@ class _Search(NamedTuple):
 
 
 def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search,
-            certified) -> _Search:
+            certified, beyond_roundoff) -> _Search:
     """The line search, where ``may_search`` and the model predicts enough; else :func:`no_step`.
 
     Without noise, a model that promises less than tol_cost |cost| for every alpha ends the solve
@@ -167,7 +173,10 @@ def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_no
         & (problem.noise is None)
     flat = promise_small & certified
     search = may_search & ~flat
-    ls = jax.lax.cond(search, lambda: line_search(problem, bp.gains, bp.S, st.xs, st.us, merit_now, o.alphas, o.z_min,
+    # beyond round-off every candidate is the full Newton step, accepted if its rollout is finite
+    alphas = jnp.where(beyond_roundoff, 1.0, alphas)
+    z_min = jnp.where(beyond_roundoff, -jnp.inf, o.z_min)
+    ls = jax.lax.cond(search, lambda: line_search(problem, bp.gains, bp.S, st.xs, st.us, merit_now, alphas, z_min,
                                                       bp.predicted),
                       lambda: no_step(st.xs, st.us, st.cost, merit_now))
     return _Search(search, flat, promise_small, model_best, ls)
@@ -212,13 +221,15 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     # without noise the merit is the cost, already known; with noise S changes it every iteration
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, bp.S, st.xs)[1]
     certified = first_order(o, bp, st.reg, merit_now)
+    beyond_roundoff = pd & (st.reg < NEWTON_REG) & (o.tol_cost < ROUNDOFF) \
+        & (-(bp.predicted[0] + bp.predicted[1]) < ROUNDOFF * jnp.abs(merit_now))
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
-    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd, certified)
+    s = _search(problem, o, bp, st, merit_now, running & ~converged & pd, certified, beyond_roundoff)
     ls = s.outcome
     accept = s.searched & ls.accepted
     reg, dreg = regularization.update(st.reg, st.dreg, accept, converged | s.flat, o)
     small_step = accept & (ls.actual < o.tol_cost * jnp.abs(merit_now))
-    small = small_step & certified
+    small = small_step & certified & ~beyond_roundoff
     # a cost test met under a large lambda (a shortened gradient step, not a Newton step) is
     # confirmed or refuted by the next pass at lambda = 0
     confirm = (s.promise_small | small_step) & (st.reg >= NEWTON_REG)
