@@ -109,8 +109,6 @@ def test_arm_noisy_delayed_matches_finite_differences():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 24): with the bounded step of issue 21 (projected Newton over "
-                   "the box) the forward derivative differs from the re-solves by 1.9e-5 on u, above 1e-5")
 def test_arm_limits_delayed_matches_finite_differences():
     """Commands at a limit follow the limit; the free ones solve (16.1) with those held. The
     limits are 0.7 of the unlimited optimum's largest commands, so that about 30 commands bind;
