@@ -16,6 +16,16 @@ from delayed_ilqr.problem import Problem
 __all__ = ["direct_optimum"]
 
 
+def _cost(problem: Problem, flat):
+    us = flat.reshape(problem.horizon, problem.n_controls)
+    return trajectory_cost(problem, rollout(problem, us), us)
+
+
+# the problem is an argument, not a closure: calls on problems of one structure (the same sizes,
+# callables and delay) share one compilation
+_fun, _grad = jax.jit(_cost), jax.jit(jax.grad(_cost, argnums=1))
+
+
 def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10, u_init=None) -> float:
     """The cost (2) of the best command sequence L-BFGS-B finds, within ``problem``'s limits.
 
@@ -30,11 +40,7 @@ def direct_optimum(problem: Problem, max_restarts: int = 30, rtol: float = 1e-10
 
     K, nd = problem.horizon, problem.n_controls
 
-    def cost(flat):
-        us = flat.reshape(K, nd)
-        return trajectory_cost(problem, rollout(problem, us), us)
-
-    fun, grad = jax.jit(cost), jax.jit(jax.grad(cost))
+    fun, grad = (lambda v: _fun(problem, v)), (lambda v: _grad(problem, v))
     lower, upper = (np.tile(np.asarray(b), K) for b in (problem.u_min, problem.u_max))
     bounds = list(zip(np.where(np.isfinite(lower), lower, None), np.where(np.isfinite(upper), upper, None)))
     u = np.clip(np.zeros(K * nd) if u_init is None else np.asarray(u_init, float).ravel(), lower, upper)

@@ -9,6 +9,8 @@ commands that are not held at a limit, with the right sign at the ones that are.
 function is the merit of derivation §12 (S and F's states frozen at the returned nominal), by
 autodiff as well.
 """
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,31 +31,53 @@ PATHS = FALSE_STOPS + [di.Options(), di.Options(reg_init=1.0), di.Options(max_it
 _id = lambda o: f"{o.reg_init:g}-{o.alphas[0]:g}-{o.z_min:g}-{o.max_iterations}-{o.tol_cost:g}-{o.tol_grad:g}"
 
 
-def _first_order_gap(f, u, lo, hi):
-    """(Newton decrement g_F' H_FF^-1 g_F / 2 of f on the free commands, worst wrong-signed gradient at a limit)."""
-    shape = u.shape
-    F = lambda v: f(v.reshape(shape))
+def _cost(problem, u):
+    return trajectory_cost(problem, rollout(problem, u), u)
+
+
+def _frozen_merit(problem, S, x_bar, u):
+    """J(u) + sum c(x_bar, u)' S c(x_bar, u), S and x_bar of the returned nominal (derivation §12)."""
+    c = noise_columns(problem, x_bar, u)
+    return _cost(problem, u) + jnp.einsum("kpn,knm,kpm->", c, S[1:], c)
+
+
+# compiled once per problem structure for the whole file (eagerly, every call traced and compiled
+# the rollout's scan and its derivatives anew)
+_value = jax.jit(lambda f, *args: f(*args), static_argnums=0)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _gradient_and_hessian(f, *args):
+    """Gradient and Hessian of u -> f(*args[:-1], u) in the flattened commands u = args[-1]."""
+    *data, u = args
+    F = lambda v: f(*data, v.reshape(u.shape))
     v = jnp.ravel(u)
-    g, H = np.asarray(jax.grad(F)(v)), np.asarray(jax.hessian(F)(v))
+    return jax.grad(F)(v), jax.hessian(F)(v)
+
+
+def _own_merit(problem, x, u, S):
+    """The merit of the nominal (x, u) under its own S (line_search.merit)."""
+    return merit(problem, x, u, S, x)[1]
+
+
+@jax.jit
+def _value_hessians(problem, x, u):
+    """S [K+1, n, n] of the structured backward pass at the nominal (x, u), lambda = 0."""
+    return backward(problem, x, u, 0.0, "structured", 1e-5).S
+
+
+def _first_order_gap(f, args, u, lo, hi):
+    """(Newton decrement g_F' H_FF^-1 g_F / 2 of u -> f(*args, u) on the free commands, worst
+    wrong-signed gradient at a limit)."""
+    shape = u.shape
+    g, H = (np.asarray(a) for a in _gradient_and_hessian(f, *args, jnp.asarray(u)))
+    v = np.ravel(np.asarray(u))
     lo, hi = np.ravel(np.broadcast_to(lo, shape)), np.ravel(np.broadcast_to(hi, shape))
-    at_lo, at_hi = np.asarray(v) <= lo + 1e-9, np.asarray(v) >= hi - 1e-9
+    at_lo, at_hi = v <= lo + 1e-9, v >= hi - 1e-9
     free = ~(at_lo | at_hi)
     decrement = 0.5 * g[free] @ np.linalg.solve(H[np.ix_(free, free)], g[free])
     wrong_sign = max(np.max(-g[at_lo], initial=0.0), np.max(g[at_hi], initial=0.0))
     return float(decrement), float(wrong_sign)
-
-
-def _cost(problem):
-    return lambda u: trajectory_cost(problem, rollout(problem, u), u)
-
-
-def _frozen_merit(problem, sol):
-    """u -> J(u) + sum c(x_bar, u)' S c(x_bar, u), S and x_bar of the returned nominal (derivation §12)."""
-    S = backward(problem, sol.x, sol.u, 0.0, "structured", 1e-5).S
-    def f(u):
-        c = noise_columns(problem, sol.x, u)
-        return _cost(problem)(u) + jnp.einsum("kpn,knm,kpm->", c, S[1:], c)
-    return f
 
 
 @pytest.mark.parametrize("limited", [False, True])
@@ -69,7 +93,7 @@ def test_a_converged_status_satisfies_the_first_order_conditions(options, limite
     if not sol.converged:
         assert sol.status in (di.Status.MAX_ITERATIONS, di.Status.REGULARIZATION_LIMIT), sol.status
         return
-    decrement, wrong_sign = _first_order_gap(_cost(problem), sol.u, problem.u_min, problem.u_max)
+    decrement, wrong_sign = _first_order_gap(_cost, (problem,), sol.u, problem.u_min, problem.u_max)
     assert decrement < options.tol_cost * float(sol.cost), sol.status
     assert wrong_sign <= 1e-9
 
@@ -82,7 +106,7 @@ def test_the_false_stops_are_not_converged(options):
     problem = point_mass(delay=0.03)
     sol = di.solve(problem, options=options)
     if sol.converged:       # reg_init=1e20 is confirmed at lambda = 0 and then solves the problem
-        decrement, _ = _first_order_gap(_cost(problem), sol.u, -np.inf, np.inf)
+        decrement, _ = _first_order_gap(_cost, (problem,), sol.u, -np.inf, np.inf)
         assert decrement < options.tol_cost * float(sol.cost)
     else:
         assert float(sol.cost) <= float(sol.trace.cost[0])
@@ -103,11 +127,11 @@ def test_a_converged_noisy_solve_satisfies_the_first_order_conditions_of_its_mer
     if not sol.converged:
         assert sol.status in (di.Status.MAX_ITERATIONS, di.Status.REGULARIZATION_LIMIT), sol.status
         return
-    f = _frozen_merit(problem, sol)
-    decrement, wrong_sign = _first_order_gap(f, sol.u, problem.u_min, problem.u_max)
+    frozen = (problem, _value_hessians(problem, sol.x, sol.u), sol.x)
+    decrement, wrong_sign = _first_order_gap(_frozen_merit, frozen, sol.u, problem.u_min, problem.u_max)
     # the merit's Hessian here is the exact one (with the dynamics' second derivatives), the
     # solver's the LQG's: the decrements agree to first order, a factor 10 is the margin
-    assert decrement < 10 * options.tol_cost * abs(float(f(sol.u))), (sol.status, decrement)
+    assert decrement < 10 * options.tol_cost * abs(float(_value(_frozen_merit, *frozen, sol.u))), (sol.status, decrement)
     assert wrong_sign <= 1e-9
 
 
@@ -117,21 +141,20 @@ def test_a_noisy_solve_that_stops_early_returns_its_best_iterate():
     problem = arm2(delay=0.03, noise=True).replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
 
     def own_merit(x, u):
-        bp = backward(problem, x, u, 0.0, "structured", 1e-5)
-        return float(merit(problem, x, u, bp.S, x)[1]), bp
+        return float(_value(_own_merit, problem, x, u, _value_hessians(problem, x, u)))
 
     u0 = np.zeros((problem.horizon, 2))
-    best = own_merit(rollout(problem, u0), u0)[0]
+    best = own_merit(_value(rollout, problem, u0), u0)
     for n in range(1, 5):
         sol = di.solve(problem, options=di.Options(max_iterations=n, reg_init=1.0))
         assert sol.status == di.Status.MAX_ITERATIONS
-        m, bp = own_merit(sol.x, sol.u)
+        m = own_merit(sol.x, sol.u)
         assert m <= best * (1 + 1e-12), (n, m, best)
         best = m
         # the policy is the one of the returned nominal
         np.testing.assert_array_equal(sol.policy.u_nominal, sol.u)
         np.testing.assert_array_equal(sol.policy.x_nominal, sol.x)
-        np.testing.assert_allclose(sol.x, rollout(problem, sol.u), rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(sol.x, _value(rollout, problem, sol.u), rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6)])

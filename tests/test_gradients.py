@@ -125,7 +125,8 @@ def test_cost_gradient_in_x0_is_the_value_gradient(delay=0.0):
     """dJ*/dx0 = 2 s_0 (eq. 7's value function in the factor-2 convention): the envelope theorem,
     s_0 from the structured backward pass at the solution."""
     problem = arm2(delay=delay)
-    grad = jax.grad(lambda dx0: solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT).cost)(jnp.zeros(4))
+    grad = jax.jit(jax.grad(lambda dx0: solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT).cost))(
+        jnp.zeros(4))
     sol = solve(problem, None, TIGHT)
     _, _, s, _ = implicit.value_at(problem, sol.x, sol.u, TIGHT.limit_margin)
     err = rel_err(grad, 2 * s[0])
@@ -145,8 +146,8 @@ def test_unconverged_solve_gives_nan_derivatives():
     derivatives are NaN, and its status says why."""
     problem = arm2(delay=0.05)
     opts = Options(max_iterations=2)
-    value, grad = jax.value_and_grad(lambda x0: solve(along(problem, _only_x0(problem, x0), 1.0), None, opts).cost)(
-        jnp.zeros(4))
+    value, grad = jax.jit(jax.value_and_grad(
+        lambda x0: solve(along(problem, _only_x0(problem, x0), 1.0), None, opts).cost))(jnp.zeros(4))
     assert np.isfinite(value)
     assert np.all(np.isnan(grad))
     assert solve(problem, None, opts).status == Status.MAX_ITERATIONS
