@@ -36,6 +36,16 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 import pytest  # noqa: E402
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _compilation_cache(tmp_path_factory):
+    """JAX's persistent compilation cache, in a temporary folder of this test process: the
+    executables released after each file (below) are read back from disk when a later file
+    compiles the same program (the common problems recur in many files), instead of compiled
+    again. test_sweep.py moves it to its own folder for its module and restores it."""
+    delayed_ilqr.enable_compilation_cache(tmp_path_factory.mktemp("jax-cache"))
+    yield
+
+
 @pytest.fixture(autouse=True, scope="module")
 def _release_compiled_executables():
     """Each test file compiles hundreds of solvers, and XLA's CPU executables stay loaded in the
