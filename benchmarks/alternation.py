@@ -10,7 +10,6 @@ both), the paired difference, and the design times (median wall time after compi
 Run: .venv/bin/python benchmarks/alternation.py [--trials N]
 """
 import argparse
-import time
 
 import jax
 import numpy as np
@@ -20,6 +19,7 @@ from delayed_ilqr.experiments import tables
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS
 from delayed_ilqr.ilqg.estimation import with_estimator
 from delayed_ilqr.models import arm2, arm2_muscle6, rest_commands
+from sensory_delay_study import timed      # the median wall time after compilation, as there
 
 SEPARATION = di.Options(max_iterations=DEFAULT_OPTIONS.max_iterations, max_alternations=0)
 
@@ -31,16 +31,6 @@ PLANTS = [  # (name, factory, motor delay [s], sensory delay [s])
     ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.05, 0.1),
     ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.1, 0.05),
 ]
-
-
-def timed(call, repeats=5):
-    jax.block_until_ready(call())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(call())
-        times.append(time.perf_counter() - start)
-    return sorted(times)[len(times) // 2]
 
 
 def mean_se(values):

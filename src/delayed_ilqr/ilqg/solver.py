@@ -128,8 +128,12 @@ def first_order(o: Options, bp: BackwardPass, reg, merit_now):
     and that promise below tol_cost |merit|. A large lambda or tiny step sizes make every promise
     small, so neither can end a solve as converged.
     """
-    newton = -(bp.predicted[0] + bp.predicted[1])
-    return bp.positive_definite & (reg < NEWTON_REG) & (newton < o.tol_cost * jnp.abs(merit_now))
+    return bp.positive_definite & (reg < NEWTON_REG) & (newton_promise(bp) < o.tol_cost * jnp.abs(merit_now))
+
+
+def newton_promise(bp: BackwardPass):
+    """-(a + b): the merit reduction the LQG model promises for the full step (alpha = 1)."""
+    return -(bp.predicted[0] + bp.predicted[1])
 
 
 def _feedback_mask(gains: SlotGains):
@@ -222,7 +226,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     merit_now = st.cost if problem.noise is None else merit(problem, st.xs, st.us, bp.S, st.xs)[1]
     certified = first_order(o, bp, st.reg, merit_now)
     beyond_roundoff = pd & (st.reg < NEWTON_REG) & (o.tol_cost < ROUNDOFF) \
-        & (-(bp.predicted[0] + bp.predicted[1]) < ROUNDOFF * jnp.abs(merit_now))
+        & (newton_promise(bp) < ROUNDOFF * jnp.abs(merit_now))
     # no line search with the NaN gains of a failed factorisation: lambda is raised instead
     s = _search(problem, o, bp, st, merit_now, running & ~converged & pd, certified, beyond_roundoff)
     ls = s.outcome
