@@ -52,9 +52,15 @@ def np_T(a, l, v):
     return np_A(a, l) * (np_FL(l) * np_FV(l, v) + np_FP(l))
 
 
-def np_adot(u, a, t_act=0.05, t_deact=0.066):
-    t = t_deact + u * (t_act - t_deact) if u > a else t_deact
-    return (u - a) / t
+def np_time_constant(u, a, t_act=0.05, t_deact=0.066, width=muscle.SWITCH_WIDTH):
+    """Li & Todorov's t(u, a), the switch at u = a smoothed by a logistic over ``width`` (0: the
+    published step, t_deact + u (t_act - t_deact) if u > a else t_deact)."""
+    switch = float(u > a) if width == 0 else 1.0 / (1.0 + math.exp(-(u - a) / width))
+    return t_deact + switch * u * (t_act - t_deact)
+
+
+def np_adot(u, a, t_act=0.05, t_deact=0.066, width=muscle.SWITCH_WIDTH):
+    return (u - a) / np_time_constant(u, a, t_act, t_deact, width)
 
 
 # variant B table of models.md §4.4: rows (a_s, b_s, c_s, a_e, b_e, c_e); "-" (b = 0) -> c unused
@@ -128,6 +134,19 @@ def test_curves_match_the_published_formulas(l):
 def test_activation_rate_is_asymmetric():
     for u, a in [(1.0, 0.0), (0.5, 0.1), (0.3, 0.2), (0.0, 0.5), (0.2, 0.6), (0.4, 0.4)]:
         assert float(muscle.activation_rate(u, a)) == pytest.approx(np_adot(u, a), rel=1e-12, abs=1e-14)
+
+
+@pytest.mark.parametrize("a", [0.0, 0.1, 0.5, 0.9])
+def test_smoothed_switch_stays_close_to_the_published_one(a):
+    """The smoothing (muscle.SWITCH_WIDTH) changes t by less than 0.25 % where |u - a| >= 0.05 and by
+    less than 1e-12 where |u - a| > 0.3 (the published step written out, width 0)."""
+    for u in np.linspace(0.0, 1.0, 201):
+        published = np_time_constant(u, a, width=0)
+        smoothed = float(muscle.activation_time_constant(u, a))
+        if abs(u - a) >= 0.05:
+            assert abs(smoothed - published) < 2.5e-3 * published, (u, a)
+        if abs(u - a) > 0.3:
+            assert smoothed == pytest.approx(published, rel=1e-12), (u, a)
     # custom time constants are used
     assert float(muscle.activation_rate(1.0, 0.0, t_act=0.04, t_deact=0.08)) == pytest.approx(25.0)
 
@@ -262,14 +281,12 @@ def test_jacobians_match_central_differences(geometry):
 def test_noise_is_signal_dependent_on_the_activations():
     p = am6.arm2_muscle6(noise=True, sigma_u=0.1)
     x = jnp.asarray(np.r_[0.8, 1.6, 0.1, -0.2, np.full(6, 0.1)])
-    # no ud within 0.03 of a = 0.1: there the switch is smoothed (muscle.SWITCH_WIDTH), and the
-    # published formula holds to 1e-12 only outside
     ud = jnp.array([0.0, 0.2, 0.4, 0.05, 1.0, 0.14])
     F = np.asarray(p.noise(x, jnp.zeros(6), ud))
     assert F.shape == (10, 6) and p.n_noise == 6
     expected = np.zeros((10, 6))
     for i in range(6):
-        expected[4 + i, i] = 0.1 * float(ud[i]) / (0.066 + float(ud[i]) * (0.05 - 0.066) if ud[i] > 0.1 else 0.066)
+        expected[4 + i, i] = 0.1 * float(ud[i]) / np_time_constant(float(ud[i]), 0.1)
     np.testing.assert_allclose(F, expected, rtol=1e-12, atol=1e-15)
 
 
