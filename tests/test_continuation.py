@@ -1,0 +1,117 @@
+"""Issue 21, the good minimum: the augmented-Lagrangian continuation on the limits as a start
+(``ilqg.continuation``), and several starts under one ``vmap``.
+
+The reference 50.282205 of the acrobot at 3 N m is independent of this code: google/trajax's
+augmented-Lagrangian iLQR (``optimizers.constrained_ilqr``, commit c94a637c, test settings and
+penalty rate 2) from rest on trajax's own acrobot, its commands clipped into the box and polished
+by the bounded ``solve`` (``benchmarks/swing_up.py --trajax PATH``, docs/derivation.md §15); iLQG,
+the several starts of looser limits and five bounded L-BFGS-B starts all stop at 50.836671
+there. 74.495176 at 2.2 N m is bounded L-BFGS-B's best of five starts (same table).
+"""
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import delayed_ilqr as di
+from delayed_ilqr.ilqg.continuation import lifted_problem
+from delayed_ilqr.ilqg.linearize import rollout, trajectory_cost
+from delayed_ilqr.ilqg.solver import compiled_solver
+from delayed_ilqr.models import acrobot, point_mass
+
+from direct import direct_optimum   # tests/direct.py
+
+OPTIONS = di.Options(max_iterations=300)
+
+
+@pytest.mark.parametrize("u_max, reference", [(3.0, 50.282205), (2.2, 74.495176)])
+def test_acrobot_from_rest_reaches_the_good_minimum(u_max, reference):
+    problem = acrobot(u_max=u_max)
+    starts = di.solve_from_starts(problem, OPTIONS, looser=())
+    assert starts.names == ("u_init", "augmented Lagrangian")
+    sol = starts.solution
+    assert abs(float(sol.cost) - reference) <= 1e-6 * reference, (float(sol.cost), reference)
+    assert int(starts.best) == 1 and float(starts.solutions.cost[0]) > 1.01 * reference   # rest: the poor minimum
+    assert sol.converged, sol.message
+    u = np.asarray(sol.u)
+    assert np.all((u >= -u_max) & (u <= u_max))
+
+
+def test_delayed_bounded_start_reaches_the_bounded_optimum():
+    # the point mass with a 2-step delay and tight limits: the lifted problem has the delay, the
+    # penalty acts on u_k; the polished start ends at bounded L-BFGS-B's optimum, as the solve from rest
+    problem = point_mass(delay=0.02).replace(u_min=-0.5, u_max=0.5)
+    assert problem.delay_steps == 2
+    start = di.augmented_lagrangian_start(problem, options=OPTIONS)
+    assert np.all(np.abs(np.asarray(start)) <= 0.5)
+    polished, rest = di.solve(problem, start, OPTIONS), di.solve(problem, options=OPTIONS)
+    reference = direct_optimum(problem)
+    assert polished.converged and rest.converged
+    for sol in (polished, rest):
+        assert abs(float(sol.cost) - reference) <= 1e-8 * reference, (float(sol.cost), reference)
+    # the start is already near the optimum: the penalty ended at 1e5
+    assert float(trajectory_cost(problem, rollout(problem, start), start)) <= (1 + 1e-3) * reference
+
+
+def _phi(us, upper, lower, rho, lo, hi):
+    """sum_k phi(u_k) of the module docstring, in NumPy."""
+    total = 0.0
+    for nu, g in ((upper, us - hi), (lower, lo - us)):
+        total += np.sum(np.maximum(nu + rho * g, 0.0) ** 2 - nu ** 2) / (2 * rho)
+    return total
+
+
+@pytest.mark.parametrize("case", ["quadratic, delay", "general", "general, time-dependent, one-sided"])
+def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
+    rng = np.random.default_rng(3)
+    if case == "quadratic, delay":
+        problem = point_mass(delay=0.02).replace(u_min=-0.5, u_max=0.5)
+    elif case == "general":
+        problem = acrobot(u_max=3.0)
+    else:
+        cost = di.GeneralCost(lambda x, u, p, t: (1 + t) * (x @ x + p["q"] * u @ u), lambda x, p, t: t * x @ x,
+                              {"q": 0.3}, time_dependent=True)
+        problem = acrobot(u_max=3.0).replace(cost=cost, u_min=(-np.inf,), u_max=(2.0,))
+    K, d = problem.horizon, problem.n_controls
+    us = rng.normal(size=(K, d))
+    upper, lower, rho = rng.uniform(0, 1, (K, d)), rng.uniform(0, 1, (K, d)), 2.5
+    lifted = lifted_problem(problem, upper, lower, rho)
+    assert not lifted.has_limits and lifted.delay_steps == problem.delay_steps
+    xs = rollout(problem, jnp.asarray(us))
+    want = float(trajectory_cost(problem, xs, us)) + _phi(us, upper, lower, rho, np.asarray(problem.u_min),
+                                                          np.asarray(problem.u_max))
+    got = float(trajectory_cost(lifted, rollout(lifted, jnp.asarray(us)), us))
+    assert abs(got - want) <= 1e-12 * abs(want), (got, want)
+
+
+def test_outer_iterations_share_one_compilation():
+    # the multipliers and the penalty are data: the outer iterations, and a second continuation
+    # with another penalty and other limits, run one compiled solver of the lifted problem
+    problem = point_mass(delay=0.01).replace(u_min=-0.4, u_max=0.4)
+    K, d = problem.horizon, problem.n_controls
+    solver = compiled_solver(lifted_problem(problem, np.zeros((K, d)), np.zeros((K, d)), 1.0))
+    before = solver._cache_size()
+    di.augmented_lagrangian_start(problem, options=OPTIONS, outer_iterations=4)
+    after = solver._cache_size()
+    assert after - before <= 1
+    di.augmented_lagrangian_start(problem.replace(u_min=-0.3, u_max=0.35), options=OPTIONS, penalty=0.1,
+                                  penalty_growth=3.0, outer_iterations=3)
+    assert solver._cache_size() == after
+
+
+def test_looser_starts_and_bad_input():
+    problem = point_mass().replace(u_min=-0.5, u_max=(0.5, np.inf))
+    starts = di.solve_from_starts(problem, OPTIONS, looser=(math.inf, 2.0), augmented_lagrangian=False)
+    assert starts.names == ("u_init", "unbounded", "looser x2")
+    assert np.all(np.asarray(starts.solutions.converged))
+    np.testing.assert_allclose(np.asarray(starts.solutions.cost), float(starts.solution.cost), rtol=1e-9)
+    with pytest.raises(ValueError, match="needs a problem with limits"):
+        di.augmented_lagrangian_start(point_mass())
+    with pytest.raises(ValueError, match="penalty must be a positive finite number; got 0"):
+        di.augmented_lagrangian_start(problem, penalty=0)
+    with pytest.raises(ValueError, match="penalty_growth must be a finite number >= 1; got 0.5"):
+        di.augmented_lagrangian_start(problem, penalty_growth=0.5)
+    with pytest.raises(ValueError, match="looser must hold factors > 1"):
+        di.solve_from_starts(problem, looser=(0.5,))
