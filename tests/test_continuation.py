@@ -16,24 +16,29 @@ import numpy as np
 import pytest
 
 import delayed_ilqr as di
-from delayed_ilqr.ilqg.continuation import lifted_problem
+from delayed_ilqr.ilqg.continuation import _looser_limits, lifted_problem
 from delayed_ilqr.ilqg.linearize import rollout, trajectory_cost
 from delayed_ilqr.ilqg.solver import compiled_solver
 from delayed_ilqr.models import acrobot, point_mass
 
 from direct import direct_optimum   # tests/direct.py
 
-OPTIONS = di.Options(max_iterations=300)
+OPTIONS = di.Options(max_iterations=100)
+DELAYED = point_mass(delay=0.02)     # every point-mass case: 2 steps of delay, one compiled structure
 
 
 @pytest.mark.parametrize("u_max, reference", [(3.0, 50.282205), (2.2, 74.495176)])
 def test_acrobot_from_rest_reaches_the_good_minimum(u_max, reference):
     problem = acrobot(u_max=u_max)
-    starts = di.solve_from_starts(problem, OPTIONS, looser=())
-    assert starts.names == ("u_init", "augmented Lagrangian")
+    starts = di.solve_from_starts(problem, OPTIONS, looser=(math.inf, 5.0 / u_max))
+    assert starts.names == ("u_init", "unbounded", f"looser x{5.0 / u_max:g}", "augmented Lagrangian")
+    costs = np.asarray(starts.solutions.cost)
     sol = starts.solution
     assert abs(float(sol.cost) - reference) <= 1e-6 * reference, (float(sol.cost), reference)
-    assert int(starts.best) == 1 and float(starts.solutions.cost[0]) > 1.01 * reference   # rest: the poor minimum
+    assert abs(costs[3] - reference) <= 1e-6 * reference, costs      # the augmented-Lagrangian start alone
+    assert costs[0] > 1.005 * reference, costs                        # rest: the poor minimum
+    if u_max == 3.0:      # only the augmented-Lagrangian start: the others end at 50.836671 or above
+        assert int(starts.best) == 3 and np.all(costs[:3] > 1.005 * reference), costs
     assert sol.converged, sol.message
     u = np.asarray(sol.u)
     assert np.all((u >= -u_max) & (u <= u_max))
@@ -42,10 +47,13 @@ def test_acrobot_from_rest_reaches_the_good_minimum(u_max, reference):
 def test_delayed_bounded_start_reaches_the_bounded_optimum():
     # the point mass with a 2-step delay and tight limits: the lifted problem has the delay, the
     # penalty acts on u_k; the polished start ends at bounded L-BFGS-B's optimum, as the solve from rest
-    problem = point_mass(delay=0.02).replace(u_min=-0.5, u_max=0.5)
+    problem = DELAYED.replace(u_min=-0.5, u_max=0.5)
     assert problem.delay_steps == 2
-    start = di.augmented_lagrangian_start(problem, options=OPTIONS)
+    continuation = di.augmented_lagrangian_start(problem, options=OPTIONS)
+    start = continuation.u
     assert np.all(np.abs(np.asarray(start)) <= 0.5)
+    assert continuation.iterations.shape == continuation.violation.shape == (6,)
+    assert float(continuation.violation[0]) > 1e-2 and float(continuation.violation[-1]) < 1e-6   # lifted, then held
     polished, rest = di.solve(problem, start, OPTIONS), di.solve(problem, options=OPTIONS)
     reference = direct_optimum(problem)
     assert polished.converged and rest.converged
@@ -67,7 +75,7 @@ def _phi(us, upper, lower, rho, lo, hi):
 def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
     rng = np.random.default_rng(3)
     if case == "quadratic, delay":
-        problem = point_mass(delay=0.02).replace(u_min=-0.5, u_max=0.5)
+        problem = DELAYED.replace(u_min=-0.5, u_max=0.5)
     elif case == "general":
         problem = acrobot(u_max=3.0)
     else:
@@ -88,30 +96,42 @@ def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
 
 def test_outer_iterations_share_one_compilation():
     # the multipliers and the penalty are data: the outer iterations, and a second continuation
-    # with another penalty and other limits, run one compiled solver of the lifted problem
-    problem = point_mass(delay=0.01).replace(u_min=-0.4, u_max=0.4)
+    # with another penalty and other limits, run one compiled solver of the lifted problem (the
+    # penalties are new to the process, so a penalty compiled in would add entries)
+    problem = DELAYED.replace(u_min=-0.4, u_max=0.4)
     K, d = problem.horizon, problem.n_controls
     solver = compiled_solver(lifted_problem(problem, np.zeros((K, d)), np.zeros((K, d)), 1.0))
     before = solver._cache_size()
-    di.augmented_lagrangian_start(problem, options=OPTIONS, outer_iterations=4)
+    di.augmented_lagrangian_start(problem, options=OPTIONS, penalty=0.37, penalty_growth=7.0, outer_iterations=4)
     after = solver._cache_size()
     assert after - before <= 1
-    di.augmented_lagrangian_start(problem.replace(u_min=-0.3, u_max=0.35), options=OPTIONS, penalty=0.1,
+    di.augmented_lagrangian_start(problem.replace(u_min=-0.3, u_max=0.35), options=OPTIONS, penalty=0.11,
                                   penalty_growth=3.0, outer_iterations=3)
     assert solver._cache_size() == after
 
 
-def test_looser_starts_and_bad_input():
-    problem = point_mass().replace(u_min=-0.5, u_max=(0.5, np.inf))
-    starts = di.solve_from_starts(problem, OPTIONS, looser=(math.inf, 2.0), augmented_lagrangian=False)
-    assert starts.names == ("u_init", "unbounded", "looser x2")
-    assert np.all(np.asarray(starts.solutions.converged))
-    np.testing.assert_allclose(np.asarray(starts.solutions.cost), float(starts.solution.cost), rtol=1e-9)
+def test_looser_limits():
+    # the box widened s times about its centre where it is two-sided; one-sided components keep
+    # their limits; math.inf lifts every limit
+    problem = DELAYED.replace(u_min=(-0.5, 0.0), u_max=(1.5, np.inf))
+    lo, hi = _looser_limits(problem, jnp.array([2.0, math.inf]))
+    np.testing.assert_array_equal(np.asarray(lo), [[-1.5, 0.0], [-np.inf, -np.inf]])
+    np.testing.assert_array_equal(np.asarray(hi), [[2.5, np.inf], [np.inf, np.inf]])
+
+
+def test_bad_input():
+    problem = DELAYED.replace(u_min=-0.5, u_max=0.5)
     with pytest.raises(ValueError, match="needs a problem with limits"):
-        di.augmented_lagrangian_start(point_mass())
+        di.augmented_lagrangian_start(DELAYED)
+    with pytest.raises(ValueError, match="needs a problem with limits"):
+        di.solve_from_starts(DELAYED)
     with pytest.raises(ValueError, match="penalty must be a positive finite number; got 0"):
         di.augmented_lagrangian_start(problem, penalty=0)
     with pytest.raises(ValueError, match="penalty_growth must be a finite number >= 1; got 0.5"):
         di.augmented_lagrangian_start(problem, penalty_growth=0.5)
-    with pytest.raises(ValueError, match="looser must hold factors > 1"):
+    with pytest.raises(ValueError, match="outer_iterations must be a positive integer; got 0"):
+        di.augmented_lagrangian_start(problem, outer_iterations=0)
+    with pytest.raises(ValueError, match=r"looser must hold factors > 1 \(or math.inf\); got \(0.5,\)"):
         di.solve_from_starts(problem, looser=(0.5,))
+    with pytest.raises(ValueError, match=r"u_init must have shape \(60, 2\); got shape \(3, 2\)"):
+        di.augmented_lagrangian_start(problem, np.zeros((3, 2)))

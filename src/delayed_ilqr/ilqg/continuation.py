@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -40,7 +41,7 @@ from ..problem import GeneralCost, Problem
 from ..solution import Solution
 from .solver import solve
 
-__all__ = ["augmented_lagrangian_start", "solve_from_starts", "Starts", "lifted_problem"]
+__all__ = ["augmented_lagrangian_start", "Continuation", "solve_from_starts", "Starts", "lifted_problem"]
 
 
 @dataclass(frozen=True)
@@ -93,9 +94,24 @@ def lifted_problem(problem: Problem, upper, lower, rho) -> Problem:
     return problem.replace(cost=cost, u_min=None, u_max=None)
 
 
+class Continuation(NamedTuple):
+    """What :func:`augmented_lagrangian_start` returns.
+
+    Attributes:
+        u: [K, d] the last outer iteration's commands clipped into the box: the start.
+        iterations: [outer_iterations] the inner solves' iterations.
+        violation: [outer_iterations] how far each outer iteration's commands leave the box (the
+            largest excess over a limit; 0 inside it).
+    """
+
+    u: jax.Array
+    iterations: jax.Array
+    violation: jax.Array
+
+
 def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options | None = None, *,
                                penalty: float = 1.0, penalty_growth: float = 10.0,
-                               outer_iterations: int = 6):
+                               outer_iterations: int = 6) -> Continuation:
     """A start for the bounded solve of ``problem``: an augmented-Lagrangian continuation on its limits.
 
     Each outer iteration solves :func:`lifted_problem` (the box replaced by the term phi of the
@@ -116,10 +132,12 @@ def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options |
         outer_iterations: the number of outer iterations (>= 1).
 
     Returns:
-        [K, d] the last outer iteration's commands clipped into the box: the start to polish with
-        ``solve(problem, u, options)`` (or one of :func:`solve_from_starts`' starts). It works under
-        ``jit`` and ``vmap`` (no early stop: a converged outer iteration costs one or two inner
-        iterations).
+        :class:`Continuation`: ``u`` [K, d], the last outer iteration's commands clipped into the
+        box, is the start to polish with ``solve(problem, u, options)`` (or one of
+        :func:`solve_from_starts`' starts); with each outer iteration's inner iterations and box
+        violation. The number of outer iterations is fixed (no early stop, so that it runs under
+        ``vmap`` over problems as it does alone); once the box holds, an outer iteration costs one
+        or two inner iterations.
     """
     _check_bounded(problem, "augmented_lagrangian_start")
     rho = _validate.positive_float(penalty, "penalty")
@@ -130,12 +148,16 @@ def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options |
     shape = (problem.horizon, problem.n_controls)
     us = jnp.zeros(shape) if u_init is None else _validate.array(u_init, "u_init", shape)
     upper = lower = jnp.zeros(shape)
+    iterations, violation = [], []
     for _ in range(outer):
-        us = solve(lifted_problem(problem, upper, lower, rho), us, options).u
+        sol = solve(lifted_problem(problem, upper, lower, rho), us, options)
+        us = sol.u
+        iterations.append(sol.iterations)
+        violation.append(jnp.maximum(jnp.max(us - problem.u_max), jnp.max(problem.u_min - us)).clip(0.0))
         upper = jnp.maximum(0.0, upper + rho * jnp.where(jnp.isfinite(problem.u_max), us - problem.u_max, 0.0))
         lower = jnp.maximum(0.0, lower + rho * jnp.where(jnp.isfinite(problem.u_min), problem.u_min - us, 0.0))
         rho = rho * growth
-    return jnp.clip(us, problem.u_min, problem.u_max)
+    return Continuation(jnp.clip(us, problem.u_min, problem.u_max), jnp.stack(iterations), jnp.stack(violation))
 
 
 class Starts(NamedTuple):
@@ -186,18 +208,33 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
         s = _validate.real(s, "looser", "factors > 1 or math.inf")
         if not s > 1:
             raise ValueError(f"looser must hold factors > 1 (or math.inf); got {looser!r}")
+    options = Options() if options is None else options
     names, starts = ["u_init"], [u0]
     if factors:
         lo, hi = _looser_limits(problem, jnp.asarray(factors, jnp.float64))
-        loose = jax.vmap(lambda a, b: solve(problem.replace(u_min=a, u_max=b), u0, options).u)(lo, hi)
+        loose = _solve_each_box(problem, lo, hi, u0, options).u
         names += ["unbounded" if math.isinf(s) else f"looser x{s:g}" for s in factors]
         starts += list(jnp.clip(loose, problem.u_min, problem.u_max))
     if augmented_lagrangian:
         names.append("augmented Lagrangian")
-        starts.append(augmented_lagrangian_start(problem, u0, options, **continuation))
-    sols = jax.vmap(lambda u: solve(problem, u, options))(jnp.stack(starts))
+        starts.append(augmented_lagrangian_start(problem, u0, options, **continuation).u)
+    sols = _solve_each_start(problem, jnp.stack(starts), options)
     best = jnp.argmin(jnp.where(jnp.isfinite(sols.cost), sols.cost, jnp.inf))
     return Starts(jax.tree_util.tree_map(lambda a: a[best], sols), sols, tuple(names), best)
+
+
+# jitted, so that the batches of a second call on a problem of the same structure reuse the
+# compilation (an eager vmap of solve compiles its batch again at every call)
+@partial(jax.jit, static_argnames=("options",))
+def _solve_each_start(problem: Problem, starts, options: Options) -> Solution:
+    """``solve(problem, u, options)`` for each u of ``starts`` [S, K, d], under ``vmap``."""
+    return jax.vmap(lambda u: solve(problem, u, options))(starts)
+
+
+@partial(jax.jit, static_argnames=("options",))
+def _solve_each_box(problem: Problem, lower, upper, u_init, options: Options) -> Solution:
+    """``solve`` of ``problem`` with limits ``lower[s]``, ``upper[s]`` ([S, d]) from ``u_init``, under ``vmap``."""
+    return jax.vmap(lambda a, b: solve(problem.replace(u_min=a, u_max=b), u_init, options))(lower, upper)
 
 
 def _looser_limits(problem: Problem, factors):
