@@ -38,8 +38,9 @@ def test_acrobot_from_rest_reaches_the_good_minimum(u_max, reference):
     assert abs(costs[3] - reference) <= 1e-6 * reference, costs      # the augmented-Lagrangian start alone
     assert costs[0] > 1.005 * reference, costs                        # rest: the poor minimum
     if u_max == 3.0:      # only the augmented-Lagrangian start: the others end at 50.836671 or above
-        assert int(starts.best) == 3 and np.all(costs[:3] > 1.005 * reference), costs
+        assert starts.best == 3 and np.all(costs[:3] > 1.005 * reference), costs
     assert sol.converged, sol.message
+    assert isinstance(sol.status, di.Status) and sol.status == starts.solutions.status[starts.best]
     u = np.asarray(sol.u)
     assert np.all((u >= -u_max) & (u <= u_max))
 
@@ -125,6 +126,8 @@ def test_bad_input():
         di.augmented_lagrangian_start(DELAYED)
     with pytest.raises(ValueError, match="needs a problem with limits"):
         di.solve_from_starts(DELAYED)
+    with pytest.raises(TypeError, match="options must be a delayed_ilqr.Options; got dict"):
+        di.solve_from_starts(problem, {})
     with pytest.raises(ValueError, match="penalty must be a positive finite number; got 0"):
         di.augmented_lagrangian_start(problem, penalty=0)
     with pytest.raises(ValueError, match="penalty_growth must be a finite number >= 1; got 0.5"):

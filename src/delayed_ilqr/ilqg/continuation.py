@@ -38,7 +38,7 @@ import numpy as np
 from .. import _validate
 from ..options import Options
 from ..problem import GeneralCost, Problem
-from ..solution import Solution
+from ..solution import Solution, Status
 from .solver import solve
 
 __all__ = ["augmented_lagrangian_start", "Continuation", "solve_from_starts", "Starts", "lifted_problem"]
@@ -167,7 +167,7 @@ class Starts(NamedTuple):
         solution: the cheapest :class:`~delayed_ilqr.Solution` (the batch's member ``best``).
         solutions: every start's solution, a batched :class:`~delayed_ilqr.Solution` (leading axis S).
         names: S names of the starts ("u_init", "looser x2", "unbounded", "augmented Lagrangian").
-        best: the index of the cheapest finite cost.
+        best: the index of the cheapest finite cost (an int outside ``jit`` and ``vmap``).
     """
 
     solution: Solution
@@ -209,6 +209,8 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
         if not s > 1:
             raise ValueError(f"looser must hold factors > 1 (or math.inf); got {looser!r}")
     options = Options() if options is None else options
+    if not isinstance(options, Options):
+        raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
     names, starts = ["u_init"], [u0]
     if factors:
         lo, hi = _looser_limits(problem, jnp.asarray(factors, jnp.float64))
@@ -220,7 +222,11 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
         starts.append(augmented_lagrangian_start(problem, u0, options, **continuation).u)
     sols = _solve_each_start(problem, jnp.stack(starts), options)
     best = jnp.argmin(jnp.where(jnp.isfinite(sols.cost), sols.cost, jnp.inf))
-    return Starts(jax.tree_util.tree_map(lambda a: a[best], sols), sols, tuple(names), best)
+    solution = jax.tree_util.tree_map(lambda a: a[best], sols)
+    if not isinstance(best, jax.core.Tracer):      # as solve returns it outside transformations
+        best = int(best)
+        solution = solution._replace(status=Status(int(solution.status)))
+    return Starts(solution, sols, tuple(names), best)
 
 
 # jitted, so that the batches of a second call on a problem of the same structure reuse the
