@@ -64,6 +64,23 @@ def test_delayed_bounded_start_reaches_the_bounded_optimum():
     assert float(trajectory_cost(problem, rollout(problem, start), start)) <= (1 + 1e-3) * reference
 
 
+@pytest.mark.slow
+def test_delayed_acrobot_start_beats_rest_at_a_minimum():
+    # the acrobot at 2.2 N m with a 2-step (0.2 s) delay: the augmented-Lagrangian start ends below
+    # the solve from rest, at a point bounded L-BFGS-B started there does not improve (a minimum
+    # of the delayed bounded problem, not an artefact of the solver); rest's cost is L-BFGS-B's from zero
+    problem = acrobot(delay=0.2, u_max=2.2)
+    assert problem.delay_steps == 2
+    starts = di.solve_from_starts(problem, OPTIONS, looser=())
+    costs = np.asarray(starts.solutions.cost)
+    assert np.all(np.asarray(starts.solutions.converged)), starts.solutions.status
+    assert starts.best == 1 and costs[1] < 0.99 * costs[0], costs
+    there = direct_optimum(problem, u_init=starts.solution.u)
+    assert abs(costs[1] - there) <= 1e-6 * there, (costs[1], there)
+    from_zero = direct_optimum(problem)
+    assert abs(costs[0] - from_zero) <= 1e-6 * from_zero, (costs[0], from_zero)
+
+
 def _phi(us, upper, lower, rho, lo, hi):
     """sum_k phi(u_k) of the module docstring, in NumPy."""
     total = 0.0
