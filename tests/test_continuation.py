@@ -110,6 +110,11 @@ def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
                                                           np.asarray(problem.u_max))
     got = float(trajectory_cost(lifted, rollout(lifted, jnp.asarray(us)), us))
     assert abs(got - want) <= 1e-12 * abs(want), (got, want)
+    # and its gradient in the commands: the cost's plus dphi/du = max(0, nu + rho g) dg/du
+    lo, hi = np.asarray(problem.u_min), np.asarray(problem.u_max)
+    dphi = np.maximum(upper + rho * (us - hi), 0.0) - np.maximum(lower + rho * (lo - us), 0.0)
+    grads = [jax.grad(lambda v, p=p: trajectory_cost(p, rollout(p, v), v))(jnp.asarray(us)) for p in (problem, lifted)]
+    np.testing.assert_allclose(np.asarray(grads[1]), np.asarray(grads[0]) + dphi, rtol=1e-10, atol=1e-12)
 
 
 def test_outer_iterations_share_one_compilation():

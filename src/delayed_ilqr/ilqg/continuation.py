@@ -60,8 +60,9 @@ class _AugmentedRunning:
         rho = params["rho"]
         lo, hi = params["u_min"], params["u_max"]
         phi = 0.0
-        for nu, g, finite in ((params["upper"][k], u - hi, jnp.isfinite(hi)),
-                              (params["lower"][k], lo - u, jnp.isfinite(lo))):
+        for nu, limit, sign in ((params["upper"][k], hi, 1.0), (params["lower"][k], lo, -1.0)):
+            finite = jnp.isfinite(limit)      # an infinite limit enters no arithmetic, and adds a constant
+            g = sign * (u - jnp.where(finite, limit, 0.0))
             shifted = jnp.where(finite, nu + rho * g, 0.0)
             phi = phi + jnp.sum(jnp.maximum(shifted, 0.0) ** 2 - nu ** 2) / (2 * rho)
         return params["cost"].running(x, u, t) + phi / self.dt
