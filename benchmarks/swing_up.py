@@ -6,6 +6,10 @@ For each elbow limit, ``models.acrobot(u_max=...)`` (trajax's acrobot, dt = 0.1 
 - "several starts": the same solve from rest, from the clipped unbounded optimum and from the
   clipped solution at the default 5 N m, run at once under ``jax.vmap``; the cheapest, and which
   start gave it;
+- "augmented-Lagrangian start": ``augmented_lagrangian_start`` from rest (its defaults: penalty 1,
+  times 10 per outer iteration, 6 outer iterations), polished by the bounded ``solve``: the inner
+  iterations of the outer ones, the box violation after the first and the last, the polish's
+  iterations and status, the cost, and the wall time of both (compilation included at the first limit);
 - "L-BFGS-B": bounded L-BFGS-B (``tests/direct.py``) from zero and from ``STARTS - 1`` uniform
   random starts in the box (``numpy.random.default_rng(0)``): the cost from zero, the best, and
   how many of the starts reached the best (to 1e-6);
@@ -41,6 +45,7 @@ from __future__ import annotations
 import argparse
 import ast
 import sys
+import time
 from pathlib import Path
 
 import jax
@@ -139,15 +144,20 @@ def main(limits, trajax_path=None) -> None:
         trajax = Trajax(trajax_path, free.u.shape[0], acrobot().dt)
         check_same_problem(trajax, acrobot(limits=False), free)
     al_names = list(AL_SETTINGS) if trajax else []
-    print("| u_max | from rest (it, status, cost) | several starts (cost, start) | L-BFGS-B from zero | "
+    print("| u_max | from rest (it, status, cost) | several starts (cost, start) | augmented-Lagrangian start "
+          "(outer its, violation, polish it, status, cost, time) | L-BFGS-B from zero | "
           "L-BFGS-B best of 5 (starts at it) |" + "".join(f" AL-iLQR (trajax constrained_ilqr) from rest, {name} |"
                                                          for name in al_names))
-    print("|---|---|---|---|---|" + "---|" * len(al_names))
+    print("|---|---|---|---|---|---|" + "---|" * len(al_names))
     for lim in limits:
         problem = acrobot(u_max=lim)
         starts = jnp.stack([jnp.zeros((problem.horizon, 1)), jnp.clip(free.u, -lim, lim), jnp.clip(loose.u, -lim, lim)])
         sols = jax.vmap(lambda u: di.solve(problem, u, options))(starts)
         costs = np.asarray(sols.cost)
+        tic = time.perf_counter()
+        continuation = di.augmented_lagrangian_start(problem, options=options)
+        continued = di.solve(problem, continuation.u, options)
+        continued_time = time.perf_counter() - tic
         rng = np.random.default_rng(0)
         direct = [direct_optimum(problem, u_init=u) for u in
                   [None] + [rng.uniform(-lim, lim, (problem.horizon, 1)) for _ in range(STARTS - 1)]]
@@ -155,7 +165,11 @@ def main(limits, trajax_path=None) -> None:
         hits = sum(abs(c - best) <= 1e-6 * best for c in direct)
         al = "".join(f" {al_cell(trajax, problem, AL_SETTINGS[name], options)} |" for name in al_names)
         print(f"| {lim:g} N m | {int(sols.iterations[0])}, {di.Status(int(sols.status[0])).name}, {costs[0]:.8g} | "
-              f"{costs.min():.8g} ({START_NAMES[int(costs.argmin())]}) | {direct[0]:.8g} | {best:.8g} ({hits}/{STARTS}) |"
+              f"{costs.min():.8g} ({START_NAMES[int(costs.argmin())]}) | "
+              f"{'+'.join(str(int(i)) for i in continuation.iterations)}, {float(continuation.violation[0]):.1e} -> "
+              f"{float(continuation.violation[-1]):.1e}, {int(continued.iterations)}, "
+              f"{continued.status.name}, {float(continued.cost):.8g}, {continued_time:.1f} s | "
+              f"{direct[0]:.8g} | {best:.8g} ({hits}/{STARTS}) |"
               + al, flush=True)
 
 

@@ -41,12 +41,14 @@ from .problem import GeneralCost, Problem, QuadraticCost
 from .observation import Observation
 from .solution import Estimator, Policy, Solution, Status, Trace
 from .ilqg.solver import solve
+from .ilqg.continuation import Continuation, Starts, augmented_lagrangian_start, solve_from_starts
 from .options import Options
 from .simulate import Runs, simulate
 from .saving import load, load_metadata
 
 __all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
-           "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve", "Solution", "Policy",
+           "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve",
+           "solve_from_starts", "augmented_lagrangian_start", "Starts", "Continuation", "Solution", "Policy",
            "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"
 
