@@ -96,3 +96,20 @@ def test_center_out_command_refuses_a_delay_off_the_grid():
     result = CliRunner().invoke(cli.main, ["center-out", "--delays", "0.005"])
     assert result.exit_code == 2
     assert "--delays" in result.output
+
+
+@pytest.mark.slow
+def test_reaches_that_stalled_on_the_activation_switch_converge():
+    """Derivation §12, cause 4: with the activation switch smoothed over 1e-3, these four noise-aware
+    reaches (twice the default noise, 150 ms) took steps of a few per cent and ended MAX_ITERATIONS
+    at the study's 300 iterations (target 8 needed 545); smoothed over 1e-2 (muscle.SWITCH_WIDTH),
+    every one converges within them."""
+    from delayed_ilqr.models.arm2_muscle6 import SIGMA_U, center_out_targets, rest_commands
+    targets = center_out_targets(8, 0.1)[np.array([3, 4, 6, 7])]
+    plants = [arm2_muscle6(delay=0.15, target=tuple(t), sigma_u=2 * SIGMA_U) for t in targets]
+    stacked = jax.tree_util.tree_map(lambda *leaves: jax.numpy.stack(leaves), *plants)
+    batched = jax.jit(jax.vmap(di.solve, in_axes=(0, None, None)), static_argnums=2)
+    sols = batched(stacked, rest_commands(plants[0]), co.DEFAULT_OPTIONS)
+    statuses = [di.Status(int(s)) for s in np.asarray(sols.status)]
+    print("\niterations:", np.asarray(sols.iterations).tolist())
+    assert all(s.converged for s in statuses), statuses

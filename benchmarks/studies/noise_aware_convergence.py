@@ -8,8 +8,10 @@ by inverse kinematics, elbow up as at x0). Each (model, noise, delay) is one bat
 Prints one row per (model, noise, delay): converged count, statuses, iterations median / max, and
 the wall time of the batched call (compilation included, first call).
 
-    PYTHONPATH=src .venv/bin/python benchmarks/studies/noise_aware_convergence.py [MODELS] [FACTORS] [DELAYS] [OUT.json]
+    PYTHONPATH=src .venv/bin/python benchmarks/studies/noise_aware_convergence.py [MODELS] [FACTORS] [DELAYS] [OUT.json] [WIDTH]
     e.g. ... muscle,arm2 0.5,1,2 0,0.05,0.1,0.15 /tmp/grid.json
+
+WIDTH (optional) replaces ``models.muscle.SWITCH_WIDTH`` for the run (derivation §12, cause 4).
 """
 import json
 import sys
@@ -27,6 +29,7 @@ import numpy as np  # noqa: E402
 from delayed_ilqr import Status, solve  # noqa: E402
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS  # noqa: E402
 from delayed_ilqr.models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models import muscle  # noqa: E402
 from delayed_ilqr.models.arm2 import ARM2_PARAMS, SIGMA_U_HUMAN, arm2  # noqa: E402
 from delayed_ilqr.models.metadata import default_u_init  # noqa: E402
 
@@ -73,6 +76,8 @@ def main(argv):
     factors = [float(f) for f in argv[2].split(",")] if len(argv) > 2 else [0.5, 1.0, 2.0]
     delays = [float(d) for d in argv[3].split(",")] if len(argv) > 3 else [0.0, 0.05, 0.1, 0.15]
     out = argv[4] if len(argv) > 4 else None
+    if len(argv) > 5:
+        muscle.SWITCH_WIDTH = float(argv[5])
     rows = []
     print("| model | noise | delay (ms) | converged | statuses | iterations median / max | time (s) |")
     print("|---|---|---|---|---|---|---|")
