@@ -100,15 +100,15 @@ def reach_loss(mean, cov, data_mean, data_cov, mean_scale):
 
 
 def _total(log_params, u_init, conditions, data: ReachData, mean_scale, make_problem, options):
-    """The loss at theta = exp(log_params) (dict), every condition in one vmap, and (statuses [C],
-    commands [C, K, d]) of its solves, started from ``u_init`` [C, K, d]."""
+    """The loss at theta = exp(log_params) (dict), every condition in one vmap, and the statuses [C]
+    of its solves, started from ``u_init`` [C, K, d]."""
     params = {k: jnp.exp(v) for k, v in log_params.items()}
 
     def one(condition, start, data_mean, data_cov):
         problem = make_problem(params, condition)
         sol = solve(problem, start, options)
         mean, cov = predicted_reach(problem, sol)
-        return reach_loss(mean, cov, data_mean, data_cov, mean_scale), (sol.status, sol.u)
+        return reach_loss(mean, cov, data_mean, data_cov, mean_scale), sol.status
 
     losses, aux = jax.vmap(one)(conditions, u_init, data.mean, data.endpoint_cov)
     return jnp.sum(losses), aux
@@ -143,9 +143,8 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         conditions: a pytree of arrays with a leading axis C (e.g. targets [C, 2]).
         data: the :class:`ReachData` of the C conditions, in the same order.
         params0: the starting values (positive floats), by name.
-        u_init: [K, d] initial commands of the first evaluation's solves; default the model's
-            (:func:`~delayed_ilqr.models.metadata.default_u_init`). Later evaluations start from
-            the last evaluation whose solves all converged.
+        u_init: [K, d] initial commands of every solve; default the model's
+            (:func:`~delayed_ilqr.models.metadata.default_u_init`).
         mean_scale: s, the precision of the mean paths in task units (e.g. their standard error).
         options: the solver's :class:`~delayed_ilqr.Options`.
         gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
@@ -168,21 +167,21 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         first = make_problem(dict(zip(names, values)), jax.tree_util.tree_map(lambda a: a[0], conditions))
         u_init = default_u_init(first)
         u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
-    # every evaluation starts its solves from the last converged ones (the line search's steps are
-    # small: a few iterations instead of a solve from rest)
-    start = {"u": jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))}
+    # every evaluation solves from the same u_init: a warm start from the previous evaluation's
+    # solution made the loss depend on the path of the fit (a solve stops anywhere within its
+    # tolerance, and the muscle arm has more than one local optimum), which stalled L-BFGS-B
+    u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
     options = Options() if options is None else options
     last = {}
 
     def value_and_grad(log_values):
         log_params = {k: jnp.asarray(v) for k, v in zip(names, log_values)}
-        (value, (status, us)), grad = _value_and_grad(log_params, start["u"], conditions, data, mean_scale,
-                                                      make_problem=make_problem, options=options)
+        (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale,
+                                                make_problem=make_problem, options=options)
         grad = np.array([float(grad[k]) for k in names])
         last.update(status=np.asarray(status))
         if not (np.isfinite(float(value)) and np.all(np.isfinite(grad))):
             return np.inf, np.zeros_like(grad)
-        start["u"] = us
         return float(value), grad
 
     result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B",
