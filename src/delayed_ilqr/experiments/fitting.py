@@ -196,7 +196,9 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
 def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,
                   data: ReachData, params0: dict, **kwargs) -> tuple:
     """Fits theta at each candidate delay (:func:`fit`; ``make_problem(params, condition, delay)``,
-    the delay in seconds) and returns (the delay of the smallest loss, [Fit per delay])."""
+    the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay])."""
     fits = [fit(AtDelay(make_problem, float(delay)), conditions, data, params0, **kwargs) for delay in delays]
-    losses = [f.loss if f.converged else np.inf for f in fits]
+    # the loss, not Fit.converged: L-BFGS-B often ends a fit on a rough loss with an abnormal line
+    # search; a fit whose final solves did not converge has an infinite loss
+    losses = [f.loss for f in fits]
     return delays[int(np.argmin(losses))], fits
