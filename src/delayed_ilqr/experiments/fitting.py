@@ -56,7 +56,7 @@ class Fit(NamedTuple):
 
     Attributes:
         params: the fitted parameters, by name (floats).
-        loss: the loss at ``params``.
+        loss: the loss at ``params`` (inf where a solve there did not converge).
         converged: L-BFGS-B met its tolerance and every solve at ``params`` converged.
         message: L-BFGS-B's message, and the statuses of unconverged solves if any.
         iterations: L-BFGS-B iterations; evaluations: loss and gradient evaluations (each one
@@ -169,7 +169,7 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
     # every evaluation solves from the same u_init: a warm start from the previous evaluation's
     # solution made the loss depend on the path of the fit (a solve stops anywhere within its
-    # tolerance, and the muscle arm has more than one local optimum), which stalled L-BFGS-B
+    # tolerance, and the muscle arm's solves from different starts stop at different commands)
     u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
     options = Options() if options is None else options
     last = {}
