@@ -11,6 +11,8 @@ on the plant -> statistics -> tables and files (figures: :mod:`delayed_ilqr.plot
 :mod:`.delay_study` delay-aware vs delay-ignorant control at several delays
 :mod:`.center_out`  center-out reaching with the six-muscle arm, one batched solve per delay
 :mod:`.perturbation` a hand kick mid-reach: mean corrective responses against the sensory delay
+:mod:`.fitting`     inverse optimal control: cost weights and noise scales fitted to reach
+                    statistics through the solver's gradients, the delay by a profile
 :mod:`.tables`      every table row, as plain text or markdown
 :mod:`.report`      JSON records, NPZ arrays, markdown reports and figures on disk
 ==================  ===========================================================================

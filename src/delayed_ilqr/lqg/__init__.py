@@ -13,7 +13,8 @@ Three solutions of the same problem:
 * :func:`augmented_backward_pass`: the independent reference, a plain Riccati recursion on the
   augmented state z_k = [dx_k, du_{k-l}, ..., du_{k-1}]; per step O((n + l d)^3).
 * :func:`policy_cost`: the exact expected cost of *any* affine delayed policy, by propagating the
-  mean and second moment of z_k (no sampling); :func:`simulate_lqg` estimates it by Monte Carlo.
+  mean and second moment of z_k (no sampling; :func:`closed_loop_moments` returns them);
+  :func:`simulate_lqg` estimates it by Monte Carlo.
 
 Both backward passes accept a Levenberg-Marquardt shift ``reg`` (the solver's lambda): the gains
 use H + reg I, and the value function is the exact cost-to-go of the quadratic model under those
@@ -30,7 +31,7 @@ boxqp            the box-constrained QP of the control-limited gain rule
 r_update         the strategies that update the [l d, l d] block R
 structured       the reverse scan with the fused step (:func:`backward_pass`)
 augmented        the augmented-state reference (:func:`augmented_backward_pass`)
-exact            :func:`policy_cost`, :func:`simulate_lqg`
+exact            :func:`policy_cost`, :func:`closed_loop_moments`, :func:`simulate_lqg`
 observation      :class:`DelayedObservation`: delayed, noisy sensors dy_k = H_k dx_{k-l_s} + G_k v_k
 estimator        :func:`delayed_kalman`: the delayed Kalman filter without augmentation, and its run
 output_feedback  :func:`separation_design`, :func:`output_feedback_cost` (exact, any pair),
@@ -40,7 +41,7 @@ alternation      :func:`alternate`: Todorov's alternation of filter and controll
 ===============  ================================================================================
 """
 from .augmented import augmented_backward_pass
-from .exact import LQGRuns, policy_cost, simulate_lqg
+from .exact import LQGRuns, Moments, closed_loop_moments, policy_cost, simulate_lqg
 from .model import DelayedLQG, Gains, Value
 from .observation import DelayedObservation
 from .estimator import FilterCovariances, FilterGains, delayed_kalman, filter_estimates
@@ -57,6 +58,8 @@ __all__ = [
     "backward_pass",
     "augmented_backward_pass",
     "policy_cost",
+    "closed_loop_moments",
+    "Moments",
     "simulate_lqg",
     "DelayedObservation",
     "FilterGains",

@@ -1,7 +1,8 @@
 """The exact expected cost of any affine delayed policy, and Monte Carlo of the linear system.
 
 :func:`policy_cost` propagates the mean and second moment of the augmented state z_k (no sampling):
-the reference that every backward pass's J(0) is checked against. :func:`simulate_lqg` estimates
+the reference that every backward pass's J(0) is checked against; :func:`closed_loop_moments`
+returns those moments. :func:`simulate_lqg` estimates
 the same expectation by sampling the noise.
 """
 from __future__ import annotations
@@ -17,7 +18,7 @@ from ..ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_l
 from .augmented import augment
 from .model import DelayedLQG, Gains, checked_entry, merged_if_undelayed
 
-__all__ = ["policy_cost", "simulate_lqg", "LQGRuns", "checked_gains"]
+__all__ = ["policy_cost", "closed_loop_moments", "Moments", "simulate_lqg", "LQGRuns", "checked_gains"]
 
 
 def _sym(M):
@@ -33,8 +34,26 @@ def checked_gains(lqg: DelayedLQG, gains: Gains) -> Gains:
         jnp.asarray(_validate.array(gains.delay_feedback, "gains.delay_feedback", (K, l, nd, nd))))
 
 
-@jax.jit
-def _policy_cost(lqg: DelayedLQG, gains: Gains):
+class Moments(NamedTuple):
+    """The mean and second moment of the augmented state z_k = [dx_k, du_{k-l}, ..., du_{k-1}] of
+    the linear closed loop, from z_0 = 0 (exact, no sampling).
+
+    Attributes:
+        mean: [K+1, n + l d] E[z_k].
+        second: [K+1, n + l d, n + l d] E[z_k z_k'] (the covariance is second - mean mean').
+    """
+
+    mean: jax.Array
+    second: jax.Array
+
+    def state_covariance(self, n: int) -> jax.Array:
+        """[K+1, n, n] Cov(dx_k)."""
+        mu = self.mean[:, :n]
+        return self.second[:, :n, :n] - mu[:, :, None] * mu[:, None, :]
+
+
+def _moments_and_cost(lqg: DelayedLQG, gains: Gains):
+    """(Moments, E[J(0)]) of the affine delayed policy ``gains`` on ``lqg``: one forward scan."""
     aug = augment(lqg)
     Kz = augmented_feedback(gains)                                    # [K, d, n + l d]
     nz = Kz.shape[2]
@@ -56,14 +75,29 @@ def _policy_cost(lqg: DelayedLQG, gains: Gains):
         Gm = jnp.einsum("pnk,k->pn", Gcol, mu)
         X_new = X_new + jnp.einsum("pnk,kl,pml->nm", Gcol, X, Gcol) + jnp.einsum("pn,pm->nm", Gm, gcol) \
             + jnp.einsum("pn,pm->nm", gcol, Gm) + jnp.einsum("pn,pm->nm", gcol, gcol)
-        return (mu_new, _sym(X_new), total), None
+        X_new = _sym(X_new)
+        return (mu_new, X_new, total), (mu_new, X_new)
 
     dt = lqg.A.dtype
     init = (jnp.zeros(nz, dt), jnp.zeros((nz, nz), dt), jnp.asarray(0.0, dt))
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], gains.feedforward, Kz,
             lqg.d_tilde[:-1], aug["dz"][:-1], aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"])
-    (mu, X, total), _ = jax.lax.scan(step, init, data)
-    return total + lqg.d_tilde[-1] + 2 * aug["dz"][-1] @ mu + jnp.sum(aug["Dz"][-1] * X)
+    (mu, X, total), (mus, Xs) = jax.lax.scan(step, init, data)
+    moments = Moments(jnp.concatenate([init[0][None], mus]), jnp.concatenate([init[1][None], Xs]))
+    return moments, total + lqg.d_tilde[-1] + 2 * aug["dz"][-1] @ mu + jnp.sum(aug["Dz"][-1] * X)
+
+
+@jax.jit
+def _policy_cost(lqg: DelayedLQG, gains: Gains):
+    return _moments_and_cost(lqg, gains)[1]
+
+
+def closed_loop_moments(lqg: DelayedLQG, gains: Gains) -> Moments:
+    """The exact :class:`Moments` of the augmented state under the affine delayed policy ``gains``
+    on ``lqg`` (the propagation of :func:`policy_cost`, control-dependent noise included), from
+    z_0 = 0. Differentiable (a scan); not validated, for use inside traced code
+    (``delayed_ilqr.prediction``)."""
+    return _moments_and_cost(lqg, gains)[0]
 
 
 def policy_cost(lqg: DelayedLQG, gains: Gains) -> jax.Array:

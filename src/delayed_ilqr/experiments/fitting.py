@@ -1,0 +1,204 @@
+"""Inverse optimal control: fit a model's cost weights and noise level to measured reaches by
+gradient-based minimisation through the solver, and its delay by a profile over whole steps
+(``docs/fitting.md``; issue 24).
+
+The data of one condition c (a reach target, say) are the mean task-space path m_c [K+1, m] of the
+trials and the covariance C_c [m, m] of their endpoints. The model with parameters theta predicts
+both from its optimal policy (:mod:`delayed_ilqr.prediction`: the nominal's path and the exact
+second moments of the linearised closed loop), and the fit minimises
+
+    loss(theta) = sum_c  |m_c - m_c(theta)|^2 / ((K+1) s^2)  +  KL(C_c, C_c(theta))
+    KL(C, C')   = (tr(C'^{-1} C) - m + log det C' - log det C) / 2
+
+(KL: the divergence of the Gaussian N(0, C') from N(0, C), zero only where C' = C, and blind to
+the units of the task space; s, ``mean_scale``, is the precision of a mean path, e.g. its standard
+error) by SciPy's L-BFGS-B over log theta, the gradient by reverse mode through
+:func:`delayed_ilqr.solve` (implicit differentiation, ``docs/derivation.md`` §16). All conditions
+are solved in one vectorised call.
+
+Only ratios of the cost weights are identifiable from behaviour: scaling every weight by one factor
+leaves the optimal policy, and so every prediction, unchanged. Fix one weight (the examples fix the
+final position weight w_p) and fit the others relative to it.
+
+The delay is a whole number of steps, a static size of the problem: :func:`profile_delay` fits
+theta at each candidate delay (one compilation each) and takes the delay of the smallest loss.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, NamedTuple, Optional, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .. import Options, Problem, Runs, Status, solve
+from ..models.metadata import default_u_init, task_space
+from ..prediction import predict, task_prediction
+
+__all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay"]
+
+
+class ReachData(NamedTuple):
+    """Reach statistics of C conditions.
+
+    Attributes:
+        mean: [C, K+1, m] mean task-space path.
+        endpoint_cov: [C, m, m] covariance of the final task-space position.
+    """
+
+    mean: jax.Array
+    endpoint_cov: jax.Array
+
+
+class Fit(NamedTuple):
+    """The outcome of :func:`fit`.
+
+    Attributes:
+        params: the fitted parameters, by name (floats).
+        loss: the loss at ``params`` (inf where a solve there did not converge).
+        converged: L-BFGS-B met its tolerance and every solve at ``params`` converged.
+        message: L-BFGS-B's message, and the statuses of unconverged solves if any.
+        iterations: L-BFGS-B iterations; evaluations: loss and gradient evaluations (each one
+            vectorised solve and its gradient).
+    """
+
+    params: dict
+    loss: float
+    converged: bool
+    message: str
+    iterations: int
+    evaluations: int
+
+
+def predicted_reach(problem: Problem, solution) -> tuple:
+    """(mean task-space path [K+1, m], endpoint covariance [m, m]) that ``solution`` predicts on
+    ``problem`` (:func:`delayed_ilqr.prediction.task_prediction`); differentiable."""
+    task = task_prediction(problem, predict(problem, solution))
+    return task.mean, task.cov[-1]
+
+
+def observed_reach(problem: Problem, runs: Runs) -> tuple:
+    """(mean task-space path [K+1, m], endpoint covariance [m, m], ddof = 1) of Monte Carlo
+    ``runs`` on ``problem`` (all trials: a diverged one shows as an outlier, not silently dropped)."""
+    task = task_space(problem)
+    if task is None:
+        raise ValueError(f"observed_reach: problem {problem.name!r} has no task space (metadata.task is None)")
+    paths = np.asarray(task.map(jnp.asarray(runs.x)))                       # [N, K+1, m]
+    return paths.mean(axis=0), np.cov(paths[:, -1], rowvar=False)
+
+
+def reach_loss(mean, cov, data_mean, data_cov, mean_scale):
+    """One condition's term of the loss (module docstring): predicted ``mean`` [K+1, m] and
+    endpoint ``cov`` [m, m] against the data's."""
+    m = cov.shape[-1]
+    path = jnp.sum((mean - data_mean) ** 2) / (mean.shape[0] * mean_scale ** 2)
+    chol = jnp.linalg.cholesky(cov)
+    solved = jax.scipy.linalg.cho_solve((chol, True), data_cov)
+    kl = 0.5 * (jnp.trace(solved) - m + 2 * jnp.sum(jnp.log(jnp.diag(chol))) - jnp.linalg.slogdet(data_cov)[1])
+    return path + kl
+
+
+def _total(log_params, u_init, conditions, data: ReachData, mean_scale, make_problem, options):
+    """The loss at theta = exp(log_params) (dict), every condition in one vmap, and the statuses [C]
+    of its solves, started from ``u_init`` [C, K, d]."""
+    params = {k: jnp.exp(v) for k, v in log_params.items()}
+
+    def one(condition, start, data_mean, data_cov):
+        problem = make_problem(params, condition)
+        sol = solve(problem, start, options)
+        mean, cov = predicted_reach(problem, sol)
+        return reach_loss(mean, cov, data_mean, data_cov, mean_scale), sol.status
+
+    losses, aux = jax.vmap(one)(conditions, u_init, data.mean, data.endpoint_cov)
+    return jnp.sum(losses), aux
+
+
+# module level with make_problem static: fits with the same model function (e.g. from exact and
+# from sampled data, or a profile's fit again at its best delay) share one compilation
+_value_and_grad = jax.jit(jax.value_and_grad(_total, has_aux=True), static_argnames=("make_problem", "options"))
+
+
+@dataclass(frozen=True)
+class AtDelay:
+    """``make_problem(params, condition, delay)`` at a fixed delay (seconds), as :func:`fit` takes
+    it; equal (and hashed) by value, so that fits at the same delay share a compilation."""
+
+    make_problem: Callable
+    delay: float
+
+    def __call__(self, params, condition):
+        return self.make_problem(params, condition, self.delay)
+
+
+def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
+        u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
+        max_iterations: int = 100) -> Fit:
+    """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
+
+    Args:
+        make_problem: ``make_problem(params, condition) -> Problem``; ``params`` maps each name of
+            ``params0`` to a traced scalar, ``condition`` is one slice of ``conditions``. Every
+            condition's problem must have the same shapes (delay, horizon).
+        conditions: a pytree of arrays with a leading axis C (e.g. targets [C, 2]).
+        data: the :class:`ReachData` of the C conditions, in the same order.
+        params0: the starting values (positive floats), by name.
+        u_init: [K, d] initial commands of every solve; default the model's
+            (:func:`~delayed_ilqr.models.metadata.default_u_init`).
+        mean_scale: s, the precision of the mean paths in task units (e.g. their standard error).
+        options: the solver's :class:`~delayed_ilqr.Options`.
+        gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
+        max_iterations: L-BFGS-B's iteration limit.
+
+    Returns:
+        A :class:`Fit`. An evaluation where a solve did not converge counts as an infinite loss
+        (its gradient is NaN, ``docs/derivation.md`` §16), so the line search steps back.
+    """
+    from scipy.optimize import minimize
+
+    names = sorted(params0)
+    values = np.array([float(params0[k]) for k in names])
+    if not np.all(np.isfinite(values) & (values > 0)):
+        raise ValueError(f"params0 must map names to positive finite floats; got {params0!r}")
+    if not (np.isfinite(mean_scale) and mean_scale > 0):
+        raise ValueError(f"mean_scale must be a positive float; got {mean_scale!r}")
+    count = len(jax.tree_util.tree_leaves(conditions)[0])
+    if u_init is None:
+        first = make_problem(dict(zip(names, values)), jax.tree_util.tree_map(lambda a: a[0], conditions))
+        u_init = default_u_init(first)
+        u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
+    # every evaluation solves from the same u_init: a warm start from the previous evaluation's
+    # solution made the loss depend on the path of the fit (a solve stops anywhere within its
+    # tolerance, and the muscle arm's solves from different starts stop at different commands)
+    u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
+    options = Options() if options is None else options
+    last = {}
+
+    def value_and_grad(log_values):
+        log_params = {k: jnp.asarray(v) for k, v in zip(names, log_values)}
+        (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale,
+                                                make_problem=make_problem, options=options)
+        grad = np.array([float(grad[k]) for k in names])
+        last.update(status=np.asarray(status))
+        if not (np.isfinite(float(value)) and np.all(np.isfinite(grad))):
+            return np.inf, np.zeros_like(grad)
+        return float(value), grad
+
+    result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B",
+                      options=dict(gtol=gtol, ftol=0.0, maxiter=max_iterations))
+    value, _ = value_and_grad(result.x)
+    unconverged = [Status(int(s)).name for s in last["status"] if not Status(int(s)).converged]
+    message = str(result.message) + (f"; unconverged solves: {unconverged}" if unconverged else "")
+    return Fit(dict(zip(names, np.exp(result.x).tolist())), float(value), bool(result.success) and not unconverged,
+               message, int(result.nit), int(result.nfev))
+
+
+def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,
+                  data: ReachData, params0: dict, **kwargs) -> tuple:
+    """Fits theta at each candidate delay (:func:`fit`; ``make_problem(params, condition, delay)``,
+    the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay])."""
+    fits = [fit(AtDelay(make_problem, float(delay)), conditions, data, params0, **kwargs) for delay in delays]
+    # the loss, not Fit.converged: L-BFGS-B often ends a fit on a rough loss with an abnormal line
+    # search; a fit whose final solves did not converge has an infinite loss
+    losses = [f.loss for f in fits]
+    return delays[int(np.argmin(losses))], fits
