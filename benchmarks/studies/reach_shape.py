@@ -8,6 +8,7 @@ J(q) dq of the kinematics.
 
     PYTHONPATH=src .venv/bin/python benchmarks/studies/reach_shape.py [--delay S] [--design D]
         [--start rest|noise-aware|linear-force] [--force linear] [--lbfgs] [--sigma-u S]
+        [--final-time S] [--r R]
 
 --start noise-aware: warm-start from the noise-aware design's commands (README: the deterministic
     design's cost at 0 ms).
@@ -47,11 +48,14 @@ def main():
     parser.add_argument("--start", default="rest", choices=["rest", "noise-aware", "linear-force"])
     parser.add_argument("--force", default="published", choices=["published", "linear"])
     parser.add_argument("--sigma-u", type=float, default=0.01)
+    parser.add_argument("--final-time", type=float, default=0.5)
+    parser.add_argument("--r", type=float, default=1e-4, help="effort weight")
     parser.add_argument("--lbfgs", action="store_true")
     args = parser.parse_args()
 
     targets = center_out_targets(8, 0.1)
-    plants = [arm2_muscle6(delay=args.delay, target=tuple(t), noise=True, sigma_u=args.sigma_u) for t in targets]
+    plants = [arm2_muscle6(delay=args.delay, target=tuple(t), noise=True, sigma_u=args.sigma_u,
+                           final_time=args.final_time, r=args.r) for t in targets]
     problems = [designs.design(p, args.design, DEFAULT_OPTIONS)[0] for p in plants]
     if args.force == "linear":
         problems = [linear_force(p) for p in problems]
