@@ -58,6 +58,14 @@ def test_reach_shape_of_constructed_paths():
     assert shape.peaks == 2 and shape.deviation == pytest.approx(0.3, rel=1e-3)
 
 
+def test_reach_shape_refuses_a_plant_without_a_target_and_wrong_states():
+    problem = _reach(2)
+    with pytest.raises(ValueError, match="x must be states"):
+        reach_shape(problem, np.zeros((51, 4)))
+    with pytest.raises(ValueError, match="plant must name a planar task space"):
+        reach_shape(di.models.pendulum(), np.zeros((51, 2)))
+
+
 def _states_through(problem, hand):
     """States [N, 10] whose hand positions are ``hand`` [N, 2] (inverse kinematics of the elbow-down
     arm: the hand metadata only reads q)."""

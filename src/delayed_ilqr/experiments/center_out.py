@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
-from scipy.signal import find_peaks
 
 from .. import Options, Policy, Problem, Solution, Status
 from ..statistics import SampleStats, divergence_bound, diverged_trials, sample_stats
@@ -161,9 +160,18 @@ class ReachShape(NamedTuple):
 def reach_shape(plant: Problem, x) -> ReachShape:
     """Path deviation and speed peaks of the states x [K+1, n] of a reach of ``plant``, whose
     metadata names the hand (task) space and its target (the start is x[0]'s hand position)."""
-    hand = np.asarray(task_position(plant, np.asarray(x, dtype=np.float64)))
+    from scipy.signal import find_peaks  # lazy: the study itself does not need SciPy
+
+    target = task_target(plant)
+    if target is None or np.shape(target) != (2,):
+        raise ValueError("plant must name a planar task space with a target in its metadata (as arm2_muscle6 "
+                         f"does); got {getattr(plant, 'name', type(plant).__name__)!r} with target {target!r}")
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[0] < 3 or x.shape[1] != plant.n_states:
+        raise ValueError(f"x must be states [K+1, {plant.n_states}] of one reach, K >= 2; got shape {x.shape}")
+    hand = np.asarray(task_position(plant, x))
     speed = np.linalg.norm(np.diff(hand, axis=0), axis=1) / plant.dt
-    chord, rel = task_target(plant) - hand[0], hand - hand[0]
+    chord, rel = target - hand[0], hand - hand[0]
     deviation = np.max(np.abs(rel[:, 0] * chord[1] - rel[:, 1] * chord[0])) / (chord @ chord)
     # zeros around the profile, so that a maximum at either end is a peak too
     peaks, _ = find_peaks(np.concatenate([[0.0], speed, [0.0]]), prominence=PEAK_PROMINENCE * speed.max())
