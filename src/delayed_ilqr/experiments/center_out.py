@@ -21,7 +21,7 @@ the task space of the model's metadata.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional, Sequence
+from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
@@ -33,7 +33,8 @@ from ..models.metadata import task_position, task_target
 from . import designs
 from .engine import monte_carlo, take, timed_batched_solve
 
-__all__ = ["TargetResult", "DelayResult", "center_out", "DEFAULT_OPTIONS", "DESIGNS", "SIGMA_U"]
+__all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
+           "SIGMA_U", "PEAK_PROMINENCE"]
 
 #: Muscle reaches take 30-200 iterations (the excitations saturate at 0 and 1 on long stretches,
 #: where the box-QP's active set changes slowly); 300 leaves a margin.
@@ -129,6 +130,53 @@ class DelayResult:
     def policy(self, j: int) -> Policy:
         """The delayed feedback policy of target j."""
         return take(self.solutions.policy, j)
+
+
+#: A speed maximum counts as a peak of :func:`reach_shape` when it rises this fraction of the
+#: peak speed above the lower of the two minima around it (SciPy's prominence): ripples smaller
+#: than 2 % of the peak are not peaks.
+PEAK_PROMINENCE = 0.02
+
+
+class ReachShape(NamedTuple):
+    """The shape of one reach, the two properties human reaches are known for (Morasso 1981;
+    Flash & Hogan 1985): straight hand paths and single-peaked, bell-shaped speed.
+
+    Attributes:
+        speed: [K] hand speed (m/s), the hand displacement per step over dt (as plotted).
+        peaks: number of speed peaks (maxima of prominence :data:`PEAK_PROMINENCE` x the peak).
+        deviation: largest distance of the hand from the straight start-target line, over the
+            start-target distance (0 for a straight path).
+        peak_to_mean: peak speed over mean speed; 15/8 for the minimum-jerk profile of Flash &
+            Hogan 1985 (bell-shaped), 1 for constant speed (flat-topped).
+    """
+
+    speed: np.ndarray
+    peaks: int
+    deviation: float
+    peak_to_mean: float
+
+
+def reach_shape(plant: Problem, x) -> ReachShape:
+    """Path deviation and speed peaks of the states x [K+1, n] of a reach of ``plant``, whose
+    metadata names the hand (task) space and its target (the start is x[0]'s hand position)."""
+    from scipy.signal import find_peaks  # lazy: the study itself does not need SciPy
+
+    target = task_target(plant)
+    if target is None or np.shape(target) != (2,):
+        raise ValueError("plant must name a planar task space with a target in its metadata (as arm2_muscle6 "
+                         f"does); got {getattr(plant, 'name', type(plant).__name__)!r} with target {target!r}")
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[0] < 3 or x.shape[1] != plant.n_states:
+        raise ValueError(f"x must be states [K+1, {plant.n_states}] of one reach, K >= 2; got shape {x.shape}")
+    hand = np.asarray(task_position(plant, x))
+    speed = np.linalg.norm(np.diff(hand, axis=0), axis=1) / plant.dt
+    chord, rel = target - hand[0], hand - hand[0]
+    deviation = np.max(np.abs(rel[:, 0] * chord[1] - rel[:, 1] * chord[0])) / (chord @ chord)
+    # zeros around the profile, so that a maximum at either end is a peak too
+    peaks, _ = find_peaks(np.concatenate([[0.0], speed, [0.0]]), prominence=PEAK_PROMINENCE * speed.max())
+    return ReachShape(speed=speed, peaks=len(peaks), deviation=float(deviation),
+                      peak_to_mean=float(speed.max() / speed.mean()))
 
 
 def _designs(names) -> tuple:

@@ -73,6 +73,14 @@ from the commands to the arm and iLQG's first step is zero. Starting from a smal
 equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §4.6) avoids this.
 At a = A_REST the muscles' net torques at the start posture are not exactly zero, so the arm drifts
 slightly if the command is held; the reach cost corrects this.
+
+What this cost predicts (``docs/models.md`` §4.6, ``docs/results/reach_shape.md``): at no delay the
+optimal reach pushes, coasts and brakes (flat-topped hand speed), and along the x axis it curves
+with two speed peaks, unlike human reaches (straight, bell-shaped; Morasso 1981, Flash & Hogan
+1985). The reason is the force A ~ (a / (0.56 N_f))^N_f with N_f >= 2.11 (§4.1): an effort
+r |u|^2 on the excitations then grows about as force^(2 / N_f), concave, which favours short
+bursts. Bounded L-BFGS-B finds the same optima. With a delay, the noise-aware design's reaches are
+single-peaked.
 """
 from __future__ import annotations
 

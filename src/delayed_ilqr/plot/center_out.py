@@ -28,7 +28,9 @@ CAPTIONS = {
         "nearly straight hand paths (Morasso 1981, Exp Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688).",
     "center_out_speed.png":
         "Hand speed of the nominal reaches against time (one line per target). Compared with: human reaches "
-        "have single-peaked, bell-shaped speed profiles (Morasso 1981; Flash & Hogan 1985).",
+        "have single-peaked, bell-shaped speed profiles (Morasso 1981; Flash & Hogan 1985). The model's "
+        "energy optimum at no delay is flat-topped instead (push, coast, brake), a consequence of its "
+        "force-activation curve (docs/results/reach_shape.md).",
     "center_out_endpoints.png":
         "Endpoints of the noisy trials relative to each target, in mm, with their 2-sigma ellipses (one "
         "colour per target; each panel has its own scale). Compared with: human endpoints of unseen 10 "
