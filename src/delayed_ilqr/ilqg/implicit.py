@@ -21,7 +21,8 @@ symmetric Hessian (the dynamics' second derivatives included, which the Gauss-Ne
 leaves out). With noise, the nominal is the fixed point of "minimise cost +
 noise cost with the value Hessians S frozen" (derivation §12), F is the gradient of that merit
 with S = S(u, theta) from the backward pass at u, and dF/du is not symmetric. Commands
-within the solver's margin of a limit are fixed there: their derivative is that of the limit.
+at a limit with the gradient pushing outward (within the solver's margin of it, by the KKT
+conditions: :func:`fixed_commands`) are fixed there: their derivative is that of the limit.
 """
 from __future__ import annotations
 
@@ -55,21 +56,61 @@ RESIDUAL_CHECK = 1e-6
 
 # -- the optimality conditions -------------------------------------------------------------------
 
-def fixed_commands(problem: Problem, us, margin: float):
-    """([K, d] bool fixed, [K, d] bound): commands within ``margin`` (times the width of the box,
-    or times 1 for a half-infinite one) of a finite limit, held there, and the limit's value
-    (0 where free). These have the derivative of the limit; the others solve (16.1)."""
-    K, nd = us.shape
-    if not problem.has_limits:
-        return jnp.zeros((K, nd), bool), jnp.zeros((K, nd), us.dtype)
+def _near_limits(problem: Problem, us, margin: float):
+    """([K, d] bool, [K, d] bool): commands within ``margin`` (times the width of the box, or times
+    1 for a half-infinite one) of a finite lower, resp. upper, limit: the candidates for being held."""
     lo, hi = problem.u_min, problem.u_max
     width = hi - lo
     eps = margin * jnp.where(jnp.isfinite(width), width, 1.0)
-    at_lo = jnp.isfinite(lo) & (us - lo <= eps)
-    at_hi = jnp.isfinite(hi) & (hi - us <= eps) & ~at_lo
-    bound = jnp.where(at_lo, jnp.where(jnp.isfinite(lo), lo, 0.0), jnp.where(at_hi, jnp.where(jnp.isfinite(hi), hi, 0.0),
-                                                                            0.0))
-    return at_lo | at_hi, bound
+    near_lo = jnp.isfinite(lo) & (us - lo <= eps)
+    return near_lo, jnp.isfinite(hi) & (hi - us <= eps) & ~near_lo
+
+
+def _effort_curvature(problem: Problem, us):
+    """[K, d] the diagonal of the running cost's Hessian in the commands, dt d^2 l / du_i^2: the scale
+    that turns a command's distance to its limit into a gradient. It leaves out the dynamics' part
+    of the Hessian of eq. (2); the test it serves separates gradients that differ by orders of
+    magnitude, for which any positive scale of the right size will do."""
+    xs = rollout(problem, us)
+    hessian = jax.vmap(jax.hessian(problem.cost.running, argnums=1))(xs[:-1], us, problem.step_times(us.dtype))
+    return problem.dt * jnp.diagonal(hessian, axis1=1, axis2=2)
+
+
+def _held_sides(problem: Problem, us, margin: float):
+    """([K, d] bool at_lo, [K, d] bool at_hi): the commands the optimality conditions (KKT) at u
+    hold at their lower, resp. upper, limit. Distance alone does not decide it. A command within
+    the margin is held when the gradient G of the solver's objective (:func:`_cost_gradient`)
+    pushes it outward by at least what its distance to the limit accounts for: G_out >= h dist,
+    with h the effort's curvature (:func:`_effort_curvature`). At the limit (dist = 0) that is a
+    multiplier G_out >= 0. The others are free: an interior optimum (G = 0) that merely lies
+    close to a limit solves (16.1) like any other free command (derivation §16: such commands
+    made the six-muscle arm's tangent wrong at 50 ms while they were held)."""
+    if not problem.has_limits:
+        none = jnp.zeros(us.shape, bool)
+        return none, none
+    near_lo, near_hi = _near_limits(problem, us, margin)
+    us = jax.lax.stop_gradient(us)
+    G = jax.lax.stop_gradient(_cost_gradient(problem, us, margin))
+    h = jax.lax.stop_gradient(_effort_curvature(problem, us))
+    at_lo = near_lo & (G >= h * (us - problem.u_min))
+    at_hi = near_hi & (-G >= h * (problem.u_max - us))
+    return at_lo, at_hi
+
+
+def _limit_values(problem: Problem, at_lo, at_hi):
+    """[K, d] the limit a held command sits at (0 where free), differentiable in the limits."""
+    lo = jnp.where(jnp.isfinite(problem.u_min), problem.u_min, 0.0)
+    hi = jnp.where(jnp.isfinite(problem.u_max), problem.u_max, 0.0)
+    return jnp.where(at_lo, lo, jnp.where(at_hi, hi, 0.0))
+
+
+def fixed_commands(problem: Problem, us, margin: float):
+    """([K, d] bool fixed, [K, d] bound): the commands held at a limit by the optimality conditions
+    at u (:func:`_held_sides`: within ``margin`` of the limit and pushed outward by the gradient),
+    and the limit's value (0 where free). These have the derivative of the limit; the others solve
+    (16.1)."""
+    at_lo, at_hi = _held_sides(problem, us, margin)
+    return at_lo | at_hi, _limit_values(problem, at_lo, at_hi)
 
 
 def _masked_gains(free_of):
@@ -218,8 +259,9 @@ def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
     """du* [K, d] for the problem tangent ``dproblem`` (a :class:`Problem` of tangents), by (16.1),
     at the converged nominal (xs, us); NaN where the Krylov solve missed :data:`RESIDUAL_CHECK`.
     Linear in ``dproblem`` and transposable (reverse mode)."""
-    fixed, _ = fixed_commands(problem, us, margin)
-    F = lambda p, u: stationarity(p, u, fixed, fixed_commands(p, us, margin)[1], margin)
+    at_lo, at_hi = _held_sides(problem, us, margin)
+    fixed = at_lo | at_hi
+    F = lambda p, u: stationarity(p, u, fixed, _limit_values(p, at_lo, at_hi), margin)
     _, rhs = jax.jvp(lambda p: F(p, us), (problem,), (dproblem,))
     matvec = lambda v: jax.jvp(lambda u: F(problem, u), (us,), (v,))[1]
     precondition = preconditioner(problem, xs, us, fixed)
