@@ -2,9 +2,17 @@
 hypothesis profile."""
 import os
 
-import jax
+# One OpenBLAS thread for SciPy (read when SciPy's OpenBLAS loads, which comes later than this
+# file): the reference L-BFGS-B (tests/direct.py, experiments/fitting.py) works on vectors of a few
+# hundred entries, where OpenBLAS's worker threads only wait for each other, and under `make test`'s
+# two workers on two cores they spin against XLA's threads (docs/performance.md, "Test-suite
+# time"). The xdist workers start after this file runs, so NumPy's OpenBLAS gets it there too.
+# setdefault: a run that sets its own count keeps it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import delayed_ilqr
+import jax  # noqa: E402
+
+import delayed_ilqr  # noqa: E402
 
 # what a program using the library does first; the suite's speed depends on the flags (their
 # effect is checked in test_xla_options.py), and they must be set before any JAX computation
