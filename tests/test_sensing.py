@@ -309,3 +309,31 @@ def test_sensing_study_runs_both_filters_on_the_delayed_sensors():
     assert rows["ignorant"]["first response [ms]"] == pytest.approx(60.0)
     # the filters differ, so the trials do (same seed: same noise)
     assert np.any(np.asarray(aware.runs.u) != np.asarray(ignorant.runs.u))
+
+
+def test_a_noise_free_design_gets_the_filter_of_the_plants_noise():
+    """experiments.designs.filter_on_plant: iLQR's design problem has no motor noise, so its own
+    filter trusts the model (zero gain) and its controller would run open loop on the sensed plant.
+    With the plant's filter (its motor and sensory noise, at iLQR's nominal, separation) the same
+    feedback corrects the noise: the endpoint scatter on the noisy plant falls."""
+    from delayed_ilqr.experiments import designs
+    from delayed_ilqr.models import hand_position
+
+    plant = arm2(delay=0.05, noise=True, sigma_u=0.05, sensory_delay=0.03)
+    problem, options = designs.design(plant, "deterministic")
+    sol = di.solve(problem, None, options)
+    assert float(jnp.max(jnp.abs(sol.policy.estimator.delayed_gain))) == 0.0
+    filtered = designs.filter_on_plant(plant, sol)
+    assert float(jnp.max(jnp.abs(filtered.policy.estimator.delayed_gain))) > 0.0
+    # the design itself is unchanged: nominal, feedback, its own (noise-free) prediction and status
+    for a, b in ((filtered.u, sol.u), (filtered.policy.state_feedback, sol.policy.state_feedback),
+                 (filtered.expected_cost, sol.expected_cost), (filtered.status, sol.status)):
+        np.testing.assert_array_equal(a, b)
+
+    def spread(policy):
+        ends = np.asarray(hand_position(di.simulate(plant, policy, 400, seed=2).x[:, -1, :2]))
+        return float(np.sqrt(np.linalg.eigvalsh(np.cov(ends, rowvar=False))[-1]))
+
+    open_loop, closed = spread(sol.policy), spread(filtered.policy)
+    print(f"\nendpoint spread: zero-gain filter {1e3 * open_loop:.2f} mm, the plant's filter {1e3 * closed:.2f} mm")
+    assert closed < 0.5 * open_loop

@@ -523,11 +523,15 @@ def demo_command(out, overwrite, trials, seed):
                    "deterministic (iLQR, made for the noise-free arm).")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=center_out.DEFAULT_OPTIONS.max_iterations,
               show_default=True, help="Iteration limit of each reach's solve.")
+@click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=None,
+              help="Controllers see the arm's proprioception (joint angles and velocities, with sensory noise) "
+                   "this many seconds late through a delayed Kalman filter, instead of the state; a whole "
+                   "number of 10 ms steps, 0 allowed.  [default: the state is seen]")
 @click.option("--allow-unconverged", is_flag=True,
               help="Exit 0 even when some reaches did not converge (they are flagged in the table and on stderr).")
 @_out_option(default=None, help="Folder for center_out.md/.json and the figures.")
-def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs, max_iterations, allow_unconverged,
-                       out, overwrite):
+def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs, max_iterations, sensory_delay,
+                       allow_unconverged, out, overwrite):
     """Center-out reaching with the six-muscle arm (arm2_muscle6) at several input delays.
 
     Per delay and design: one vectorised solve of the reaches to all targets (excitations limited
@@ -541,11 +545,16 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             arm2_muscle6(delay=d)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--delays'") from exc
+    if sensory_delay is not None:
+        try:
+            arm2_muscle6(sensory_delay=sensory_delay)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="'--sensory-delay'") from exc
     with _Output(out, overwrite) as output:
         start = time.perf_counter()
         options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
         results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
-                                        designs=designs)
+                                        designs=designs, sensory_delay=sensory_delay)
         elapsed = time.perf_counter() - start
         table = tables.markdown_table(tables.center_out_rows(results))
         click.echo(table)
@@ -554,7 +563,7 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             figures = report.save_figures(plot.center_out_figures(results), output.staging)
             settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
                             sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
-                            elapsed_seconds=elapsed)
+                            sensory_delay=sensory_delay, elapsed_seconds=elapsed)
             report.write_center_out_report(output.staging, results, settings, table, figures)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")

@@ -23,6 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional, Sequence
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .. import Options, Policy, Problem, Solution, Status
@@ -189,7 +191,7 @@ def _designs(names) -> tuple:
 def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, radius: float = 0.1,
                n_trials: int = 200, seed: int = 0, options: Optional[Options] = None,
                geometry: str = "angle_dependent", sigma_u: float = SIGMA_U,
-               designs: Sequence[str] = DESIGNS) -> list[DelayResult]:
+               designs: Sequence[str] = DESIGNS, sensory_delay: Optional[float] = None) -> list[DelayResult]:
     """Runs the center-out study; one :class:`DelayResult` per delay and design (delay-major).
 
     Args:
@@ -204,6 +206,11 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
             variability, ``docs/models.md`` §4.5); the noise-aware design
             is made for it.
         designs: a non-empty selection of :data:`DESIGNS`.
+        sensory_delay: None (default): the controllers see the state. A delay in seconds (0
+            allowed): they see the arm's proprioception that late through its sensory noise
+            (``arm2_muscle6``'s ``sensory_delay``; each design gets the delayed Kalman filter of
+            its own problem, the noise-aware one with Todorov's alternation), the sensorimotor
+            loop whose noise and delay make human endpoint scatter (``docs/results/noise_calibration.md``).
     """
     options = DEFAULT_OPTIONS if options is None else options
     if not isinstance(options, Options):
@@ -212,8 +219,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
     targets = center_out_targets(n_targets, radius)
     results = []
     for delay in delays:
-        plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u)
-                  for t in targets]
+        plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u,
+                               sensory_delay=sensory_delay) for t in targets]
         for name in names:
             results.append(_reaches(float(delay), name, plants, options, n_trials, seed))
     return results
@@ -224,6 +231,9 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
     """One delay and design: the batched solve of all targets, then the Monte Carlo of each policy."""
     problems = [designs.design(plant, name, options)[0] for plant in plants]
     sols, solve_time, first = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
+    if plants[0].observation is not None and designs.REGISTRY[name].filter_on_plant:
+        stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *plants)
+        sols = jax.jit(jax.vmap(designs.filter_on_plant))(stacked, sols)
     per_target, runs = [], []
     for j, plant in enumerate(plants):
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)

@@ -18,17 +18,21 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable, NamedTuple, Optional
 
-from .. import Options, Problem
+from .. import Options, Problem, Solution
+from ..ilqg.estimation import with_estimator
 
-__all__ = ["Design", "REGISTRY", "design"]
+__all__ = ["Design", "REGISTRY", "design", "filter_on_plant"]
 
 
 class Design(NamedTuple):
-    """One design: ``transform(plant) -> design problem``; ``method`` forces ``Options.method``."""
+    """One design: ``transform(plant) -> design problem``; ``method`` forces ``Options.method``;
+    ``filter_on_plant``: with sensors, the estimator is designed on the plant (its noise) rather than
+    on the design problem (see :func:`filter_on_plant`)."""
 
     description: str
     transform: Callable[[Problem], Problem]
     method: Optional[str] = None
+    filter_on_plant: bool = False
 
 
 def _plant(problem: Problem) -> Problem:
@@ -48,7 +52,8 @@ REGISTRY = {
     "ignorant": Design("delay-ignorant iLQG (designed for tau = 0, run on the delayed plant)", _without_delay),
     "augmented": Design("delay-aware iLQG by state augmentation (reference)", _plant, "augmented"),
     "noise-aware": Design("iLQG designed on the noisy plant (the noise enters the backward pass)", _plant),
-    "deterministic": Design("iLQR designed on the noise-free plant, then run in the noise", _without_noise),
+    "deterministic": Design("iLQR designed on the noise-free plant, then run in the noise", _without_noise,
+                            filter_on_plant=True),
 }
 
 
@@ -73,3 +78,17 @@ def design(problem: Problem, name: str, options: Optional[Options] = None) -> tu
     if entry.method is not None:
         options = dataclasses.replace(options, method=entry.method)
     return entry.transform(problem), options
+
+
+def filter_on_plant(plant: Problem, sol: Solution) -> Solution:
+    """A noise-free design's solution ``sol`` with the estimator of the plant's sensors designed for
+    the plant's noise (a batch of solutions takes a batch of plants: vmap it).
+
+    A filter designed on the noise-free problem trusts its model completely (no process noise:
+    zero Kalman gain), and its controller would run open loop on the sensed plant. The engineer's
+    design is iLQR's feedback with the delayed Kalman filter of the plant's motor and sensory noise
+    at iLQR's nominal (separation, no alternation: ``ilqg.estimation.design_estimator``). The
+    expected cost stays the design's own (the noise-free cost), as without sensors.
+    """
+    with_filter = with_estimator(plant, sol, Options(max_alternations=0))
+    return with_filter._replace(expected_cost=sol.expected_cost, status=sol.status)

@@ -227,8 +227,11 @@ def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict
     s = settings
     lines = ["# Center-out reaching, six-muscle arm, delayed excitations", "",
              f"{s['targets']} targets at {1e3 * s['radius']:g} mm, {s['trials']} noisy trials per target (sigma_u "
-             f"{s['sigma_u']:g}, seed {s['seed']}); designs: {', '.join(s['designs'])}. Study time "
-             f"{s['elapsed_seconds']:.1f} s.", "",
+             f"{s['sigma_u']:g}, seed {s['seed']}); designs: {', '.join(s['designs'])}; "
+             + ("the controllers see the state" if s.get("sensory_delay") is None else
+                f"the controllers see proprioception {1e3 * s['sensory_delay']:g} ms late through a delayed "
+                "Kalman filter")
+             + f". Study time {s['elapsed_seconds']:.1f} s.", "",
              table, ""]
     for f in figures:
         lines += [f"![{f}]({f})", "", _caption(f), ""]
