@@ -9,6 +9,7 @@ muscle arm, with Monte Carlo data).
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -108,3 +109,46 @@ def test_bad_input_is_named():
     plain = point_mass().replace(metadata=None)
     with pytest.raises(ValueError, match="task space"):
         task_prediction(plain, predict(plain, solve(plain)))
+
+
+def test_fit_command_profiles_a_data_file(tmp_path):
+    """``delayed-ilqr fit test_fitting:arm_problem DATA``: the same profile and fit as the test
+    above, from a file of save_reach_data (the command's compilations are the test's: the same
+    model function, delay and options); fit.json holds the chosen delay and the parameters."""
+    from click.testing import CliRunner
+
+    from delayed_ilqr import cli
+
+    path = tmp_path / "reaches.npz"
+    fitting.save_reach_data(path, TARGETS, _exact_data(TRUTH))
+    args = ["--no-cache", "fit", "test_fitting:arm_problem", str(path), "--start", "r=1.5e-4", "--start", "w_v=6.0",
+            "--start", "sigma_u=0.075", "--delays", str(DELAY), "--out", str(tmp_path / "fit")]
+    result = CliRunner().invoke(cli.main, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "fit" / "fit.json").read_text())
+    assert record["best_delay"] == DELAY
+    fitted = record["fits"][0]["params"]
+    assert max(abs(fitted[k] / TRUTH[k] - 1) for k in TRUTH) < 1e-3, fitted
+    assert "| 0.05 |" in result.output
+
+
+def test_fit_command_names_bad_input(tmp_path):
+    from click.testing import CliRunner
+
+    from delayed_ilqr import cli
+
+    path = tmp_path / "reaches.npz"
+    np.savez(path, conditions=np.asarray(TARGETS), mean=np.zeros((2, 51, 2)))
+    run = lambda *args: CliRunner().invoke(cli.main, ["fit", "test_fitting:arm_problem", *args])
+    missing = run(str(path), "--start", "r=1e-4", "--delays", "0.05")
+    assert missing.exit_code == 2 and "missing endpoint_cov" in missing.output
+    fitting.save_reach_data(path, TARGETS, fitting.ReachData(np.zeros((2, 51, 2)), np.zeros((2, 3, 3))))
+    shapes = run(str(path), "--start", "r=1e-4", "--delays", "0.05")
+    assert shapes.exit_code == 2 and "endpoint_cov must be [C=2, m=2, m]" in shapes.output
+    fitting.save_reach_data(path, TARGETS, fitting.ReachData(np.zeros((2, 51, 2)), np.tile(np.eye(2), (2, 1, 1))))
+    negative = run(str(path), "--start", "r=-1e-4", "--delays", "0.05")
+    assert negative.exit_code == 2 and "positive finite" in negative.output and "--start" in negative.output
+    off_grid = run(str(path), "--start", "r=1e-4", "--start", "w_v=1.0", "--start", "sigma_u=0.1", "--delays", "0.055")
+    assert off_grid.exit_code == 2 and "--delays" in off_grid.output
+    nowhere = CliRunner().invoke(cli.main, ["fit", "no_such_module:f", str(path), "--start", "r=1", "--delays", "0"])
+    assert nowhere.exit_code == 2 and "cannot import module 'no_such_module'" in nowhere.output

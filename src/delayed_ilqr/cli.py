@@ -2,8 +2,8 @@
 :mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
 (:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
-Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``
-and ``sweep`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
+Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``,
+``sweep`` and ``fit`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
@@ -84,6 +84,23 @@ class _Model(NamedTuple):
     description: str
 
 
+def _import_callable(value: str, what: str, param, ctx) -> Callable:
+    """The callable named by ``package.module:name`` (the current folder on the path, as
+    ``python -m`` finds a module); ``what`` names it in errors (e.g. "MODEL")."""
+    module_name, _, attr = value.partition(":")
+    if os.getcwd() not in sys.path:
+        sys.path.insert(0, os.getcwd())
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise click.BadParameter(f"cannot import module {module_name!r} of {value!r}: {exc}", ctx, param) from None
+    function = getattr(module, attr, None) if attr else None
+    if not callable(function):
+        raise click.BadParameter(f"{module_name!r} has no callable {attr!r}; {what} must name one as "
+                                 f"package.module:name; got {value!r}", ctx, param)
+    return function
+
+
 class _ModelType(click.ParamType):
     """A built-in model name or ``package.module:factory``."""
 
@@ -97,17 +114,7 @@ class _ModelType(click.ParamType):
         if ":" not in value:
             self.fail(f"must be a built-in model ({', '.join(sorted(REGISTRY))}) or package.module:factory; "
                       f"got {value!r}", param, ctx)
-        module_name, _, attr = value.partition(":")
-        if os.getcwd() not in sys.path:          # a factory in a file of the current folder, as python -m finds it
-            sys.path.insert(0, os.getcwd())
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as exc:
-            self.fail(f"cannot import module {module_name!r} of {value!r}: {exc}", param, ctx)
-        factory = getattr(module, attr, None) if attr else None
-        if not callable(factory):
-            self.fail(f"{module_name!r} has no callable {attr!r}; MODEL must name a factory as "
-                      f"package.module:factory; got {value!r}", param, ctx)
+        factory = _import_callable(value, "MODEL", param, ctx)
         doc = (factory.__doc__ or "").strip().splitlines()
         return _Model(value, factory, doc[0] if doc else value)
 
@@ -571,6 +578,72 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
     for delay, design, j in failed:
         click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
     if failed and not allow_unconverged:
+        sys.exit(1)
+
+
+@main.command("fit")
+@click.argument("function", metavar="FUNCTION")
+@click.argument("data", type=click.Path(exists=True, dir_okay=False, path_type=pathlib.Path))
+@click.option("--start", "starts", type=_ParamPair(), multiple=True, required=True,
+              help="name=value: a fitted parameter and its starting value (a positive number); repeatable.")
+@click.option("--delays", type=_DelayList(), required=True,
+              help="Comma-separated candidate delays in seconds (the profile: one fit per delay).")
+@click.option("--mean-scale", type=click.FloatRange(min=0.0, min_open=True), default=1e-3, show_default=True,
+              help="Precision of a mean path in task units (e.g. its standard error).")
+@click.option("--max-iterations", type=click.IntRange(min=1), default=100, show_default=True,
+              help="L-BFGS-B iterations per delay.")
+@_out_option(default=None, help="Folder for fit.json.")
+def fit_command(function, data, starts, delays, mean_scale, max_iterations, out, overwrite):
+    """Fit cost weights and noise scales to reach data, and the delay by a profile (docs/fitting.md).
+
+    FUNCTION is package.module:name, called as name(params, condition, delay) with params a dict
+    of the --start names (traced scalars), condition one row of DATA's conditions and delay in
+    seconds, and returning a delayed_ilqr.Problem. DATA is an NPZ file with the arrays conditions
+    [C, ...], mean [C, K+1, m] (mean task-space paths) and endpoint_cov [C, m, m]
+    (delayed_ilqr.experiments.fitting.save_reach_data writes one). Prints the loss and parameters
+    fitted at each delay and the delay of the smallest loss; exits 1 when that fit did not
+    converge (results are still written).
+    """
+    from .experiments import fitting
+
+    make_problem = _import_callable(function, "FUNCTION", None, None)
+    try:
+        conditions, reach_data = fitting.load_reach_data(data)
+    except (ValueError, OSError) as exc:
+        raise click.BadParameter(str(exc), param_hint="'DATA'") from None
+    params0 = dict(starts)
+    bad = {k: v for k, v in params0.items()
+           if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0)}
+    if bad:
+        raise click.BadParameter(f"starting values must be positive finite numbers; got {bad}", param_hint="'--start'")
+    for delay in delays:
+        try:
+            make_problem({k: float(v) for k, v in params0.items()}, conditions[0], delay)
+        except ValueError as exc:
+            raise click.BadParameter(f"{function} refused delay {delay:g} s: {exc}", param_hint="'--delays'") from None
+    with _Output(out, overwrite) as output:
+        start = time.perf_counter()
+        best, fits = fitting.profile_delay(make_problem, delays, conditions, reach_data,
+                                           {k: float(v) for k, v in params0.items()}, mean_scale=mean_scale,
+                                           max_iterations=max_iterations)
+        elapsed = time.perf_counter() - start
+        names = sorted(params0)
+        header = ["delay [s]", "loss", *names, "converged", "L-BFGS-B iterations", "evaluations"]
+        rows = [[f"{d:g}", f"{f.loss:.4g}", *(f"{f.params[k]:.6g}" for k in names), "yes" if f.converged else "no",
+                 str(f.iterations), str(f.evaluations)] for d, f in zip(delays, fits)]
+        click.echo(tables.markdown_table((header, rows)))
+        chosen = fits[delays.index(best)]
+        click.echo(f"delay {best:g} s (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
+        if out is not None:
+            settings = dict(function=function, data=str(data), start=params0, delays=list(delays),
+                            mean_scale=mean_scale, max_iterations=max_iterations, elapsed_seconds=elapsed)
+            records = [dict(delay=d, loss=f.loss, params=f.params, converged=f.converged, message=f.message,
+                            iterations=f.iterations, evaluations=f.evaluations) for d, f in zip(delays, fits)]
+            report.write_json(output.staging / "fit.json", dict(settings=settings, best_delay=best, fits=records))
+            written = output.commit(settings)
+            click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
+    if not chosen.converged:
+        click.echo(f"warning: the fit at delay {best:g} s did not converge: {chosen.message}", err=True)
         sys.exit(1)
 
 

@@ -36,7 +36,8 @@ from .. import Options, Problem, Runs, Status, solve
 from ..models.metadata import default_u_init, task_space
 from ..prediction import predict, task_prediction
 
-__all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay"]
+__all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay",
+           "save_reach_data", "load_reach_data"]
 
 
 class ReachData(NamedTuple):
@@ -202,3 +203,41 @@ def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays
     # search; a fit whose final solves did not converge has an infinite loss
     losses = [f.loss for f in fits]
     return delays[int(np.argmin(losses))], fits
+
+
+#: The arrays of a data file (:func:`save_reach_data`), by name.
+DATA_ARRAYS = ("conditions", "mean", "endpoint_cov")
+
+
+def save_reach_data(path, conditions, data: ReachData) -> None:
+    """Writes the data of C conditions as the NPZ file that :func:`load_reach_data` and
+    ``delayed-ilqr fit`` read: ``conditions`` [C, ...] (e.g. the targets), ``mean`` [C, K+1, m]
+    and ``endpoint_cov`` [C, m, m] (e.g. from :func:`observed_reach` of each condition's trials)."""
+    np.savez(path, conditions=np.asarray(conditions), mean=np.asarray(data.mean),
+             endpoint_cov=np.asarray(data.endpoint_cov))
+
+
+def load_reach_data(path) -> tuple:
+    """(conditions [C, ...], :class:`ReachData`) from a file of :func:`save_reach_data`.
+
+    Raises:
+        ValueError: naming the file and the array, when an array is missing, the shapes do not
+            agree on C and m, or a value is not finite.
+    """
+    with np.load(path, allow_pickle=False) as f:
+        missing = [name for name in DATA_ARRAYS if name not in f.files]
+        if missing:
+            raise ValueError(f"{path} must hold the arrays {', '.join(DATA_ARRAYS)}; missing {', '.join(missing)}")
+        conditions, mean, cov = (np.asarray(f[name], dtype=np.float64) for name in DATA_ARRAYS)
+    count = len(conditions) if conditions.ndim else 0
+    if count == 0:
+        raise ValueError(f"{path}: conditions must have a leading axis C >= 1; got shape {conditions.shape}")
+    if mean.ndim != 3 or mean.shape[0] != count:
+        raise ValueError(f"{path}: mean must be [C={count}, K+1, m] (mean paths); got shape {mean.shape}")
+    if cov.shape != (count, mean.shape[2], mean.shape[2]):
+        raise ValueError(f"{path}: endpoint_cov must be [C={count}, m={mean.shape[2]}, m] (endpoint covariances); "
+                         f"got shape {cov.shape}")
+    for name, a in zip(DATA_ARRAYS, (conditions, mean, cov)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{path}: {name} must be finite; got {int(np.sum(~np.isfinite(a)))} non-finite values")
+    return jnp.asarray(conditions), ReachData(jnp.asarray(mean), jnp.asarray(cov))
