@@ -18,19 +18,21 @@ linearisation leaves out: the clipping of commands at their limits, and the plan
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
+from .ilqg.closed_loop import augmented_feedback, delayed_law
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
 from .models.metadata import task_space
 from .problem import Problem
-from .solution import Solution
+from .solution import Policy, Solution
 
-__all__ = ["Prediction", "predict", "task_prediction"]
+__all__ = ["Prediction", "predict", "task_prediction", "ClosedLoopPrediction", "sigma_point_prediction"]
 
 
 class Prediction(NamedTuple):
@@ -65,3 +67,92 @@ def task_prediction(problem: Problem, states: Prediction) -> Prediction:
         raise ValueError(f"task_prediction: problem {problem.name!r} has no task space (metadata.task is None)")
     J = jax.vmap(jax.jacobian(task.map))(states.mean)                   # [K+1, m, n]
     return Prediction(task.map(states.mean), J @ states.cov @ jnp.swapaxes(J, 1, 2))
+
+
+class ClosedLoopPrediction(NamedTuple):
+    """Moments of the nonlinear closed loop from :func:`sigma_point_prediction`.
+
+    Attributes:
+        expected_cost: [] E[J], eq. (2) of the trials as :func:`delayed_ilqr.simulate` scores them.
+        state: :class:`Prediction` of the states: mean [K+1, n] E[x_k], cov [K+1, n, n] Cov(x_k).
+    """
+
+    expected_cost: jax.Array
+    state: Prediction
+
+
+def _sigma_points(mean, cov, rule: str):
+    """Points [P, N] and weights [P] with sum w = 1 that reproduce ``mean`` [N] and ``cov`` [N, N]
+    (PSD, possibly singular: the square root is symmetric, from ``eigh``).
+
+    "cubature": the 2N points mean +- sqrt(N) s_i (s_i the columns of cov^{1/2}), weights 1/(2N);
+    exact for the mean of any polynomial of degree <= 3 of a Gaussian (eq. P3).
+    "unscented": the same with the mean added, mean +- sqrt(3) s_i, weights 1/6 and 1 - N/3
+    (Julier's kappa = 3 - N); it also matches the Gaussian's fourth moments along each s_i, at the
+    price of a negative central weight for N > 3."""
+    values, vectors = jnp.linalg.eigh(0.5 * (cov + cov.T))
+    root = vectors * jnp.sqrt(jnp.maximum(values, 0.0))[None, :]      # root root' = cov, columns s_i
+    N = mean.shape[0]
+    if rule == "cubature":
+        offsets = jnp.sqrt(N) * jnp.concatenate([root.T, -root.T])
+        return mean + offsets, jnp.full(2 * N, 1.0 / (2 * N), mean.dtype)
+    offsets = jnp.sqrt(3.0) * jnp.concatenate([jnp.zeros((1, N), mean.dtype), root.T, -root.T])
+    weights = jnp.concatenate([jnp.array([1.0 - N / 3.0], mean.dtype), jnp.full(2 * N, 1.0 / 6.0, mean.dtype)])
+    return mean + offsets, weights
+
+
+@partial(jax.jit, static_argnames=("rule",))
+def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> ClosedLoopPrediction:
+    K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
+    l, l_p = problem.delay_steps, policy.delay_feedback.shape[1]
+    m = max(l, l_p)
+    dtype = problem.x0.dtype
+    LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
+    u_bar = policy.u_nominal
+    # u_nominal_{k-l} (zero before time 0), what the plant's delayed command deviates from
+    u_bar_delayed = jnp.concatenate([jnp.zeros((l, nd), dtype), u_bar])[:K] if l > 0 else u_bar
+    root_dt = jnp.sqrt(jnp.asarray(problem.dt, dtype))
+
+    def point(z, x_bar, x_bar_next, ub, ubd, LMk, t):
+        """One sigma point z = [dx_k, du_{k-m}, ..., du_{k-1}] through eq. P1: the successor's
+        noise-free part, the noise matrix sqrt(dt) F [n, p] and the running cost."""
+        dx, sent = z[:nx], z[nx:].reshape(m, nd)
+        x = x_bar + dx
+        du = delayed_law(jnp.zeros(nd, dtype), LMk, jnp.concatenate([dx, sent[m - l_p:].reshape(-1)]))
+        u = jnp.clip(ub + du, problem.u_min, problem.u_max)
+        ud = ubd + sent[m - l] if l > 0 else u
+        x_next = x + problem.dt * problem.dynamics_at(x, u, ud, t)
+        G = root_dt * problem.noise_at(x, u, ud, t) if problem.noise is not None else jnp.zeros((nx, 0), dtype)
+        sent_next = jnp.concatenate([sent[1:], (u - ub)[None]]).reshape(-1) if m > 0 else sent.reshape(-1)
+        return jnp.concatenate([x_next - x_bar_next, sent_next]), G, problem.dt * problem.cost.running(x, u, t)
+
+    def step(carry, data):
+        mean, cov, total = carry
+        x_bar, x_bar_next, ub, ubd, LMk, t = data
+        Z, w = _sigma_points(mean, cov, rule)
+        Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, x_bar, x_bar_next, ub, ubd, LMk, t)
+        mean_next = w @ Z_next
+        centred = Z_next - mean_next
+        cov_next = jnp.einsum("i,ij,ik->jk", w, centred, centred)
+        noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G'] (eq. P2)
+        cov_next = cov_next.at[:nx, :nx].add(noise)
+        return (mean_next, 0.5 * (cov_next + cov_next.T), total + w @ running), (mean_next, cov_next)
+
+    nz = nx + m * nd
+    init = (jnp.zeros(nz, dtype), jnp.zeros((nz, nz), dtype), jnp.asarray(0.0, dtype))
+    data = (policy.x_nominal[:-1], policy.x_nominal[1:], u_bar, u_bar_delayed, LM, problem.step_times(dtype))
+    (mean, cov, total), (means, covs) = jax.lax.scan(step, init, data)
+    Z, w = _sigma_points(mean, cov, rule)
+    final = jax.vmap(lambda z: problem.cost.final(policy.x_nominal[-1] + z[:nx], problem.final_time))(Z)
+    means = jnp.concatenate([init[0][None], means])[:, :nx]
+    covs = jnp.concatenate([init[1][None], covs])[:, :nx, :nx]
+    return ClosedLoopPrediction(total + w @ final, Prediction(policy.x_nominal + means, covs))
+
+
+def sigma_point_prediction(problem: Problem, policy: Policy, rule: str = "cubature") -> ClosedLoopPrediction:
+    """docstring later"""
+    if problem.observation is not None or policy.estimator is not None:
+        raise ValueError("sigma_point_prediction: full-state feedback only")
+    if rule not in ("cubature", "unscented"):
+        raise ValueError(f"rule must be 'cubature' or 'unscented'; got {rule!r}")
+    return _sigma_point_prediction(problem, policy, rule)
