@@ -21,8 +21,8 @@ from delayed_ilqr.prediction import sigma_point_prediction  # noqa: E402
 
 def main(argv):
     delays, n = [float(d) for d in argv[1].split(",")], int(argv[2])
-    print("| delay | linear pred | cubature | unscented | MC mean +- SE | linear / MC | cubature / MC | unscented / MC |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("| delay | linear pred | cubature | unscented | second order | fifth degree | MC mean +- SE | linear / MC | cubature / MC | unscented / MC | second order / MC | fifth degree / MC |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for delay in delays:
         problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN)
         sol = di.solve(problem)
@@ -30,11 +30,13 @@ def main(argv):
         cub = float(sigma_point_prediction(problem, sol.policy, "cubature").expected_cost)
         t1 = time.perf_counter()
         ut = float(sigma_point_prediction(problem, sol.policy, "unscented").expected_cost)
+        so = float(sigma_point_prediction(problem, sol.policy, "second_order").expected_cost)
+        fd = float(sigma_point_prediction(problem, sol.policy, "fifth_degree").expected_cost)
         cost = np.asarray(di.simulate(problem, sol.policy, n, seed=1).cost)
         mc, se = cost.mean(), cost.std(ddof=1) / np.sqrt(n)
         lin = float(sol.expected_cost)
-        print(f"| {delay * 1e3:.0f} ms | {lin:.4g} | {cub:.4g} | {ut:.4g} | {mc:.4g} +- {se:.2g} | {lin / mc:.3f} | "
-              f"{cub / mc:.3f} | {ut / mc:.3f} |", flush=True)
+        print(f"| {delay * 1e3:.0f} ms | {lin:.4g} | {cub:.4g} | {ut:.4g} | {so:.4g} | {fd:.4g} | {mc:.4g} +- {se:.2g} | {lin / mc:.3f} | "
+              f"{cub / mc:.3f} | {ut / mc:.3f} | {so / mc:.3f} | {fd / mc:.3f} |", flush=True)
         print(f"  (status {sol.status}, cubature incl. compile {t1 - t0:.2f} s)", file=sys.stderr)
 
 

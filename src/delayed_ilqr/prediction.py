@@ -23,8 +23,9 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from .ilqg.closed_loop import augmented_feedback, delayed_law
+from .ilqg.closed_loop import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
@@ -96,6 +97,15 @@ def _sigma_points(mean, cov, rule: str):
     if rule == "cubature":
         offsets = jnp.sqrt(N) * jnp.concatenate([root.T, -root.T])
         return mean + offsets, jnp.full(2 * N, 1.0 / (2 * N), mean.dtype)
+    if rule == "fifth_degree":
+        eye = np.eye(N)
+        i, j = np.triu_indices(N, 1)
+        pairs = np.concatenate([eye[i] + eye[j], eye[i] - eye[j], -eye[i] + eye[j], -eye[i] - eye[j]])
+        unit = np.concatenate([np.zeros((1, N)), np.sqrt(N + 2.0) * eye, -np.sqrt(N + 2.0) * eye,
+                               np.sqrt((N + 2.0) / 2) * pairs])
+        weights = np.concatenate([[2.0 / (N + 2)], np.full(2 * N, (4.0 - N) / (2 * (N + 2) ** 2)),
+                                  np.full(len(pairs), 1.0 / (N + 2) ** 2)])
+        return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype)
     offsets = jnp.sqrt(3.0) * jnp.concatenate([jnp.zeros((1, N), mean.dtype), root.T, -root.T])
     weights = jnp.concatenate([jnp.array([1.0 - N / 3.0], mean.dtype), jnp.full(2 * N, 1.0 / 6.0, mean.dtype)])
     return mean + offsets, weights
@@ -118,7 +128,9 @@ def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         noise-free part, the noise matrix sqrt(dt) F [n, p] and the running cost."""
         dx, sent = z[:nx], z[nx:].reshape(m, nd)
         x = x_bar + dx
-        du = delayed_law(jnp.zeros(nd, dtype), LMk, jnp.concatenate([dx, sent[m - l_p:].reshape(-1)]))
+        # the law of ilqg.closed_loop.delayed_law, as a plain product: its kernel's custom JVP does
+        # not nest, and the second-order rule differentiates twice
+        du = LMk @ jnp.concatenate([dx, sent[m - l_p:].reshape(-1)])
         u = jnp.clip(ub + du, problem.u_min, problem.u_max)
         ud = ubd + sent[m - l] if l > 0 else u
         x_next = x + problem.dt * problem.dynamics_at(x, u, ud, t)
@@ -126,33 +138,54 @@ def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         sent_next = jnp.concatenate([sent[1:], (u - ub)[None]]).reshape(-1) if m > 0 else sent.reshape(-1)
         return jnp.concatenate([x_next - x_bar_next, sent_next]), G, problem.dt * problem.cost.running(x, u, t)
 
-    def step(carry, data):
-        mean, cov, total = carry
-        x_bar, x_bar_next, ub, ubd, LMk, t = data
+    def sigma_step(mean, cov, args):
         Z, w = _sigma_points(mean, cov, rule)
-        Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, x_bar, x_bar_next, ub, ubd, LMk, t)
+        Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, *args)
         mean_next = w @ Z_next
         centred = Z_next - mean_next
         cov_next = jnp.einsum("i,ij,ik->jk", w, centred, centred)
         noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G'] (eq. P2)
-        cov_next = cov_next.at[:nx, :nx].add(noise)
-        return (mean_next, 0.5 * (cov_next + cov_next.T), total + w @ running), (mean_next, cov_next)
+        return mean_next, cov_next.at[:nx, :nx].add(noise), w @ running
+
+    def taylor_step(mean, cov, args):
+        def parts(z):
+            z_next, G, running = point(z, *args)
+            return z_next[:nx], G @ G.T, running
+        z_next, G, running = point(mean, *args)
+        J = jax.jacfwd(lambda z: point(z, *args)[0])(mean)               # [N, N]
+        Hx, HGG, Hr = jax.hessian(parts)(mean)                           # [n, N, N], [n, n, N, N], [N, N]
+        HP = Hx @ cov                                                    # [n, N, N]
+        mean_next = z_next.at[:nx].add(0.5 * jnp.einsum("iab,ba->i", Hx, cov))
+        cov_next = J @ cov @ J.T
+        extra = 0.5 * jnp.einsum("iab,jba->ij", HP, HP) + G @ G.T + 0.5 * jnp.einsum("ijab,ba->ij", HGG, cov)
+        return mean_next, cov_next.at[:nx, :nx].add(extra), running + 0.5 * jnp.sum(Hr * cov)
+
+    def step(carry, data):
+        mean, cov, total = carry
+        moments = taylor_step if rule == "second_order" else sigma_step
+        mean_next, cov_next, running = moments(mean, cov, data)
+        cov_next = 0.5 * (cov_next + cov_next.T)
+        return (mean_next, cov_next, total + running), (mean_next, cov_next)
 
     nz = nx + m * nd
     init = (jnp.zeros(nz, dtype), jnp.zeros((nz, nz), dtype), jnp.asarray(0.0, dtype))
     data = (policy.x_nominal[:-1], policy.x_nominal[1:], u_bar, u_bar_delayed, LM, problem.step_times(dtype))
     (mean, cov, total), (means, covs) = jax.lax.scan(step, init, data)
-    Z, w = _sigma_points(mean, cov, rule)
-    final = jax.vmap(lambda z: problem.cost.final(policy.x_nominal[-1] + z[:nx], problem.final_time))(Z)
+    final_cost = lambda z: problem.cost.final(policy.x_nominal[-1] + z[:nx], problem.final_time)
+    if rule == "second_order":
+        expected_final = final_cost(mean) + 0.5 * jnp.sum(jax.hessian(final_cost)(mean) * cov)
+    else:
+        Z, w = _sigma_points(mean, cov, rule)
+        expected_final = w @ jax.vmap(final_cost)(Z)
     means = jnp.concatenate([init[0][None], means])[:, :nx]
     covs = jnp.concatenate([init[1][None], covs])[:, :nx, :nx]
-    return ClosedLoopPrediction(total + w @ final, Prediction(policy.x_nominal + means, covs))
+    return ClosedLoopPrediction(total + expected_final, Prediction(policy.x_nominal + means, covs))
 
 
 def sigma_point_prediction(problem: Problem, policy: Policy, rule: str = "cubature") -> ClosedLoopPrediction:
     """docstring later"""
     if problem.observation is not None or policy.estimator is not None:
         raise ValueError("sigma_point_prediction: full-state feedback only")
-    if rule not in ("cubature", "unscented"):
+    if rule not in ("cubature", "unscented", "second_order", "fifth_degree"):
         raise ValueError(f"rule must be 'cubature' or 'unscented'; got {rule!r}")
     return _sigma_point_prediction(problem, policy, rule)
