@@ -1,4 +1,4 @@
-"""The closed-loop prediction on the nonlinear plant (prediction.sigma_point_prediction).
+"""The closed-loop prediction on the nonlinear plant (prediction.closed_loop_prediction).
 
 On a linear plant with quadratic cost every rule is exact: its expected cost and state moments
 are those of the exact linear-closed-loop propagation (lqg.policy_cost, lqg.closed_loop_moments),
@@ -15,7 +15,7 @@ from delayed_ilqr import lqg, simulate, solve
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN
-from delayed_ilqr.prediction import sigma_point_prediction
+from delayed_ilqr.prediction import closed_loop_prediction
 
 from comparisons import rel_err
 
@@ -35,7 +35,7 @@ def test_exact_on_a_linear_plant(delay):
     cost, moments = lqg.policy_cost(model, gains), lqg.closed_loop_moments(model, gains)
     assert float(cost) > 2 * float(sol.cost)           # the noise's share is not negligible
     for rule in RULES:
-        pred = sigma_point_prediction(problem, policy, rule)
+        pred = closed_loop_prediction(problem, policy, rule)
         assert abs(float(pred.expected_cost) / float(cost) - 1) < 1e-9, rule
         assert rel_err(pred.state.cov, moments.state_covariance(4)) < 1e-9, rule
         np.testing.assert_allclose(pred.state.mean, sol.x, rtol=0, atol=1e-12)
@@ -44,7 +44,7 @@ def test_exact_on_a_linear_plant(delay):
         # loop is the LQG's at l = 0 with the plant's delay put back, here a Monte Carlo check
         ignorant = solve(point_mass(delay=0.0, noise=True)).policy
         runs = simulate(problem, ignorant, 20000, seed=2)
-        pred = sigma_point_prediction(problem, ignorant)
+        pred = closed_loop_prediction(problem, ignorant)
         c = np.asarray(runs.cost)
         assert abs(float(pred.expected_cost) - c.mean()) < 4 * c.std() / np.sqrt(c.size)
 
@@ -61,8 +61,8 @@ def test_closer_to_monte_carlo_on_the_torque_arm():
     mc, se = c.mean(), c.std() / np.sqrt(c.size)
     assert se < 0.06 * mc
     linear = float(sol.expected_cost)
-    second = float(sigma_point_prediction(problem, sol.policy, "second_order").expected_cost)
-    fifth = float(sigma_point_prediction(problem, sol.policy, "fifth_degree").expected_cost)
+    second = float(closed_loop_prediction(problem, sol.policy, "second_order").expected_cost)
+    fifth = float(closed_loop_prediction(problem, sol.policy, "fifth_degree").expected_cost)
     assert mc - linear > 0.3 * mc
     assert abs(second - mc) < 0.5 * abs(linear - mc)
     assert abs(fifth / second - 1) < 0.02

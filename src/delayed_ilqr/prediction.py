@@ -15,6 +15,10 @@ are the model's predictions as functions of its parameters, which is what fittin
 measured reaches needs (``delayed_ilqr.experiments.fitting``). The prediction ignores what the
 linearisation leaves out: the clipping of commands at their limits, and the plant's curvature
 (``docs/fitting.md`` measures the gap against Monte Carlo).
+
+:func:`closed_loop_prediction` takes the plant's curvature in: it propagates the mean and
+covariance of the nonlinear closed loop (state and pending commands) under a Gaussian closure, by
+a second-order expansion or by sigma points, and returns its expected cost (eq. P1-P4 there).
 """
 from __future__ import annotations
 
@@ -33,7 +37,7 @@ from .models.metadata import task_space
 from .problem import Problem
 from .solution import Policy, Solution
 
-__all__ = ["Prediction", "predict", "task_prediction", "ClosedLoopPrediction", "sigma_point_prediction"]
+__all__ = ["Prediction", "predict", "task_prediction", "ClosedLoopPrediction", "closed_loop_prediction", "RULES"]
 
 
 class Prediction(NamedTuple):
@@ -70,8 +74,12 @@ def task_prediction(problem: Problem, states: Prediction) -> Prediction:
     return Prediction(task.map(states.mean), J @ states.cov @ jnp.swapaxes(J, 1, 2))
 
 
+RULES = ("second_order", "fifth_degree", "cubature")
+"""The expectation rules of :func:`closed_loop_prediction` (eq. P3-P4)."""
+
+
 class ClosedLoopPrediction(NamedTuple):
-    """Moments of the nonlinear closed loop from :func:`sigma_point_prediction`.
+    """Moments of the nonlinear closed loop from :func:`closed_loop_prediction`.
 
     Attributes:
         expected_cost: [] E[J], eq. (2) of the trials as :func:`delayed_ilqr.simulate` scores them.
@@ -83,36 +91,28 @@ class ClosedLoopPrediction(NamedTuple):
 
 
 def _sigma_points(mean, cov, rule: str):
-    """Points [P, N] and weights [P] with sum w = 1 that reproduce ``mean`` [N] and ``cov`` [N, N]
-    (PSD, possibly singular: the square root is symmetric, from ``eigh``).
-
-    "cubature": the 2N points mean +- sqrt(N) s_i (s_i the columns of cov^{1/2}), weights 1/(2N);
-    exact for the mean of any polynomial of degree <= 3 of a Gaussian (eq. P3).
-    "unscented": the same with the mean added, mean +- sqrt(3) s_i, weights 1/6 and 1 - N/3
-    (Julier's kappa = 3 - N); it also matches the Gaussian's fourth moments along each s_i, at the
-    price of a negative central weight for N > 3."""
+    """Points [P, N] and weights [P] (sum 1) of ``rule`` for N(mean [N], cov [N, N]) (eq. P4); cov
+    PSD and possibly singular (the pending commands before time 0): its square root is the
+    symmetric one, from ``eigh``, with columns s_i."""
     values, vectors = jnp.linalg.eigh(0.5 * (cov + cov.T))
-    root = vectors * jnp.sqrt(jnp.maximum(values, 0.0))[None, :]      # root root' = cov, columns s_i
+    root = vectors * jnp.sqrt(jnp.maximum(values, 0.0))[None, :]      # root root' = cov
     N = mean.shape[0]
     if rule == "cubature":
         offsets = jnp.sqrt(N) * jnp.concatenate([root.T, -root.T])
         return mean + offsets, jnp.full(2 * N, 1.0 / (2 * N), mean.dtype)
-    if rule == "fifth_degree":
-        eye = np.eye(N)
-        i, j = np.triu_indices(N, 1)
-        pairs = np.concatenate([eye[i] + eye[j], eye[i] - eye[j], -eye[i] + eye[j], -eye[i] - eye[j]])
-        unit = np.concatenate([np.zeros((1, N)), np.sqrt(N + 2.0) * eye, -np.sqrt(N + 2.0) * eye,
-                               np.sqrt((N + 2.0) / 2) * pairs])
-        weights = np.concatenate([[2.0 / (N + 2)], np.full(2 * N, (4.0 - N) / (2 * (N + 2) ** 2)),
-                                  np.full(len(pairs), 1.0 / (N + 2) ** 2)])
-        return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype)
-    offsets = jnp.sqrt(3.0) * jnp.concatenate([jnp.zeros((1, N), mean.dtype), root.T, -root.T])
-    weights = jnp.concatenate([jnp.array([1.0 - N / 3.0], mean.dtype), jnp.full(2 * N, 1.0 / 6.0, mean.dtype)])
-    return mean + offsets, weights
+    # fifth_degree: the unit points (built with numpy: N is static) mapped by the root
+    eye = np.eye(N)
+    i, j = np.triu_indices(N, 1)
+    pairs = np.concatenate([eye[i] + eye[j], eye[i] - eye[j], -eye[i] + eye[j], -eye[i] - eye[j]])
+    unit = np.concatenate([np.zeros((1, N)), np.sqrt(N + 2.0) * eye, -np.sqrt(N + 2.0) * eye,
+                           np.sqrt((N + 2.0) / 2) * pairs])
+    weights = np.concatenate([[2.0 / (N + 2)], np.full(2 * N, (4.0 - N) / (2 * (N + 2) ** 2)),
+                              np.full(len(pairs), 1.0 / (N + 2) ** 2)])
+    return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype)
 
 
 @partial(jax.jit, static_argnames=("rule",))
-def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> ClosedLoopPrediction:
+def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> ClosedLoopPrediction:
     K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
     l, l_p = problem.delay_steps, policy.delay_feedback.shape[1]
     m = max(l, l_p)
@@ -124,8 +124,8 @@ def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     root_dt = jnp.sqrt(jnp.asarray(problem.dt, dtype))
 
     def point(z, x_bar, x_bar_next, ub, ubd, LMk, t):
-        """One sigma point z = [dx_k, du_{k-m}, ..., du_{k-1}] through eq. P1: the successor's
-        noise-free part, the noise matrix sqrt(dt) F [n, p] and the running cost."""
+        """Eq. P1 at one z = [dx_k, du_{k-m}, ..., du_{k-1}] [N]: (g_k(z) [N], G_k(z) [n, p],
+        dt l(x_k, u_k))."""
         dx, sent = z[:nx], z[nx:].reshape(m, nd)
         x = x_bar + dx
         # the law of ilqg.closed_loop.delayed_law, as a plain product: its kernel's custom JVP does
@@ -139,15 +139,17 @@ def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         return jnp.concatenate([x_next - x_bar_next, sent_next]), G, problem.dt * problem.cost.running(x, u, t)
 
     def sigma_step(mean, cov, args):
+        """Eq. P2 with the expectations by the rule's points (eq. P4)."""
         Z, w = _sigma_points(mean, cov, rule)
         Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, *args)
         mean_next = w @ Z_next
         centred = Z_next - mean_next
         cov_next = jnp.einsum("i,ij,ik->jk", w, centred, centred)
-        noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G'] (eq. P2)
+        noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G']
         return mean_next, cov_next.at[:nx, :nx].add(noise), w @ running
 
     def taylor_step(mean, cov, args):
+        """Eq. P2 with the expectations of eq. P3."""
         def parts(z):
             z_next, G, running = point(z, *args)
             return z_next[:nx], G @ G.T, running
@@ -182,10 +184,65 @@ def _sigma_point_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     return ClosedLoopPrediction(total + expected_final, Prediction(policy.x_nominal + means, covs))
 
 
-def sigma_point_prediction(problem: Problem, policy: Policy, rule: str = "cubature") -> ClosedLoopPrediction:
-    """docstring later"""
+def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second_order") -> ClosedLoopPrediction:
+    """E[J] and the states' moments of ``policy`` on ``problem``'s nonlinear plant, as
+    :func:`delayed_ilqr.simulate` runs it (``substeps=1``), by moment propagation (no sampling).
+
+    The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] [N = n + m d],
+    m = max(l, l_p) (l the plant's delay, l_p the policy's; du the commands sent minus their
+    nominal)::
+
+        u_k = clip(u_bar_k + L_k dx_k + sum_i M_k^i du_{k+i-l_p}),   ud_k = u_{k-l} (u_k if l = 0)
+        z_{k+1} = g_k(z_k) + [G_k(z_k) xi_k; 0],   xi_k ~ N(0, I_p)                          (P1)
+        g_k(z) = [x_k + dt f(x_k, u_k, ud_k) - x_bar_{k+1}; du_{k-m+1}; ...; du_k],   G_k = sqrt(dt) F(x_k, u_k, ud_k)
+
+    from z_0 = 0. As xi_k is independent of z_k, exactly::
+
+        E[z_{k+1}] = E[g_k],   Cov(z_{k+1}) = Cov(g_k) + [E[G_k G_k'] 0; 0 0]
+        E[J] = sum_k dt E[l(x_k, u_k)] + E[h(x_K)]                                            (P2)
+
+    The expectations over z_k are taken as if z_k ~ N(mean_k, P_k) (the Gaussian closure), by
+    ``rule``:
+
+    - ``"second_order"`` (default): the Gaussian moments of each function's second-order Taylor
+      expansion at the mean (J = dg/dz, H_i = d^2 g_i/dz^2 at mean_k; the same for G G' and l)::
+
+          E[g] = g(mean) + tr(H P) / 2,   Cov(g) = J P J' + [tr(H_i P H_j P)]_ij / 2          (P3)
+
+    - ``"fifth_degree"``: Stroud's symmetric rule, exact for polynomials of degree <= 5 of a
+      Gaussian: mean_k (weight 2 / (N+2)), mean_k +- sqrt(N+2) s_i ((4-N) / (2 (N+2)^2)) and
+      mean_k + sqrt((N+2)/2) (+-s_i +- s_j), i < j (1 / (N+2)^2), with s_i the columns of P_k^{1/2};
+      2 N^2 + 1 points.
+    - ``"cubature"``: mean_k +- sqrt(N) s_i, weights 1 / (2N) (degree 3); the points lie sqrt(N)
+      standard deviations out, so beyond degree 3 its answer depends on N, not only on the plant.   (P4)
+
+    On a linear plant with quadratic cost g is affine and G G', l and h quadratic: every rule is
+    then exact (equal to :func:`delayed_ilqr.lqg.closed_loop_moments` and
+    :func:`~delayed_ilqr.lqg.policy_cost` of the policy's gains, whatever the law of z_k). On a
+    nonlinear plant the rules capture the mean shift and covariance growth from the plant's
+    curvature that :func:`predict` and ``Solution.expected_cost`` leave out, but not what the
+    Gaussian closure leaves out: signal-dependent noise makes z_k heavy-tailed
+    (``docs/results/noise_calibration.md`` §2 measures both against Monte Carlo on the torque arm).
+
+    Args:
+        problem: the plant, full-state feedback (no observation).
+        policy: a :class:`~delayed_ilqr.Policy` without estimator (e.g. ``solve(problem).policy``),
+            run without its feedforward as :func:`~delayed_ilqr.simulate` runs it; its delay l_p
+            may differ from the plant's.
+        rule: ``"second_order"``, ``"fifth_degree"`` or ``"cubature"``.
+
+    Returns:
+        :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n].
+        One compiled scan over time; cost per step O(n N^3) (second order), O(N^2) plant
+        evaluations (fifth degree), O(N) (cubature).
+
+    Raises:
+        ValueError: for a problem with an observation or a policy with an estimator, or an unknown
+            rule.
+    """
     if problem.observation is not None or policy.estimator is not None:
-        raise ValueError("sigma_point_prediction: full-state feedback only")
-    if rule not in ("cubature", "unscented", "second_order", "fifth_degree"):
-        raise ValueError(f"rule must be 'cubature' or 'unscented'; got {rule!r}")
-    return _sigma_point_prediction(problem, policy, rule)
+        raise ValueError("closed_loop_prediction: problem.observation must be None (full-state feedback) and the "
+                         "policy must have no estimator")
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {RULES}; got {rule!r}")
+    return _closed_loop_prediction(problem, policy, rule)

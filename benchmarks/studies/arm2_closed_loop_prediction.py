@@ -1,0 +1,46 @@
+"""Issue 19 item 4: the prediction of the expected cost of the torque arm's nonlinear closed loop
+(``prediction.closed_loop_prediction``, each rule) against the linearised one
+(``Solution.expected_cost``) and Monte Carlo (mean +- standard error), for the noise-aware design of
+``arm2(delay=d, noise=True, sigma_u=SIGMA_U_HUMAN)``; the seconds per call after compilation.
+
+    PYTHONPATH=src .venv/bin/python benchmarks/studies/arm2_closed_loop_prediction.py DELAYS TRIALS
+    e.g. ... 0,0.05,0.1,0.15 4000
+"""
+import sys
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import numpy as np  # noqa: E402
+
+import delayed_ilqr as di  # noqa: E402
+from delayed_ilqr.models import arm2  # noqa: E402
+from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN  # noqa: E402
+from delayed_ilqr.prediction import RULES, closed_loop_prediction  # noqa: E402
+
+
+def main(argv):
+    delays, n = [float(d) for d in argv[1].split(",")], int(argv[2])
+    print(f"| delay | MC mean +- SE ({n} trials) | linear | " + " | ".join(RULES) + " | seconds per call (" +
+          ", ".join(RULES) + ") |")
+    print("|---" * (len(RULES) + 4) + "|")
+    for delay in delays:
+        problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN)
+        sol = di.solve(problem)
+        cost = np.asarray(di.simulate(problem, sol.policy, n, seed=1).cost)
+        mc, se = cost.mean(), cost.std(ddof=1) / np.sqrt(n)
+        cells, seconds = [], []
+        for rule in RULES:
+            closed_loop_prediction(problem, sol.policy, rule).expected_cost.block_until_ready()   # compile
+            t0 = time.perf_counter()
+            value = float(closed_loop_prediction(problem, sol.policy, rule).expected_cost)
+            seconds.append(time.perf_counter() - t0)
+            cells.append(f"{value:.4g} ({value / mc:.3f})")
+        lin = float(sol.expected_cost)
+        print(f"| {delay * 1e3:.0f} ms | {mc:.4g} +- {se:.2g} | {lin:.4g} ({lin / mc:.3f}) | " + " | ".join(cells) +
+              " | " + ", ".join(f"{t:.3f}" for t in seconds) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv)
