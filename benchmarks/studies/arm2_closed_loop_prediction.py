@@ -5,6 +5,9 @@
 
     PYTHONPATH=src .venv/bin/python benchmarks/studies/arm2_closed_loop_prediction.py DELAYS TRIALS
     e.g. ... 0,0.05,0.1,0.15 4000
+    ... 0.1 4000 moments    also: at steps 20, 30, 40, 45, K the Monte Carlo mean deviation from
+                            the nominal, SD and excess kurtosis of x_k against the second-order
+                            prediction's mean and SD and the linear one's SD (predict)
 """
 import sys
 import time
@@ -17,7 +20,20 @@ import numpy as np  # noqa: E402
 import delayed_ilqr as di  # noqa: E402
 from delayed_ilqr.models import arm2  # noqa: E402
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN  # noqa: E402
-from delayed_ilqr.prediction import RULES, closed_loop_prediction  # noqa: E402
+from delayed_ilqr.prediction import RULES, closed_loop_prediction, predict  # noqa: E402
+
+
+def moments(problem, sol, x):
+    """The Monte Carlo states x [N, K+1, n] against the second-order and linear predictions."""
+    dx = x - np.asarray(sol.x)[None]
+    second, linear = closed_loop_prediction(problem, sol.policy), predict(problem, sol)
+    fmt = lambda a: np.array2string(np.asarray(a), precision=5)
+    for k in (20, 30, 40, 45, problem.horizon):
+        mean, sd = dx[:, k].mean(0), dx[:, k].std(0)
+        kurtosis = ((dx[:, k] - mean) ** 4).mean(0) / sd ** 4 - 3
+        print(f"step {k}: MC mean {fmt(mean)} SD {fmt(sd)} excess kurtosis {np.array2string(kurtosis, precision=2)}\n"
+              f"  second order mean {fmt(second.state.mean[k] - sol.x[k])} SD "
+              f"{fmt(np.sqrt(np.diag(second.state.cov[k])))}; linear SD {fmt(np.sqrt(np.diag(linear.cov[k])))}")
 
 
 def main(argv):
@@ -28,7 +44,8 @@ def main(argv):
     for delay in delays:
         problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN)
         sol = di.solve(problem)
-        cost = np.asarray(di.simulate(problem, sol.policy, n, seed=1).cost)
+        runs = di.simulate(problem, sol.policy, n, seed=1)
+        cost = np.asarray(runs.cost)
         mc, se = cost.mean(), cost.std(ddof=1) / np.sqrt(n)
         cells, seconds = [], []
         for rule in RULES:
@@ -40,6 +57,8 @@ def main(argv):
         lin = float(sol.expected_cost)
         print(f"| {delay * 1e3:.0f} ms | {mc:.4g} +- {se:.2g} | {lin:.4g} ({lin / mc:.3f}) | " + " | ".join(cells) +
               " | " + ", ".join(f"{t:.3f}" for t in seconds) + " |", flush=True)
+        if argv[3:] == ["moments"]:
+            moments(problem, sol, np.asarray(runs.x))
 
 
 if __name__ == "__main__":

@@ -188,7 +188,7 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
     """E[J] and the states' moments of ``policy`` on ``problem``'s nonlinear plant, as
     :func:`delayed_ilqr.simulate` runs it (``substeps=1``), by moment propagation (no sampling).
 
-    The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] [N = n + m d],
+    The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (N = n + m d entries),
     m = max(l, l_p) (l the plant's delay, l_p the policy's; du the commands sent minus their
     nominal)::
 
