@@ -3,9 +3,9 @@
 (``Solution.expected_cost``) and Monte Carlo (mean +- standard error), for the noise-aware design of
 ``arm2(delay=d, noise=True, sigma_u=SIGMA_U_HUMAN)``; the seconds per call after compilation.
 
-    PYTHONPATH=src .venv/bin/python benchmarks/studies/arm2_closed_loop_prediction.py DELAYS TRIALS
-    e.g. ... 0,0.05,0.1,0.15 4000
-    ... 0.1 4000 moments    also: at steps 20, 30, 40, 45, K the Monte Carlo mean deviation from
+    PYTHONPATH=src .venv/bin/python benchmarks/studies/arm2_closed_loop_prediction.py DELAYS TRIALS [DT] [moments]
+    e.g. ... 0,0.05,0.1,0.15 4000      (DT: the time step, 0.01 by default; P3's grid: ... 0.1 2000 0.002)
+    ... 0.1 4000 0.01 moments    also: at steps 20, 30, 40, 45, K the Monte Carlo mean deviation from
                             the nominal, SD and excess kurtosis of x_k against the second-order
                             prediction's mean and SD and the linear one's SD (predict)
 """
@@ -42,7 +42,7 @@ def main(argv):
           ", ".join(RULES) + ") |")
     print("|---" * (len(RULES) + 4) + "|")
     for delay in delays:
-        problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN)
+        problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN, dt=float(argv[3]) if argv[3:] else 0.01)
         sol = di.solve(problem)
         runs = di.simulate(problem, sol.policy, n, seed=1)
         cost = np.asarray(runs.cost)
@@ -57,7 +57,7 @@ def main(argv):
         lin = float(sol.expected_cost)
         print(f"| {delay * 1e3:.0f} ms | {mc:.4g} +- {se:.2g} | {lin:.4g} ({lin / mc:.3f}) | " + " | ".join(cells) +
               " | " + ", ".join(f"{t:.3f}" for t in seconds) + " |", flush=True)
-        if argv[3:] == ["moments"]:
+        if argv[4:] == ["moments"]:
             moments(problem, sol, np.asarray(runs.x))
 
 
