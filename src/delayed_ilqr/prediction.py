@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import _precision
 from .ilqg.closed_loop import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
@@ -240,6 +241,7 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
         ValueError: for a problem with an observation or a policy with an estimator, or an unknown
             rule.
     """
+    _precision.require_x64("prediction.closed_loop_prediction")
     if problem.observation is not None or policy.estimator is not None:
         raise ValueError("closed_loop_prediction: problem.observation must be None (full-state feedback) and the "
                          "policy must have no estimator")
