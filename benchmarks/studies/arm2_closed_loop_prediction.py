@@ -8,6 +8,8 @@
     ... 0.1 4000 0.01 moments    also: at steps 20, 30, 40, 45, K the Monte Carlo mean deviation from
                             the nominal, SD and excess kurtosis of x_k against the second-order
                             prediction's mean and SD and the linear one's SD (predict)
+    ... 0.1,0.15 4000 0.01 roots    also: the cubature rule with the square root of P_k rotated
+                            by three random orthogonal matrices (an equally valid root)
 """
 import sys
 import time
@@ -15,11 +17,13 @@ import time
 import jax
 
 jax.config.update("jax_enable_x64", True)
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import delayed_ilqr as di  # noqa: E402
 from delayed_ilqr.models import arm2  # noqa: E402
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN  # noqa: E402
+from delayed_ilqr import prediction  # noqa: E402
 from delayed_ilqr.prediction import RULES, closed_loop_prediction, predict  # noqa: E402
 
 
@@ -34,6 +38,27 @@ def moments(problem, sol, x):
         print(f"step {k}: MC mean {fmt(mean)} SD {fmt(sd)} excess kurtosis {np.array2string(kurtosis, precision=2)}\n"
               f"  second order mean {fmt(second.state.mean[k] - sol.x[k])} SD "
               f"{fmt(np.sqrt(np.diag(second.state.cov[k])))}; linear SD {fmt(np.sqrt(np.diag(linear.cov[k])))}")
+
+
+def rotated_cubature(problem, policy, seed):
+    """E[J] by the cubature rule on the root R Q of P_k, Q a random orthogonal matrix (R R' = P_k
+    still): the rule's points, and its answer beyond degree 3, depend on that choice."""
+    symmetric = prediction._sigma_points
+
+    def rotated(mean, cov, rule):
+        points, weights = symmetric(mean, cov, rule)
+        N = mean.shape[0]
+        Q = jnp.linalg.qr(jax.random.normal(jax.random.PRNGKey(seed), (N, N), mean.dtype))[0]
+        offsets = Q.T @ (points[:N] - mean)                 # rows: the columns of sqrt(N) R Q
+        return mean + jnp.concatenate([offsets, -offsets]), weights
+
+    prediction._sigma_points = rotated
+    prediction._closed_loop_prediction.clear_cache()
+    try:
+        return float(closed_loop_prediction(problem, policy, "cubature").expected_cost)
+    finally:
+        prediction._sigma_points = symmetric
+        prediction._closed_loop_prediction.clear_cache()
 
 
 def main(argv):
@@ -59,6 +84,9 @@ def main(argv):
               " | " + ", ".join(f"{t:.3f}" for t in seconds) + " |", flush=True)
         if argv[4:] == ["moments"]:
             moments(problem, sol, np.asarray(runs.x))
+        if argv[4:] == ["roots"]:
+            rotated = [rotated_cubature(problem, sol.policy, seed) for seed in (1, 2, 3)]
+            print("  cubature, rotated roots: " + ", ".join(f"{v:.4g} ({v / mc:.3f})" for v in rotated))
 
 
 if __name__ == "__main__":

@@ -214,8 +214,11 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
       Gaussian: mean_k (weight 2 / (N+2)), mean_k +- sqrt(N+2) s_i ((4-N) / (2 (N+2)^2)) and
       mean_k + sqrt((N+2)/2) (+-s_i +- s_j), i < j (1 / (N+2)^2), with s_i the columns of P_k^{1/2};
       2 N^2 + 1 points.
-    - ``"cubature"``: mean_k +- sqrt(N) s_i, weights 1 / (2N) (degree 3); the points lie sqrt(N)
-      standard deviations out, so beyond degree 3 its answer depends on N, not only on the plant.   (P4)
+    - ``"cubature"``: mean_k +- sqrt(N) s_i, weights 1 / (2N) (degree 3). The points lie sqrt(N)
+      standard deviations out, along the eigenvectors of P_k (the symmetric root): beyond degree 3
+      its answer depends on N and on that choice of root, not only on the plant (on the torque
+      arm at 100-150 ms it is 0.95-1.8x the Monte Carlo mean, 0.73-0.82x with rotated roots,
+      ``docs/results/noise_calibration.md`` §2); the cheapest rule, for checks.              (P4)
 
     On a linear plant with quadratic cost g is affine and G G', l and h quadratic: every rule is
     then exact (equal to :func:`delayed_ilqr.lqg.closed_loop_moments` and
