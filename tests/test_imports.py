@@ -74,7 +74,8 @@ def test_models_is_an_attribute_of_the_package():
 
 
 ENTRY_POINTS = ["Problem", "lqg.DelayedLQG", "solve", "simulate", "lqg.backward_pass",
-                "lqg.augmented_backward_pass", "lqg.policy_cost", "lqg.simulate_lqg", "prediction.closed_loop_prediction"]
+                "lqg.augmented_backward_pass", "lqg.policy_cost", "lqg.simulate_lqg",
+                "prediction.closed_loop_prediction"]
 
 
 def test_every_entry_point_refuses_float32_with_the_line_to_add():
