@@ -15,22 +15,30 @@ are the model's predictions as functions of its parameters, which is what fittin
 measured reaches needs (``delayed_ilqr.experiments.fitting``). The prediction ignores what the
 linearisation leaves out: the clipping of commands at their limits, and the plant's curvature
 (``docs/fitting.md`` measures the gap against Monte Carlo).
+
+:func:`closed_loop_prediction` takes the plant's curvature in: it propagates the mean and
+covariance of the nonlinear closed loop (state and pending commands) under a Gaussian closure, by
+a second-order expansion or by sigma points, and returns its expected cost (eq. P1-P4 there).
 """
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from . import _precision
+from .ilqg.closed_loop import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
 from .models.metadata import task_space
 from .problem import Problem
-from .solution import Solution
+from .solution import Policy, Solution
 
-__all__ = ["Prediction", "predict", "task_prediction"]
+__all__ = ["Prediction", "predict", "task_prediction", "ClosedLoopPrediction", "closed_loop_prediction", "RULES"]
 
 
 class Prediction(NamedTuple):
@@ -65,3 +73,181 @@ def task_prediction(problem: Problem, states: Prediction) -> Prediction:
         raise ValueError(f"task_prediction: problem {problem.name!r} has no task space (metadata.task is None)")
     J = jax.vmap(jax.jacobian(task.map))(states.mean)                   # [K+1, m, n]
     return Prediction(task.map(states.mean), J @ states.cov @ jnp.swapaxes(J, 1, 2))
+
+
+RULES = ("second_order", "fifth_degree", "cubature")
+"""The expectation rules of :func:`closed_loop_prediction` (eq. P3-P4)."""
+
+
+class ClosedLoopPrediction(NamedTuple):
+    """Moments of the nonlinear closed loop from :func:`closed_loop_prediction`.
+
+    Attributes:
+        expected_cost: [] E[J], eq. (2) of the trials as :func:`delayed_ilqr.simulate` scores them.
+        state: :class:`Prediction` of the states: mean [K+1, n] E[x_k], cov [K+1, n, n] Cov(x_k).
+    """
+
+    expected_cost: jax.Array
+    state: Prediction
+
+
+def _sigma_points(mean, cov, rule: str):
+    """Points [P, N] and weights [P] (sum 1) of ``rule`` for N(mean [N], cov [N, N]) (eq. P4); cov
+    PSD and possibly singular (the pending commands before time 0): its square root is the
+    symmetric one, from ``eigh``, with columns s_i."""
+    values, vectors = jnp.linalg.eigh(0.5 * (cov + cov.T))
+    root = vectors * jnp.sqrt(jnp.maximum(values, 0.0))[None, :]      # root root' = cov
+    N = mean.shape[0]
+    if rule == "cubature":
+        offsets = jnp.sqrt(N) * jnp.concatenate([root.T, -root.T])
+        return mean + offsets, jnp.full(2 * N, 1.0 / (2 * N), mean.dtype)
+    # fifth_degree: the unit points (built with numpy: N is static) mapped by the root
+    eye = np.eye(N)
+    i, j = np.triu_indices(N, 1)
+    pairs = np.concatenate([eye[i] + eye[j], eye[i] - eye[j], -eye[i] + eye[j], -eye[i] - eye[j]])
+    unit = np.concatenate([np.zeros((1, N)), np.sqrt(N + 2.0) * eye, -np.sqrt(N + 2.0) * eye,
+                           np.sqrt((N + 2.0) / 2) * pairs])
+    weights = np.concatenate([[2.0 / (N + 2)], np.full(2 * N, (4.0 - N) / (2 * (N + 2) ** 2)),
+                              np.full(len(pairs), 1.0 / (N + 2) ** 2)])
+    return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype)
+
+
+@partial(jax.jit, static_argnames=("rule",))
+def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> ClosedLoopPrediction:
+    K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
+    l, l_p = problem.delay_steps, policy.delay_feedback.shape[1]
+    m = max(l, l_p)
+    dtype = problem.x0.dtype
+    LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
+    u_bar = policy.u_nominal
+    # u_nominal_{k-l} (zero before time 0), what the plant's delayed command deviates from
+    u_bar_delayed = jnp.concatenate([jnp.zeros((l, nd), dtype), u_bar])[:K] if l > 0 else u_bar
+    root_dt = jnp.sqrt(jnp.asarray(problem.dt, dtype))
+
+    def point(z, x_bar, x_bar_next, ub, ubd, LMk, t):
+        """Eq. P1 at one z = [dx_k, du_{k-m}, ..., du_{k-1}] [N]: (g_k(z) [N], G_k(z) [n, p],
+        dt l(x_k, u_k))."""
+        dx, sent = z[:nx], z[nx:].reshape(m, nd)
+        x = x_bar + dx
+        # the law of ilqg.closed_loop.delayed_law, as a plain product: its kernel's custom JVP does
+        # not nest, and the second-order rule differentiates twice
+        du = LMk @ jnp.concatenate([dx, sent[m - l_p:].reshape(-1)])
+        u = jnp.clip(ub + du, problem.u_min, problem.u_max)
+        ud = ubd + sent[m - l] if l > 0 else u
+        x_next = x + problem.dt * problem.dynamics_at(x, u, ud, t)
+        G = root_dt * problem.noise_at(x, u, ud, t) if problem.noise is not None else jnp.zeros((nx, 0), dtype)
+        sent_next = jnp.concatenate([sent[1:], (u - ub)[None]]).reshape(-1) if m > 0 else sent.reshape(-1)
+        return jnp.concatenate([x_next - x_bar_next, sent_next]), G, problem.dt * problem.cost.running(x, u, t)
+
+    def sigma_step(mean, cov, args):
+        """Eq. P2 with the expectations by the rule's points (eq. P4)."""
+        Z, w = _sigma_points(mean, cov, rule)
+        Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, *args)
+        mean_next = w @ Z_next
+        centred = Z_next - mean_next
+        cov_next = jnp.einsum("i,ij,ik->jk", w, centred, centred)
+        noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G']
+        return mean_next, cov_next.at[:nx, :nx].add(noise), w @ running
+
+    def taylor_step(mean, cov, args):
+        """Eq. P2 with the expectations of eq. P3."""
+        def parts(z):
+            z_next, G, running = point(z, *args)
+            return z_next[:nx], G @ G.T, running
+        z_next, G, running = point(mean, *args)
+        J = jax.jacfwd(lambda z: point(z, *args)[0])(mean)               # [N, N]
+        Hx, HGG, Hr = jax.hessian(parts)(mean)                           # [n, N, N], [n, n, N, N], [N, N]
+        HP = Hx @ cov                                                    # [n, N, N]
+        mean_next = z_next.at[:nx].add(0.5 * jnp.einsum("iab,ba->i", Hx, cov))
+        cov_next = J @ cov @ J.T
+        extra = 0.5 * jnp.einsum("iab,jba->ij", HP, HP) + G @ G.T + 0.5 * jnp.einsum("ijab,ba->ij", HGG, cov)
+        return mean_next, cov_next.at[:nx, :nx].add(extra), running + 0.5 * jnp.sum(Hr * cov)
+
+    def step(carry, data):
+        mean, cov, total = carry
+        moments = taylor_step if rule == "second_order" else sigma_step
+        mean_next, cov_next, running = moments(mean, cov, data)
+        cov_next = 0.5 * (cov_next + cov_next.T)
+        return (mean_next, cov_next, total + running), (mean_next, cov_next)
+
+    nz = nx + m * nd
+    init = (jnp.zeros(nz, dtype), jnp.zeros((nz, nz), dtype), jnp.asarray(0.0, dtype))
+    data = (policy.x_nominal[:-1], policy.x_nominal[1:], u_bar, u_bar_delayed, LM, problem.step_times(dtype))
+    (mean, cov, total), (means, covs) = jax.lax.scan(step, init, data)
+    final_cost = lambda z: problem.cost.final(policy.x_nominal[-1] + z[:nx], problem.final_time)
+    if rule == "second_order":
+        expected_final = final_cost(mean) + 0.5 * jnp.sum(jax.hessian(final_cost)(mean) * cov)
+    else:
+        Z, w = _sigma_points(mean, cov, rule)
+        expected_final = w @ jax.vmap(final_cost)(Z)
+    means = jnp.concatenate([init[0][None], means])[:, :nx]
+    covs = jnp.concatenate([init[1][None], covs])[:, :nx, :nx]
+    return ClosedLoopPrediction(total + expected_final, Prediction(policy.x_nominal + means, covs))
+
+
+def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second_order") -> ClosedLoopPrediction:
+    """E[J] and the states' moments of ``policy`` on ``problem``'s nonlinear plant, as
+    :func:`delayed_ilqr.simulate` runs it (``substeps=1``), by moment propagation (no sampling).
+
+    The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (N = n + m d entries),
+    m = max(l, l_p) (l the plant's delay, l_p the policy's; du the commands sent minus their
+    nominal)::
+
+        u_k = clip(u_bar_k + L_k dx_k + sum_i M_k^i du_{k+i-l_p}),   ud_k = u_{k-l} (u_k if l = 0)
+        z_{k+1} = g_k(z_k) + [G_k(z_k) xi_k; 0],   xi_k ~ N(0, I_p)                          (P1)
+        g_k(z) = [x_k + dt f(x_k, u_k, ud_k) - x_bar_{k+1}; du_{k-m+1}; ...; du_k],   G_k = sqrt(dt) F(x_k, u_k, ud_k)
+
+    from z_0 = 0. As xi_k is independent of z_k, exactly::
+
+        E[z_{k+1}] = E[g_k],   Cov(z_{k+1}) = Cov(g_k) + [E[G_k G_k'] 0; 0 0]
+        E[J] = sum_k dt E[l(x_k, u_k)] + E[h(x_K)]                                            (P2)
+
+    The expectations over z_k are taken as if z_k ~ N(mean_k, P_k) (the Gaussian closure), by
+    ``rule``:
+
+    - ``"second_order"`` (default): the Gaussian moments of each function's second-order Taylor
+      expansion at the mean (J = dg/dz, H_i = d^2 g_i/dz^2 at mean_k; the same for G G' and l)::
+
+          E[g] = g(mean) + tr(H P) / 2,   Cov(g) = J P J' + [tr(H_i P H_j P)]_ij / 2          (P3)
+
+    - ``"fifth_degree"``: Stroud's symmetric rule, exact for polynomials of degree <= 5 of a
+      Gaussian: mean_k (weight 2 / (N+2)), mean_k +- sqrt(N+2) s_i ((4-N) / (2 (N+2)^2)) and
+      mean_k + sqrt((N+2)/2) (+-s_i +- s_j), i < j (1 / (N+2)^2), with s_i the columns of P_k^{1/2};
+      2 N^2 + 1 points.
+    - ``"cubature"``: mean_k +- sqrt(N) s_i, weights 1 / (2N) (degree 3). The points lie sqrt(N)
+      standard deviations out, along the eigenvectors of P_k (the symmetric root): beyond degree 3
+      its answer depends on N and on that choice of root, not only on the plant (on the torque
+      arm at 100-150 ms it is 0.95-1.8x the Monte Carlo mean, 0.73-0.82x with rotated roots,
+      ``docs/results/noise_calibration.md`` §2); the cheapest rule, for checks.              (P4)
+
+    On a linear plant with quadratic cost g is affine and G G', l and h quadratic: every rule is
+    then exact (equal to :func:`delayed_ilqr.lqg.closed_loop_moments` and
+    :func:`~delayed_ilqr.lqg.policy_cost` of the policy's gains, whatever the law of z_k). On a
+    nonlinear plant the rules capture the mean shift and covariance growth from the plant's
+    curvature that :func:`predict` and ``Solution.expected_cost`` leave out, but not what the
+    Gaussian closure leaves out: signal-dependent noise makes z_k heavy-tailed
+    (``docs/results/noise_calibration.md`` §2 measures both against Monte Carlo on the torque arm).
+
+    Args:
+        problem: the plant, full-state feedback (no observation).
+        policy: a :class:`~delayed_ilqr.Policy` without estimator (e.g. ``solve(problem).policy``),
+            run without its feedforward as :func:`~delayed_ilqr.simulate` runs it; its delay l_p
+            may differ from the plant's.
+        rule: ``"second_order"``, ``"fifth_degree"`` or ``"cubature"``.
+
+    Returns:
+        :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n].
+        One compiled scan over time; cost per step O(n N^3) (second order), O(N^2) plant
+        evaluations (fifth degree), O(N) (cubature).
+
+    Raises:
+        ValueError: for a problem with an observation or a policy with an estimator, or an unknown
+            rule.
+    """
+    _precision.require_x64("prediction.closed_loop_prediction")
+    if problem.observation is not None or policy.estimator is not None:
+        raise ValueError("closed_loop_prediction: problem.observation must be None (full-state feedback) and the "
+                         "policy must have no estimator")
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {RULES}; got {rule!r}")
+    return _closed_loop_prediction(problem, policy, rule)
