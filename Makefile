@@ -23,7 +23,7 @@ demo: $(STAMP)
 	$(BIN)/delayed-ilqr center-out --allow-unconverged --overwrite --out out/center_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests
 
 $(BENCH_STAMP): $(STAMP)
 	$(BIN)/pip install --quiet -e '.[bench]'
