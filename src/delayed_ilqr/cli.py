@@ -606,7 +606,11 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, out,
     """
     from .experiments import fitting
 
-    make_problem = _import_callable(function, "FUNCTION", None, None)
+    try:
+        make_problem = _import_callable(function, "FUNCTION", None, None)
+    except click.BadParameter as exc:
+        exc.param_hint = "'FUNCTION'"
+        raise
     try:
         conditions, reach_data = fitting.load_reach_data(data)
     except (ValueError, OSError) as exc:

@@ -224,7 +224,13 @@ def load_reach_data(path) -> tuple:
         ValueError: naming the file and the array, when an array is missing, the shapes do not
             agree on C and m, or a value is not finite.
     """
-    with np.load(path, allow_pickle=False) as f:
+    try:
+        f = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"{path} is not an NPZ file of arrays (save_reach_data writes one): {exc}") from None
+    if not isinstance(f, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path} must be an NPZ file with the arrays {', '.join(DATA_ARRAYS)}; got a single array")
+    with f:
         missing = [name for name in DATA_ARRAYS if name not in f.files]
         if missing:
             raise ValueError(f"{path} must hold the arrays {', '.join(DATA_ARRAYS)}; missing {', '.join(missing)}")
