@@ -152,10 +152,15 @@ def _cost_gradient(problem: Problem, us, margin: float):
     """G(u, theta): the gradient of the cost (2) in the commands, or, with noise, of the merit
     cost + sum c' S c with S from the backward pass at u and F's state frozen at u's rollout
     (derivation §12): the fixed point of the noise-aware iteration is G = 0 on the free commands."""
+    xs = rollout(problem, us)
+    S = None if problem.noise is None else value_at(problem, xs, us, margin)[3]
+    return _merit_gradient(problem, xs, us, S)
+
+
+def _merit_gradient(problem: Problem, xs, us, S):
+    """:func:`_cost_gradient` given u's rollout xs and the value Hessians S at u (None without noise)."""
     if problem.noise is None:
         return jax.grad(lambda v: trajectory_cost(problem, rollout(problem, v), v))(us)
-    xs = rollout(problem, us)
-    _, _, _, S = value_at(problem, xs, us, margin)
     merit = lambda v: trajectory_cost(problem, rollout(problem, v), v) + noise_cost(problem, xs, v, S)
     return jax.grad(merit)(us)
 
@@ -191,12 +196,12 @@ def _linear_closed_loop(lqg, gains: SlotGains):
     return du
 
 
-def preconditioner(problem: Problem, xs, us, fixed):
+def preconditioner(lqg, fixed):
     """r [K, d] -> the Gauss-Newton solve: on the free commands the open-loop minimiser of the
-    delayed LQ model at the nominal with linear terms -r (eq. 4: e = -r / 2, d = 0, no noise
-    columns c), i.e. H_GN^{-1} r over the free commands with the fixed ones held; r itself on the
-    fixed ones. One structured backward pass and one linear closed loop per application."""
-    lqg = linearize(problem, xs, us)
+    delayed LQ model ``lqg`` at the nominal (:func:`linearize`) with linear terms -r (eq. 4:
+    e = -r / 2, d = 0, no noise columns c), i.e. H_GN^{-1} r over the free commands with the fixed
+    ones held; r itself on the fixed ones. One structured backward pass and one linear closed loop
+    per application."""
     lqg = lqg.replace(c=jnp.zeros_like(lqg.c), d=jnp.zeros_like(lqg.d), d_tilde=jnp.zeros_like(lqg.d_tilde))
     held = (jnp.where(fixed, 0.0, -jnp.inf), jnp.where(fixed, 0.0, jnp.inf))
     gains_fn = _masked_gains(lambda bounds: bounds[0] < bounds[1])
@@ -255,17 +260,12 @@ def gmres(A, b, tol: float, maxiter: int):
     return (y @ V[:m]).reshape(shape), jnp.abs(g[k]) / jnp.where(beta > 0, beta, 1.0)
 
 
-def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
-    """du* [K, d] for the problem tangent ``dproblem`` (a :class:`Problem` of tangents), by (16.1),
-    at the converged nominal (xs, us); NaN where the Krylov solve missed :data:`RESIDUAL_CHECK`.
-    Linear in ``dproblem`` and transposable (reverse mode)."""
-    at_lo, at_hi = _held_sides(problem, us, margin)
-    fixed = at_lo | at_hi
-    F = lambda p, u: stationarity(p, u, fixed, _limit_values(p, at_lo, at_hi), margin)
-    _, rhs = jax.jvp(lambda p: F(p, us), (problem,), (dproblem,))
-    matvec = lambda v: jax.jvp(lambda u: F(problem, u), (us,), (v,))[1]
-    precondition = preconditioner(problem, xs, us, fixed)
-    symmetric = problem.noise is None
+def implicit_tangent(lqg, fixed, rhs, matvec, symmetric: bool):
+    """du* [K, d] solving (16.1), dF/du du* = -rhs, with ``rhs`` = dF/dtheta dtheta [K, d] and
+    ``matvec`` v -> dF/du v (linear), preconditioned by the Gauss-Newton solve of the model ``lqg``
+    at the nominal (:func:`preconditioner`), ``fixed`` [K, d] the held commands; NaN where the
+    Krylov solve missed :data:`RESIDUAL_CHECK`. Linear in ``rhs`` and transposable (reverse mode)."""
+    precondition = preconditioner(lqg, fixed)
 
     def checked(solved):
         x, residual = solved
@@ -293,12 +293,19 @@ def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
 
 # -- the differentiable solve ---------------------------------------------------------------------
 
-def _outputs(problem: Problem, us, margin: float):
-    """(x, cost, expected_cost, Policy's gains) as functions of (theta, u*): what the tangent of a
-    solution is the tangent of."""
+def _at_solution(problem: Problem, us, at_lo, at_hi, margin: float):
+    """(F [K, d], outputs) as functions of (theta, u*), linearised once for (16.1) and the outputs'
+    tangent together: F of :func:`stationarity`, and the outputs (x, cost, expected_cost, the
+    Policy's gains), what the tangent of a solution is the tangent of. Without limits F's rollout
+    and backward pass (S) are the outputs' (u_held = u), computed once."""
     xs = rollout(problem, us)
-    gains, s_tilde, _, _ = value_at(problem, xs, us, margin)
-    return xs, trajectory_cost(problem, xs, us), s_tilde[0], from_slots(gains, problem.n_states)
+    gains, s_tilde, _, S = value_at(problem, xs, us, margin)
+    outputs = xs, trajectory_cost(problem, xs, us), s_tilde[0], from_slots(gains, problem.n_states)
+    if problem.has_limits:
+        F = stationarity(problem, us, at_lo | at_hi, _limit_values(problem, at_lo, at_hi), margin)
+    else:
+        F = _merit_gradient(problem, xs, us, None if problem.noise is None else S)
+    return F, outputs
 
 
 def _zero_tangent(x):
@@ -323,9 +330,16 @@ def differentiable(plain_solve):
         dproblem, _ = tangents
         sol = run(problem, u_init, options)
         margin = options.limit_margin
-        du = implicit_tangent(problem, sol.x, sol.u, dproblem, margin)
-        _, (dx, dcost, dexpected, dgains) = jax.jvp(lambda p, u: _outputs(p, u, margin), (problem, sol.u),
-                                                    (dproblem, du))
+        at_lo, at_hi = _held_sides(problem, sol.u, margin)
+        # one linearisation at (theta, u*) serves the right-hand side of (16.1), its products and the
+        # outputs' tangent: their transposes (reverse mode) share its residuals, the rollout, the
+        # model and the differentiated backward pass (docs/performance.md#krylov_tol)
+        _, linear = jax.linearize(lambda p, u: _at_solution(p, u, at_lo, at_hi, margin), problem, sol.u)
+        no_dproblem = jax.tree_util.tree_map(_zero_tangent, problem)
+        rhs = linear(dproblem, jnp.zeros_like(sol.u))[0]
+        du = implicit_tangent(linearize(problem, sol.x, sol.u), at_lo | at_hi, rhs,
+                              lambda v: linear(no_dproblem, v)[0], problem.noise is None)
+        dx, dcost, dexpected, dgains = linear(dproblem, du)[1]
         ok = (sol.status == Status.CONVERGED_GRADIENT) | (sol.status == Status.CONVERGED_COST)
         # a factor, not a select: the tangent must stay linear, and JAX's transpose of
         # where(ok, t, nan) would drop the constant NaN (reverse mode would report zeros)
