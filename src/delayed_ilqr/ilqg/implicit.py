@@ -8,13 +8,15 @@ scale ``sigma_u``). The tangent of u* solves
 
     dF/du du = -dF/dtheta dtheta                                                    (16.1)
 
-by GMRES on exact products with dF/du (``jax.jvp``), preconditioned by the Gauss-Newton
-delayed LQ solve at the solution (:func:`preconditioner`: the structured backward pass of Theorem 1
-on the linearisation, and the linear closed loop forward). Everything else the solve returns (x,
-cost, the policy's gains, expected_cost) is a differentiable function of (u*, theta), recomputed
-under ``jax.jvp``: one rollout and one backward pass. Reverse mode transposes this (the Krylov
-solve through ``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the
-iterations of the solve.
+by GMRES on exact products with dF/du, preconditioned by the Gauss-Newton delayed LQ solve at the
+solution (:func:`preconditioner`: the structured backward pass of Theorem 1 on the linearisation,
+and the linear closed loop forward). Everything else the solve returns (x, cost, the policy's
+gains, expected_cost) is a differentiable function of (u*, theta). F and these outputs are
+linearised together, once (``jax.linearize`` of :func:`_at_solution`: one rollout and one
+differentiated backward pass), and that one linear map gives (16.1)'s right-hand side, its
+products and the outputs' tangent. Reverse mode transposes this (the Krylov solve through
+``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the iterations of
+the solve.
 
 Without noise, F is the gradient of the cost (2) on the free commands and dF/du is its exact,
 symmetric Hessian (the dynamics' second derivatives included, which the Gauss-Newton backward pass
@@ -50,7 +52,8 @@ __all__ = ["stationarity", "fixed_commands", "value_at", "preconditioner", "impl
 # Gauss-Newton preconditioner it takes a few iterations (docs/performance.md#krylov_tol).
 KRYLOV_TOL = 1e-10
 KRYLOV_MAXITER = 50
-# A tangent whose residual in (16.1) exceeds this (relative) is NaN: the Krylov solve failed.
+# A tangent whose residual in (16.1) exceeds this (relative, GMRES's own estimate) is NaN: the
+# Krylov solve failed.
 RESIDUAL_CHECK = 1e-6
 
 
@@ -218,8 +221,11 @@ def preconditioner(lqg, fixed):
 # -- (16.1) ------------------------------------------------------------------------------------
 
 def gmres(A, b, tol: float, maxiter: int):
-    """x with |A x - b| <= tol |b|, or the best in ``maxiter`` steps: GMRES from x = 0 (Arnoldi
-    with Gram-Schmidt run twice, the least-squares problem kept triangular by Givens rotations).
+    """(x, rho): x with |A x - b| <= tol |b|, or the best in ``maxiter`` steps, and its relative
+    residual rho = |A x - b| / |b| as the Givens recurrence gives it (|g_k| / |b|, the residual itself
+    up to rounding: the Arnoldi basis is orthogonal to working precision; NaN if a product was).
+    GMRES from x = 0 (Arnoldi with Gram-Schmidt run twice, the least-squares problem kept
+    triangular by Givens rotations).
     ``jax.scipy.sparse.linalg.gmres`` cannot serve here: it wraps itself in
     ``custom_linear_solve``, which would transpose A as a primal function (the backward pass's
     products cannot be), and its batched form runs every step of a restart whatever the residual."""
@@ -268,6 +274,8 @@ def implicit_tangent(lqg, fixed, rhs, matvec, symmetric: bool):
     precondition = preconditioner(lqg, fixed)
 
     def checked(solved):
+        # GMRES's residual, not one more product A x - b: it is that residual to rounding, and a
+        # product costs a differentiated backward pass (docs/performance.md#krylov_tol)
         x, residual = solved
         miss = ~(residual <= RESIDUAL_CHECK)
         return x * jnp.where(miss, jnp.nan, 1.0)
