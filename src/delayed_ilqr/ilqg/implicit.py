@@ -340,8 +340,8 @@ def differentiable(plain_solve):
         margin = options.limit_margin
         at_lo, at_hi = _held_sides(problem, sol.u, margin)
         # one linearisation at (theta, u*) serves the right-hand side of (16.1), its products and the
-        # outputs' tangent: their transposes (reverse mode) share its residuals, the rollout, the
-        # model and the differentiated backward pass (docs/performance.md#krylov_tol)
+        # outputs' tangent: their transposes (reverse mode) share its residuals, those of one rollout
+        # and one differentiated backward pass (docs/performance.md#krylov_tol)
         _, linear = jax.linearize(lambda p, u: _at_solution(p, u, at_lo, at_hi, margin), problem, sol.u)
         no_dproblem = jax.tree_util.tree_map(_zero_tangent, problem)
         rhs = linear(dproblem, jnp.zeros_like(sol.u))[0]
