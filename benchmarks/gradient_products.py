@@ -20,6 +20,7 @@ import jax.numpy as jnp
 
 import delayed_ilqr as di
 from delayed_ilqr.ilqg import implicit
+from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.models import arm2
 
 CHAIN = 5
@@ -49,7 +50,7 @@ def main():
             F = lambda u: implicit.stationarity(problem, u, fixed, bound, margin)
             jvp = lambda u, v: jax.jvp(F, (u,), (v,))[1]
             vjp = lambda u, v: jax.vjp(F, u)[1](v)[0]
-            pre = lambda u, v: implicit.preconditioner(problem, xs, u, fixed)(v)
+            pre = lambda u, v: implicit.preconditioner(linearize(problem, xs, u), fixed)(v)
             v = 0.1 * jnp.ones_like(us)
             calls = {"solve": (solve, problem), "jvp": (jax.jit(jvp), us, v), "vjp": (jax.jit(vjp), us, v),
                      "jvp5": (jax.jit(lambda u, v: chained(jvp, u, v)), us, v),

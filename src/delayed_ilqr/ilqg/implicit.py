@@ -8,13 +8,15 @@ scale ``sigma_u``). The tangent of u* solves
 
     dF/du du = -dF/dtheta dtheta                                                    (16.1)
 
-by GMRES on exact products with dF/du (``jax.jvp``), preconditioned by the Gauss-Newton
-delayed LQ solve at the solution (:func:`preconditioner`: the structured backward pass of Theorem 1
-on the linearisation, and the linear closed loop forward). Everything else the solve returns (x,
-cost, the policy's gains, expected_cost) is a differentiable function of (u*, theta), recomputed
-under ``jax.jvp``: one rollout and one backward pass. Reverse mode transposes this (the Krylov
-solve through ``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the
-iterations of the solve.
+by GMRES on exact products with dF/du, preconditioned by the Gauss-Newton delayed LQ solve at the
+solution (:func:`preconditioner`: the structured backward pass of Theorem 1 on the linearisation,
+and the linear closed loop forward). Everything else the solve returns (x, cost, the policy's
+gains, expected_cost) is a differentiable function of (u*, theta). F and these outputs are
+linearised together, once (``jax.linearize`` of :func:`_at_solution`: one rollout and one
+differentiated backward pass), and that one linear map gives (16.1)'s right-hand side, its
+products and the outputs' tangent. Reverse mode transposes this (the Krylov solve through
+``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the iterations of
+the solve.
 
 Without noise, F is the gradient of the cost (2) on the free commands and dF/du is its exact,
 symmetric Hessian (the dynamics' second derivatives included, which the Gauss-Newton backward pass
@@ -50,7 +52,8 @@ __all__ = ["stationarity", "fixed_commands", "value_at", "preconditioner", "impl
 # Gauss-Newton preconditioner it takes a few iterations (docs/performance.md#krylov_tol).
 KRYLOV_TOL = 1e-10
 KRYLOV_MAXITER = 50
-# A tangent whose residual in (16.1) exceeds this (relative) is NaN: the Krylov solve failed.
+# A tangent whose residual in (16.1) exceeds this (relative, GMRES's own estimate) is NaN: the
+# Krylov solve failed.
 RESIDUAL_CHECK = 1e-6
 
 
@@ -152,10 +155,15 @@ def _cost_gradient(problem: Problem, us, margin: float):
     """G(u, theta): the gradient of the cost (2) in the commands, or, with noise, of the merit
     cost + sum c' S c with S from the backward pass at u and F's state frozen at u's rollout
     (derivation §12): the fixed point of the noise-aware iteration is G = 0 on the free commands."""
+    xs = rollout(problem, us)
+    S = None if problem.noise is None else value_at(problem, xs, us, margin)[3]
+    return _merit_gradient(problem, xs, us, S)
+
+
+def _merit_gradient(problem: Problem, xs, us, S):
+    """:func:`_cost_gradient` given u's rollout xs and the value Hessians S at u (None without noise)."""
     if problem.noise is None:
         return jax.grad(lambda v: trajectory_cost(problem, rollout(problem, v), v))(us)
-    xs = rollout(problem, us)
-    _, _, _, S = value_at(problem, xs, us, margin)
     merit = lambda v: trajectory_cost(problem, rollout(problem, v), v) + noise_cost(problem, xs, v, S)
     return jax.grad(merit)(us)
 
@@ -191,12 +199,12 @@ def _linear_closed_loop(lqg, gains: SlotGains):
     return du
 
 
-def preconditioner(problem: Problem, xs, us, fixed):
+def preconditioner(lqg, fixed):
     """r [K, d] -> the Gauss-Newton solve: on the free commands the open-loop minimiser of the
-    delayed LQ model at the nominal with linear terms -r (eq. 4: e = -r / 2, d = 0, no noise
-    columns c), i.e. H_GN^{-1} r over the free commands with the fixed ones held; r itself on the
-    fixed ones. One structured backward pass and one linear closed loop per application."""
-    lqg = linearize(problem, xs, us)
+    delayed LQ model ``lqg`` at the nominal (:func:`linearize`) with linear terms -r (eq. 4:
+    e = -r / 2, d = 0, no noise columns c), i.e. H_GN^{-1} r over the free commands with the fixed
+    ones held; r itself on the fixed ones. One structured backward pass and one linear closed loop
+    per application."""
     lqg = lqg.replace(c=jnp.zeros_like(lqg.c), d=jnp.zeros_like(lqg.d), d_tilde=jnp.zeros_like(lqg.d_tilde))
     held = (jnp.where(fixed, 0.0, -jnp.inf), jnp.where(fixed, 0.0, jnp.inf))
     gains_fn = _masked_gains(lambda bounds: bounds[0] < bounds[1])
@@ -213,8 +221,11 @@ def preconditioner(problem: Problem, xs, us, fixed):
 # -- (16.1) ------------------------------------------------------------------------------------
 
 def gmres(A, b, tol: float, maxiter: int):
-    """x with |A x - b| <= tol |b|, or the best in ``maxiter`` steps: GMRES from x = 0 (Arnoldi
-    with Gram-Schmidt run twice, the least-squares problem kept triangular by Givens rotations).
+    """(x, rho): x with |A x - b| <= tol |b|, or the best in ``maxiter`` steps, and its relative
+    residual rho = |A x - b| / |b| as the Givens recurrence gives it (|g_k| / |b|, the residual itself
+    up to rounding: the Arnoldi basis is orthogonal to working precision; NaN if a product was).
+    GMRES from x = 0 (Arnoldi with Gram-Schmidt run twice, the least-squares problem kept
+    triangular by Givens rotations).
     ``jax.scipy.sparse.linalg.gmres`` cannot serve here: it wraps itself in
     ``custom_linear_solve``, which would transpose A as a primal function (the backward pass's
     products cannot be), and its batched form runs every step of a restart whatever the residual."""
@@ -252,24 +263,21 @@ def gmres(A, b, tol: float, maxiter: int):
     used = jnp.arange(m) < k
     R = jnp.where(used[None, :] & used[:, None], R, jnp.eye(m, dtype=b.dtype))
     y = jax.scipy.linalg.solve_triangular(R, jnp.where(used, g[:m], 0.0), lower=False)
-    return (y @ V[:m]).reshape(shape)
+    return (y @ V[:m]).reshape(shape), jnp.abs(g[k]) / jnp.where(beta > 0, beta, 1.0)
 
 
-def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
-    """du* [K, d] for the problem tangent ``dproblem`` (a :class:`Problem` of tangents), by (16.1),
-    at the converged nominal (xs, us); NaN where the Krylov solve missed :data:`RESIDUAL_CHECK`.
-    Linear in ``dproblem`` and transposable (reverse mode)."""
-    at_lo, at_hi = _held_sides(problem, us, margin)
-    fixed = at_lo | at_hi
-    F = lambda p, u: stationarity(p, u, fixed, _limit_values(p, at_lo, at_hi), margin)
-    _, rhs = jax.jvp(lambda p: F(p, us), (problem,), (dproblem,))
-    matvec = lambda v: jax.jvp(lambda u: F(problem, u), (us,), (v,))[1]
-    precondition = preconditioner(problem, xs, us, fixed)
-    symmetric = problem.noise is None
+def implicit_tangent(lqg, fixed, rhs, matvec, symmetric: bool):
+    """du* [K, d] solving (16.1), dF/du du* = -rhs, with ``rhs`` = dF/dtheta dtheta [K, d] and
+    ``matvec`` v -> dF/du v (linear), preconditioned by the Gauss-Newton solve of the model ``lqg``
+    at the nominal (:func:`preconditioner`), ``fixed`` [K, d] the held commands; NaN where the
+    Krylov solve missed :data:`RESIDUAL_CHECK`. Linear in ``rhs`` and transposable (reverse mode)."""
+    precondition = preconditioner(lqg, fixed)
 
-    def checked(A, b, x):
-        # the Krylov method reports no failure: check the residual, and say so with NaN
-        miss = ~(jnp.linalg.norm(A(x) - b) <= RESIDUAL_CHECK * jnp.linalg.norm(b))
+    def checked(solved):
+        # GMRES's residual, not one more product A x - b: it is that residual to rounding, and a
+        # product costs a differentiated backward pass (docs/performance.md#krylov_tol)
+        x, residual = solved
+        miss = ~(residual <= RESIDUAL_CHECK)
         return x * jnp.where(miss, jnp.nan, 1.0)
 
     def krylov(mv, b):
@@ -278,7 +286,7 @@ def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
         # cond(H) eps, ~1e-8 on the arm, far above KRYLOV_TOL)
         pa = lambda v: precondition(mv(v))
         pb = precondition(b)
-        return checked(pa, pb, gmres(pa, pb, KRYLOV_TOL, KRYLOV_MAXITER))
+        return checked(gmres(pa, pb, KRYLOV_TOL, KRYLOV_MAXITER))
 
     def krylov_transposed(vm, b):
         # the transposed system A' w = b right-preconditioned, A' P z = b, w = P z: A' P = (P A)' is
@@ -286,19 +294,26 @@ def implicit_tangent(problem: Problem, xs, us, dproblem, margin: float):
         # it only through P (cond ~ cond(H)), and a small preconditioned residual left errors of
         # 1e-4 in w (the noisy arm)
         ap = lambda z: vm(precondition(z))
-        return precondition(checked(ap, b, gmres(ap, b, KRYLOV_TOL, KRYLOV_MAXITER)))
+        return precondition(checked(gmres(ap, b, KRYLOV_TOL, KRYLOV_MAXITER)))
 
     return jax.lax.custom_linear_solve(matvec, -rhs, krylov, transpose_solve=krylov_transposed, symmetric=symmetric)
 
 
 # -- the differentiable solve ---------------------------------------------------------------------
 
-def _outputs(problem: Problem, us, margin: float):
-    """(x, cost, expected_cost, Policy's gains) as functions of (theta, u*): what the tangent of a
-    solution is the tangent of."""
+def _at_solution(problem: Problem, us, at_lo, at_hi, margin: float):
+    """(F [K, d], outputs) as functions of (theta, u*), linearised once for (16.1) and the outputs'
+    tangent together: F of :func:`stationarity`, and the outputs (x, cost, expected_cost, the
+    Policy's gains), what the tangent of a solution is the tangent of. Without limits F's rollout
+    and backward pass (S) are the outputs' (u_held = u), computed once."""
     xs = rollout(problem, us)
-    gains, s_tilde, _, _ = value_at(problem, xs, us, margin)
-    return xs, trajectory_cost(problem, xs, us), s_tilde[0], from_slots(gains, problem.n_states)
+    gains, s_tilde, _, S = value_at(problem, xs, us, margin)
+    outputs = xs, trajectory_cost(problem, xs, us), s_tilde[0], from_slots(gains, problem.n_states)
+    if problem.has_limits:
+        F = stationarity(problem, us, at_lo | at_hi, _limit_values(problem, at_lo, at_hi), margin)
+    else:
+        F = _merit_gradient(problem, xs, us, None if problem.noise is None else S)
+    return F, outputs
 
 
 def _zero_tangent(x):
@@ -323,9 +338,16 @@ def differentiable(plain_solve):
         dproblem, _ = tangents
         sol = run(problem, u_init, options)
         margin = options.limit_margin
-        du = implicit_tangent(problem, sol.x, sol.u, dproblem, margin)
-        _, (dx, dcost, dexpected, dgains) = jax.jvp(lambda p, u: _outputs(p, u, margin), (problem, sol.u),
-                                                    (dproblem, du))
+        at_lo, at_hi = _held_sides(problem, sol.u, margin)
+        # one linearisation at (theta, u*) serves the right-hand side of (16.1), its products and the
+        # outputs' tangent: their transposes (reverse mode) share its residuals, those of one rollout
+        # and one differentiated backward pass (docs/performance.md#krylov_tol)
+        _, linear = jax.linearize(lambda p, u: _at_solution(p, u, at_lo, at_hi, margin), problem, sol.u)
+        no_dproblem = jax.tree_util.tree_map(_zero_tangent, problem)
+        rhs = linear(dproblem, jnp.zeros_like(sol.u))[0]
+        du = implicit_tangent(linearize(problem, sol.x, sol.u), at_lo | at_hi, rhs,
+                              lambda v: linear(no_dproblem, v)[0], problem.noise is None)
+        dx, dcost, dexpected, dgains = linear(dproblem, du)[1]
         ok = (sol.status == Status.CONVERGED_GRADIENT) | (sol.status == Status.CONVERGED_COST)
         # a factor, not a select: the tangent must stay linear, and JAX's transpose of
         # where(ok, t, nan) would drop the constant NaN (reverse mode would report zeros)
