@@ -70,6 +70,7 @@ class _Latch(NamedTuple):
     held: jax.Array              # [K, d] bool: no feedback from now on
     low: jax.Array               # the lowest and highest merit (each nominal's under its own S)
     high: jax.Array              # since the count began
+    last: jax.Array              # [2]: (low, high) of the window before (NaN: none)
 
 
 class _Best(NamedTuple):
@@ -119,13 +120,13 @@ ROUNDOFF = 1e3 * float(np.finfo(np.float64).eps)
 LATCH_STALL = 10
 LATCH_TOGGLES = 2
 
-#: ... and only when the iteration has settled: the merits (each nominal's under its own S) of
-#: those LATCH_STALL iterations lie within LATCH_BAND (relative) of each other. A cycle of the
-#: feedback pattern near a fixed point revisits nominals of nearly one merit (0.2 % apart on the
-#: reach it was found on); an iteration still on its way, whose feedback pattern changes because
-#: the nominal moves, spans a wide range (a factor 2 on the reach that latched 89 commands there
-#: and then never converged), and latching there fixes an arbitrary pattern (derivation §12).
-LATCH_BAND = 1e-2
+#: ... and only when the iteration recurs: the lowest and the highest merit (each nominal's under
+#: its own S) of those LATCH_STALL iterations are within LATCH_RECUR (relative) of those of the
+#: LATCH_STALL iterations before. A cycle of the feedback pattern (period up to LATCH_STALL)
+#: revisits the same nominals window after window; an iteration still on its way, whose feedback
+#: pattern changes because the nominal moves, does not, and latching there fixes an arbitrary
+#: pattern (derivation §12).
+LATCH_RECUR = 1e-2
 
 
 def first_order(o: Options, bp: BackwardPass, reg, merit_now):
@@ -159,11 +160,12 @@ def _latched(latch: _Latch, gains: SlotGains, counts, improved, merit_now) -> _L
     stall = latch.stall + 1
     low, high = jnp.fmin(latch.low, merit_now), jnp.fmax(latch.high, merit_now)
     fire = stall >= LATCH_STALL
-    settled = high - low <= LATCH_BAND * jnp.abs(low)
-    held = latch.held | (fire & settled & (toggles >= LATCH_TOGGLES))
+    recurs = jnp.all(jnp.abs(jnp.stack([low, high]) - latch.last) <= LATCH_RECUR * jnp.abs(latch.last))
+    held = latch.held | (fire & recurs & (toggles >= LATCH_TOGGLES))
     reset = improved | fire
+    last = jnp.where(improved, jnp.nan, jnp.where(fire, jnp.stack([low, high]), latch.last))
     return _Latch(jnp.where(counts, feedback, latch.feedback), jnp.where(reset, 0, toggles),
-                  jnp.where(reset, 0, stall), held, jnp.where(reset, jnp.inf, low), jnp.where(reset, -jnp.inf, high))
+                  jnp.where(reset, 0, stall), held, jnp.where(reset, jnp.inf, low), jnp.where(reset, -jnp.inf, high), last)
 
 
 class _Search(NamedTuple):
@@ -297,7 +299,8 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     # a non-finite start stops at once, with one backward pass for the policy it reports
     noisy = problem.noise is not None
     latch = _Latch(jnp.zeros((K, nd), bool), jnp.zeros((K, nd), jnp.int32), jnp.asarray(0, jnp.int32),
-                   jnp.zeros((K, nd), bool), jnp.asarray(jnp.inf), jnp.asarray(-jnp.inf)) \
+                   jnp.zeros((K, nd), bool), jnp.asarray(jnp.inf), jnp.asarray(-jnp.inf),
+                   jnp.full(2, jnp.nan)) \
         if noisy and problem.has_limits else None
     best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
