@@ -16,7 +16,7 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    larger lambda, the next pass runs at lambda = 0 to confirm it); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
 
-With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
+With noise and limits, commands whose feedback keeps switching on and off while the merit stalls in a cycle
 lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
