@@ -16,8 +16,8 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    larger lambda, the next pass runs at lambda = 0 to confirm it); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
 
-With noise and limits, commands whose feedback keeps switching on and off while the merit stalls in a cycle
-lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
+With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
+in a cycle lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
@@ -165,7 +165,8 @@ def _latched(latch: _Latch, gains: SlotGains, counts, improved, merit_now) -> _L
     reset = improved | fire
     last = jnp.where(improved, jnp.nan, jnp.where(fire, jnp.stack([low, high]), latch.last))
     return _Latch(jnp.where(counts, feedback, latch.feedback), jnp.where(reset, 0, toggles),
-                  jnp.where(reset, 0, stall), held, jnp.where(reset, jnp.inf, low), jnp.where(reset, -jnp.inf, high), last)
+                  jnp.where(reset, 0, stall), held, jnp.where(reset, jnp.inf, low), jnp.where(reset, -jnp.inf, high),
+                  last)
 
 
 class _Search(NamedTuple):
