@@ -157,15 +157,44 @@ def test_a_noisy_solve_that_stops_early_returns_its_best_iterate():
         np.testing.assert_allclose(sol.x, _value(rollout, problem, sol.u), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6)])
+@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6), (0.005, 0.15, 7)])
 def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
-    """Two reaches of the issue-19 grid (docs/results/noise_aware_convergence.md): the first cycled
+    """Three reaches of the issue-19 grid (docs/results/noise_aware_convergence.md): the first cycled
     with period 9 at lambda = 0 (a command's feedback switching on and off: the latch), the
     second stopped "converged" under lambda = 1e5 (an excitation at its bound planned with half
-    its derivative, then optima on the activation switch's kink)."""
+    its derivative, then optima on the activation switch's kink), the third latched 89 commands
+    while its merit still wandered over a factor 2 and then crept for 250 iterations (the latch
+    fires only on a recurring window, LATCH_RECUR)."""
     from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
     problem = arm2_muscle6(delay=delay, target=tuple(center_out_targets()[k]), noise=True, sigma_u=sigma_u)
     sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=300))
     assert sol.converged, sol.status
     n = int(sol.iterations)
     assert float(sol.trace.reg[n]) < 1e-5
+
+
+def _window(latch, merits, toggle):
+    """The latch after one LATCH_STALL window of backward passes with the given merits, the
+    feedback of command (0, 0) switching every pass when ``toggle``."""
+    from delayed_ilqr.ilqg import solver
+    from delayed_ilqr.lqg.frame import SlotGains
+    for i, m in enumerate(merits):
+        on = bool(i % 2) if toggle else True
+        gains = SlotGains(jnp.zeros((1, 1)), jnp.full((1, 1, 1), float(on)))
+        latch = solver._latched(latch, gains, jnp.asarray(True), jnp.asarray(False), jnp.asarray(m))
+    return latch
+
+
+def test_latch_fires_on_a_recurring_window_only():
+    """The feedback latch (derivation §12) holds a toggling command only when the merits of a
+    stalled window recur in the next: a cycle; a window whose range moves is a transient."""
+    from delayed_ilqr.ilqg import solver
+    assert solver.LATCH_STALL == 10
+    fresh = solver._Latch(jnp.ones((1, 1), bool), jnp.zeros((1, 1), jnp.int32), jnp.asarray(0, jnp.int32),
+                          jnp.zeros((1, 1), bool), jnp.asarray(jnp.inf), jnp.asarray(-jnp.inf), jnp.full(2, jnp.nan))
+    cycle = [1.0, 1.03, 1.01, 1.05, 1.02] * 2                 # period 5, range 5 %
+    first = _window(fresh, cycle, True)
+    assert not bool(first.held[0, 0])                         # nothing to compare with yet
+    assert bool(_window(first, cycle, True).held[0, 0])       # the same range again: a cycle
+    assert not bool(_window(first, [1.3 * m for m in cycle], True).held[0, 0])   # moved: a transient
+    assert not bool(_window(first, cycle, False).held[0, 0])  # recurring, but the feedback does not toggle

@@ -43,9 +43,9 @@ def initial_state(problem, u_init, options):
     """The solver's state before its first iteration (as ``solver._solve_body`` builds it)."""
     xs = rollout(problem, u_init)
     K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
-    nan = jnp.full(2, jnp.nan)
+    nan = jnp.full(3, jnp.nan)
     latch = solver._Latch(jnp.zeros((K, nd), bool), jnp.zeros((K, nd), jnp.int32), jnp.asarray(0, jnp.int32),
-                          jnp.zeros((K, nd), bool))
+                          jnp.zeros((K, nd), bool), jnp.asarray(jnp.inf), jnp.asarray(-jnp.inf), jnp.full(2, jnp.nan))
     return solver._State(u_init, xs, trajectory_cost(problem, xs, u_init), jnp.asarray(options.reg_init),
                          jnp.asarray(1.0), jnp.asarray(0, jnp.int32), jnp.asarray(solver._RUNNING, jnp.int32),
                          jnp.asarray(False), SlotGains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx + l * nd))),
@@ -62,19 +62,25 @@ def main(argv):
 
     @jax.jit
     def one(st):
-        new = solver._iteration(problem, options, st._replace(iteration=jnp.asarray(0, jnp.int32)))
-        return new, new.trace.merit[1], new.trace.step_size[1]
+        # the counter runs 0, 1, 1, ...: a three-entry trace, and the latch counts from the second pass on
+        # (with the counter kept at 0 it never would)
+        it = jnp.minimum(st.iteration, 1)
+        new = solver._iteration(problem, options, st._replace(iteration=it))
+        return new, new.trace.merit[it + 1], new.trace.step_size[it + 1]
 
     st = initial_state(problem, jnp.asarray(default_u_init(problem)), options)
     previous, changes, alphas = None, [], []
     for _ in range(iterations):
         st, _, alpha = one(st)
+        if int(st.status) != solver._RUNNING:       # stopped: the analysis below is at the last nominal
+            print(f"the solver stopped ({solver.Status(int(st.status)).name}) after {len(alphas) + 1} iterations")
+            break
         mask = np.asarray(solver._feedback_mask(st.gains))
         changes.append(0 if previous is None else int(np.sum(mask != previous)))
         alphas.append(float(alpha))
         previous = mask
-    last = iterations // 5
-    print(f"{iterations} iterations; feedback-pattern changes in the last {last}: {sum(changes[-last:])}; "
+    last = len(alphas) // 5
+    print(f"{len(alphas)} iterations; feedback-pattern changes in the last {last}: {sum(changes[-last:])}; "
           f"latched commands: {int(np.sum(np.asarray(st.latch.held)))}; "
           f"median step size of the last {last}: {np.median(alphas[-last:]):.3g}; lambda now {float(st.reg):.2g}")
 

@@ -17,7 +17,7 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
    step is not taken, and the line search is not run when the model predicts less than that.
 
 With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
-lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
+in a cycle lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
@@ -68,6 +68,9 @@ class _Latch(NamedTuple):
     toggles: jax.Array           # [K, d] int32: how often that has switched since the best merit improved
     stall: jax.Array             # int32: iterations since the best merit improved
     held: jax.Array              # [K, d] bool: no feedback from now on
+    low: jax.Array               # the lowest and highest merit (each nominal's under its own S)
+    high: jax.Array              # since the count began
+    last: jax.Array              # [2]: (low, high) of the window before (NaN: none)
 
 
 class _Best(NamedTuple):
@@ -117,6 +120,14 @@ ROUNDOFF = 1e3 * float(np.finfo(np.float64).eps)
 LATCH_STALL = 10
 LATCH_TOGGLES = 2
 
+#: ... and only when the iteration recurs: the lowest and the highest merit (each nominal's under
+#: its own S) of those LATCH_STALL iterations are within LATCH_RECUR (relative) of those of the
+#: LATCH_STALL iterations before. A cycle of the feedback pattern (period up to LATCH_STALL)
+#: revisits the same nominals window after window; an iteration still on its way, whose feedback
+#: pattern changes because the nominal moves, does not, and latching there fixes an arbitrary
+#: pattern (derivation §12).
+LATCH_RECUR = 1e-2
+
 
 def first_order(o: Options, bp: BackwardPass, reg, merit_now):
     """The first-order certificate every convergence status requires (issue 22, item 8).
@@ -141,17 +152,21 @@ def _feedback_mask(gains: SlotGains):
     return jnp.any(gains.feedback != 0, axis=-1)
 
 
-def _latched(latch: _Latch, gains: SlotGains, counts, improved) -> _Latch:
+def _latched(latch: _Latch, gains: SlotGains, counts, improved, merit_now) -> _Latch:
     """The latch after a backward pass with ``gains`` (its switches counted where ``counts``), at a
-    nominal that ``improved`` the best merit or not."""
+    nominal of merit ``merit_now`` (NaN: not known) that ``improved`` the best merit or not."""
     feedback = _feedback_mask(gains)
     toggles = latch.toggles + (counts & (feedback != latch.feedback)).astype(jnp.int32)
     stall = latch.stall + 1
+    low, high = jnp.fmin(latch.low, merit_now), jnp.fmax(latch.high, merit_now)
     fire = stall >= LATCH_STALL
-    held = latch.held | (fire & (toggles >= LATCH_TOGGLES))
+    recurs = jnp.all(jnp.abs(jnp.stack([low, high]) - latch.last) <= LATCH_RECUR * jnp.abs(latch.last))
+    held = latch.held | (fire & recurs & (toggles >= LATCH_TOGGLES))
     reset = improved | fire
+    last = jnp.where(improved, jnp.nan, jnp.where(fire, jnp.stack([low, high]), latch.last))
     return _Latch(jnp.where(counts, feedback, latch.feedback), jnp.where(reset, 0, toggles),
-                  jnp.where(reset, 0, stall), held)
+                  jnp.where(reset, 0, stall), held, jnp.where(reset, jnp.inf, low), jnp.where(reset, -jnp.inf, high),
+                  last)
 
 
 class _Search(NamedTuple):
@@ -261,7 +276,8 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
         us, xs, cost = (jnp.where(failed, a, b) for a, b in ((best.us, us), (best.xs, xs), (best.cost, cost)))
         restore = failed & ~better
         move = move & ~failed
-    latch = st.latch if st.latch is None else _latched(st.latch, bp.gains, pd & (st.iteration > 0), improved)
+    latch = st.latch if st.latch is None else _latched(st.latch, bp.gains, pd & (st.iteration > 0), improved,
+                                                       jnp.where(pd, merit_now, jnp.nan))
     # one more pass when the stop moved the nominal, or left gains from a failed factorisation
     final_pass = (status != _RUNNING) & (move | ~pd | restore)
     iterated = _State(us, xs, cost, reg, dreg, it, status, final_pass, bp.gains, bp.expected_cost, trace, latch,
@@ -284,7 +300,8 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     # a non-finite start stops at once, with one backward pass for the policy it reports
     noisy = problem.noise is not None
     latch = _Latch(jnp.zeros((K, nd), bool), jnp.zeros((K, nd), jnp.int32), jnp.asarray(0, jnp.int32),
-                   jnp.zeros((K, nd), bool)) \
+                   jnp.zeros((K, nd), bool), jnp.asarray(jnp.inf), jnp.asarray(-jnp.inf),
+                   jnp.full(2, jnp.nan)) \
         if noisy and problem.has_limits else None
     best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
