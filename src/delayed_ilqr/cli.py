@@ -592,8 +592,10 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
               help="Precision of a mean path in task units (e.g. its standard error).")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=100, show_default=True,
               help="L-BFGS-B iterations per delay.")
+@click.option("--gtol", type=click.FloatRange(min=0.0, min_open=True), default=1e-8, show_default=True,
+              help="L-BFGS-B's tolerance on the projected gradient of the loss in log parameters.")
 @_out_option(default=None, help="Folder for fit.json.")
-def fit_command(function, data, starts, delays, mean_scale, max_iterations, out, overwrite):
+def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, out, overwrite):
     """Fit cost weights and noise scales to reach data, and the delay by a profile (docs/fitting.md).
 
     FUNCTION is package.module:name, called as name(params, condition, delay) with params a dict
@@ -629,7 +631,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, out,
         start = time.perf_counter()
         best, fits = fitting.profile_delay(make_problem, delays, conditions, reach_data,
                                            {k: float(v) for k, v in params0.items()}, mean_scale=mean_scale,
-                                           max_iterations=max_iterations)
+                                           max_iterations=max_iterations, gtol=gtol)
         elapsed = time.perf_counter() - start
         names = sorted(params0)
         header = ["delay [s]", "loss", *names, "converged", "L-BFGS-B iterations", "evaluations"]
@@ -640,7 +642,8 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, out,
         click.echo(f"delay {best:g} s (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
         if out is not None:
             settings = dict(function=function, data=str(data), start=params0, delays=list(delays),
-                            mean_scale=mean_scale, max_iterations=max_iterations, elapsed_seconds=elapsed)
+                            mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
+                            elapsed_seconds=elapsed)
             records = [dict(delay=d, loss=f.loss, params=f.params, converged=f.converged, message=f.message,
                             iterations=f.iterations, evaluations=f.evaluations) for d, f in zip(delays, fits)]
             report.write_json(output.staging / "fit.json", dict(settings=settings, best_delay=best, fits=records))
