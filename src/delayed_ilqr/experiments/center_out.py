@@ -226,6 +226,10 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
     return results
 
 
+# module level, so that a second study with the same shapes reuses the compiled filter design
+_filter_on_plants = jax.jit(jax.vmap(designs.filter_on_plant))
+
+
 def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
              seed: int) -> DelayResult:
     """One delay and design: the batched solve of all targets, then the Monte Carlo of each policy."""
@@ -233,7 +237,7 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
     sols, solve_time, first = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
     if plants[0].observation is not None and designs.REGISTRY[name].filter_on_plant:
         stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *plants)
-        sols = jax.jit(jax.vmap(designs.filter_on_plant))(stacked, sols)
+        sols = _filter_on_plants(stacked, sols)
     per_target, runs = [], []
     for j, plant in enumerate(plants):
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
