@@ -32,6 +32,17 @@ def delay_steps(value, name: str = "delay_steps") -> int:
     return int(value)
 
 
+def delay_frame(value, delay: int, name: str = "delay_frame"):
+    """None, or a whole number of pending slots L >= the delay l (the frame of docs/derivation.md §17)."""
+    if value is None:
+        return None
+    value = delay_steps(value, name)
+    if value < delay:
+        raise ValueError(f"{name} must be at least delay_steps (the frame holds the l pending commands); "
+                         f"got {name}={value} with delay_steps={delay}")
+    return value
+
+
 def non_negative_int(value, name: str) -> int:
     static(value, name)
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)) or value < 0:

@@ -2,7 +2,8 @@
 z_k = [dx_k, du_{k-l}, ..., du_{k-1}], per step O((n + l d)^3).
 
 Same problem and same return types as :func:`.structured.backward_pass`; the tests hold the two
-equal, and ``Options(method="augmented")`` solves with it.
+equal, and ``Options(method="augmented")`` solves with it. With a frame (``delay_frame`` L, the
+delay l as data) the buffer holds du_{k-L}, ..., du_{k-1} and B1, C1 read its entry L - l.
 """
 from __future__ import annotations
 
@@ -30,10 +31,11 @@ def augment(lqg: DelayedLQG):
     """The augmented (undelayed) system, time-major.
 
     Returns a dict with Az [K, m, m], Bz [K, m, d], cz [K, p, m], Cz [K, p, m, m], Cu [K, p, m, d],
-    dz [K+1, m], Dz [K+1, m, m], Nz [K, d, m] where m = n + l d; the buffer holds du_{k-l} .. du_{k-1}.
+    dz [K+1, m], Dz [K+1, m, m], Nz [K, d, m] where m = n + l d; the buffer holds du_{k-l} .. du_{k-1}
+    (with a frame, m = n + L d and du_{k-L} .. du_{k-1}).
     """
     lqg = merged_if_undelayed(lqg)
-    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
+    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.frame_steps
     m = nx + l * nd
     dt = lqg.A.dtype
     Az = jnp.zeros((K, m, m), dt).at[:, :nx, :nx].set(lqg.A)
@@ -42,10 +44,15 @@ def augment(lqg: DelayedLQG):
     Cu = jnp.zeros((K, p, m, nd), dt).at[:, :, :nx, :].set(lqg.C0)
     Nz = jnp.zeros((K, nd, m), dt).at[:, :, :nx].set(lqg.N)
     if l > 0:
-        Az = Az.at[:, :nx, nx:nx + nd].set(lqg.B1)                          # du_{k-l} acts now
+        # du_{k-l} acts now: entry 0 of the buffer, or entry L - l of a frame (none for l = 0, where
+        # merged_if_undelayed folded B1, C1 into B0, C0)
+        entry = jnp.zeros(l, dt).at[0].set(1.0) if lqg.delay_frame is None else \
+            (jnp.arange(l) == l - lqg.delay_steps).astype(dt)
+        at = lambda X: (X[..., None, :] * entry[:, None]).reshape(X.shape[:-1] + (l * nd,))
+        Az = Az.at[:, :nx, nx:].set(at(lqg.B1))
         Az = Az.at[:, nx:m - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts
         Bz = Bz.at[:, m - nd:, :].set(jnp.eye(nd, dtype=dt))                # du_k enters last
-        Cz = Cz.at[:, :, :nx, nx:nx + nd].set(lqg.C1)
+        Cz = Cz.at[:, :, :nx, nx:].set(at(lqg.C1))
     cz = jnp.zeros((K, p, m), dt).at[:, :, :nx].set(lqg.c)
     dz = jnp.zeros((K + 1, m), dt).at[:, :nx].set(lqg.d)
     Dz = jnp.zeros((K + 1, m, m), dt).at[:, :nx, :nx].set(lqg.D)
@@ -86,7 +93,7 @@ def _augmented_backward_pass(lqg: DelayedLQG, reg):
 def augmented_scan(lqg: DelayedLQG, reg=0.0, gains_fn=unconstrained_gains, bounds=None):
     """Riccati recursion on z = [dx, du_{k-l}, ..., du_{k-1}]; ``gains_fn``/``bounds`` as in
     :func:`.structured.structured_scan`."""
-    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
+    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.frame_steps
     aug = augment(lqg)
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], lqg.d_tilde[:-1], aug["dz"][:-1],
             aug["Dz"][:-1], lqg.e, lqg.E, aug["Nz"], bounds)

@@ -7,6 +7,11 @@ step k (du_{k-l}, acting now) and the one that becomes pending (du_k) share slot
 step writes one slot and no block ever moves: the backward pass updates its value blocks in place
 and a rollout writes one slot per step instead of shifting a buffer.
 
+With a frame of L >= l slots and the delay l as data (``delay_frame``, docs/derivation.md §17),
+du_j lives in slot j mod L and the command acting at step k, du_{k-l}, in slot (k - l) mod L
+(:func:`acting_offsets`); the other L - l slots hold commands that have acted, with zero blocks
+and zero gains, and for l = L the two slots coincide as above.
+
 Eq. (6)'s order and the slot order differ by a rotation that depends on k: :func:`pending_order`
 gives the permutation, :func:`to_slots` / :func:`from_slots` convert gains and
 :func:`value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
@@ -21,7 +26,7 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offsets", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -41,6 +46,12 @@ class SlotGains(NamedTuple):
 def slot_offsets(K: int, l: int, nd: int):
     """(k mod l) d for k = 0..K-1: where du_k sits in the flat pending vector (0 when l = 0)."""
     return (jnp.arange(K) % max(l, 1)) * nd
+
+
+def acting_offsets(K: int, l, frame: int, nd: int):
+    """((k - l) mod L) d for k = 0..K-1: where du_{k-l}, the command acting at step k, sits in a
+    frame of L slots (``l`` traced); for l = 0 that is du_k's own slot (folded, see derivation §17)."""
+    return ((jnp.arange(K) - l) % max(frame, 1)) * nd
 
 
 def pending_order(k, l: int, nd: int):

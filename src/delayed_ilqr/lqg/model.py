@@ -23,7 +23,7 @@ import numpy as np
 from .. import _precision, _validate
 
 __all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models", "merged_if_undelayed", "checked_entry",
-           "stacked_dynamics", "idle_stage"]
+           "stacked_dynamics", "idle_stage", "fold_current", "frame_delay_leaf"]
 
 
 class Stage(NamedTuple):
@@ -66,14 +66,20 @@ class DelayedLQG:
         delay_steps: l >= 0, the input delay in steps.
         N: optional [K, d, n] cross cost 2 du_k'N_k dx_k (absent from eq. 4, which is N = 0; a
             general running cost l(x, u) has one).
+        delay_frame: optional L >= l: keep the pending commands in a frame of L slots, with the
+            delay l as data (docs/derivation.md §17). Problems that differ only in l <= L then
+            share one compiled pass; the value's and the gains' pending blocks span the frame,
+            [du_{k-L}, ..., du_{k-1}], and those of the L - l commands that have acted are zero.
 
     ``p = 0`` (no noise) is allowed: pass arrays with a zero-length second axis, or ``None`` for
-    c, C0 and C1 together. Instances are JAX pytrees whose only static field is ``delay_steps``.
+    c, C0 and C1 together. Instances are JAX pytrees whose static fields are ``delay_steps`` and
+    ``delay_frame``; with a frame, ``delay_steps`` is a leaf (an int32 scalar) instead.
     """
 
-    def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps, N=None):
+    def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps, N=None, delay_frame=None):
         _precision.require_x64("lqg.DelayedLQG")
         self.delay_steps = _validate.delay_steps(delay_steps)
+        self.delay_frame = _validate.delay_frame(delay_frame, self.delay_steps)
         A = _validate.array(A, "A", (None, None, None))
         K, n = A.shape[0], A.shape[1]
         if K < 1:
@@ -115,11 +121,16 @@ class DelayedLQG:
     def n_noise(self) -> int:
         return self.c.shape[1]
 
+    @property
+    def frame_steps(self) -> int:
+        """The number of pending slots (static): ``delay_frame``, or l without a frame."""
+        return self.delay_steps if self.delay_frame is None else self.delay_frame
+
     @classmethod
-    def from_traced(cls, *, delay_steps: int, **arrays) -> "DelayedLQG":
+    def from_traced(cls, *, delay_steps, delay_frame=None, **arrays) -> "DelayedLQG":
         """Builds an instance from (possibly traced) arrays without validation: for use inside jit,
         where the arrays come from the library's own linearisation."""
-        return _unflatten(delay_steps, tuple(arrays[name] for name in Stage._fields))
+        return _unflatten((delay_steps, delay_frame), tuple(arrays[name] for name in Stage._fields))
 
     def replace(self, **changes) -> "DelayedLQG":
         """A copy with some arrays replaced (no validation: for internal use on traced data)."""
@@ -129,8 +140,9 @@ class DelayedLQG:
         return new
 
     def __repr__(self) -> str:
+        frame = "" if self.delay_frame is None else f", delay_frame={self.delay_frame}"
         return (f"DelayedLQG(K={self.horizon}, n={self.n_states}, d={self.n_controls}, "
-                f"p={self.n_noise}, delay_steps={self.delay_steps})")
+                f"p={self.n_noise}, delay_steps={self.delay_steps}{frame})")
 
 
 def _check_symmetric(mat: np.ndarray, name: str) -> np.ndarray:
@@ -141,15 +153,27 @@ def _check_symmetric(mat: np.ndarray, name: str) -> np.ndarray:
 
 
 def _flatten(lqg: DelayedLQG):
-    return tuple(getattr(lqg, f) for f in Stage._fields), lqg.delay_steps
+    arrays = tuple(getattr(lqg, f) for f in Stage._fields)
+    if lqg.delay_frame is None:
+        return arrays, (lqg.delay_steps, None)
+    return arrays + (frame_delay_leaf(lqg.delay_steps),), (None, lqg.delay_frame)
 
 
-def _unflatten(delay_steps, arrays):
+def _unflatten(aux, arrays):
     new = object.__new__(DelayedLQG)
-    new.delay_steps = delay_steps
+    new.delay_steps, new.delay_frame = aux
+    if new.delay_frame is not None and len(arrays) > len(Stage._fields):
+        new.delay_steps, arrays = arrays[-1], arrays[:-1]
     for name, value in zip(Stage._fields, arrays):
         setattr(new, name, value)
     return new
+
+
+def frame_delay_leaf(delay_steps):
+    """The delay l as the leaf of a framed pytree: an int32 scalar (a traced one as it is)."""
+    if isinstance(delay_steps, (int, np.integer)):
+        return np.asarray(delay_steps, np.int32)
+    return delay_steps
 
 
 jax.tree_util.register_pytree_node(DelayedLQG, _flatten, _unflatten)
@@ -198,11 +222,24 @@ class Value(NamedTuple):
 
 
 def merged_if_undelayed(lqg: DelayedLQG):
-    """For l = 0 the delayed command is the current one: fold B1, C1 into B0, C0."""
-    if lqg.delay_steps > 0:
+    """For l = 0 the delayed command is the current one: fold B1, C1 into B0, C0 (with a frame,
+    where the traced l is 0)."""
+    if lqg.delay_frame is None and lqg.delay_steps > 0:
         return lqg
-    return lqg.replace(B0=lqg.B0 + lqg.B1, B1=jnp.zeros_like(lqg.B1),
-                       C0=lqg.C0 + lqg.C1, C1=jnp.zeros_like(lqg.C1))
+    current = True if lqg.delay_frame is None else lqg.delay_steps == 0
+    folded = fold_current((lqg.B0, lqg.B1, lqg.C0, lqg.C1), current)
+    return lqg.replace(**dict(zip(("B0", "B1", "C0", "C1"), folded)))
+
+
+def fold_current(blocks, current):
+    """(B0, B1, C0, C1) with the delayed command's columns folded into the current command's where
+    ``current`` (l = 0: the command acting is the one sent now): (B0 + B1, 0, C0 + C1, 0).
+    ``current`` is a Python bool (a static l) or a traced bool (a framed l)."""
+    B0, B1, C0, C1 = blocks
+    if current is True:
+        return B0 + B1, jnp.zeros_like(B1), C0 + C1, jnp.zeros_like(C1)
+    keep = jnp.logical_not(current)
+    return B0 + jnp.where(keep, 0.0, B1), jnp.where(keep, B1, 0.0), C0 + jnp.where(keep, 0.0, C1), jnp.where(keep, C1, 0.0)
 
 
 def stacked_dynamics(lqg: DelayedLQG):
@@ -223,8 +260,14 @@ class StepModels(NamedTuple):
     model: Callable[[Any], Stage]
     rows: Any
     terminal: tuple
-    delay_steps: int
+    delay_steps: Any             # l: an int, or a traced int32 with a frame
     n_controls: int
+    delay_frame: int | None = None
+
+    @property
+    def frame_steps(self) -> int:
+        """The number of pending slots (static): ``delay_frame``, or l without a frame."""
+        return self.delay_steps if self.delay_frame is None else self.delay_frame
 
     @property
     def horizon(self) -> int:
@@ -240,7 +283,7 @@ def stored_models(lqg: DelayedLQG) -> StepModels:
     rows = Stage(lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e,
                  lqg.E, lqg.N)
     return StepModels(lambda row: row, rows, (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1]), lqg.delay_steps,
-                      lqg.n_controls)
+                      lqg.n_controls, lqg.delay_frame)
 
 
 def idle_stage(stage: Stage) -> Stage:

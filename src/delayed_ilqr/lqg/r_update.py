@@ -35,7 +35,7 @@ import jax.numpy as jnp
 
 from .._kernels.dense import add_symmetric_product, matmul_t
 
-__all__ = ["RStrategy", "update", "flush", "exact", "COPIED_FACTORS_MIN_LD", "DEFER_MIN_LD", "DEFER_BLOCK"]
+__all__ = ["RStrategy", "update", "update_framed", "flush", "exact", "COPIED_FACTORS_MIN_LD", "DEFER_MIN_LD", "DEFER_BLOCK"]
 
 # From this l d on, M and W are copied out of the value update's product: keeps XLA from fusing their
 # producers into the loop over R (docs/performance.md#copied_factors_min_ld).
@@ -101,6 +101,31 @@ def update(R, factors, row, M, W, slot, next_slot, factor_row):
     own = jnp.concatenate([jax.lax.dynamic_slice_in_dim(X, next_slot, nd, axis=1) for X in (W, M)])
     R_next = jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=1).T + part[nd:] + matmul_t(own, jnp.concatenate([M, W]))
     return R, (F,), R_next
+
+
+def update_framed(R, row, M, W, slot, acting, next_slot):
+    """R at k from R at k+1 in a frame of L slots with the delay as data (docs/derivation.md §17).
+
+    The stale-column invariant above rests on the slot written being the slot eliminated, which
+    a frame breaks (du_{k-l} is written into slot alpha = (k - l) mod L, du_{k-L}'s slot sigma is
+    cleared): R is kept whole and symmetric instead, rows and columns written alike.
+
+    Args:
+        R: [L d, L d] the exact R of J(k+1).
+        row: [d, L d] exact rows of slot alpha at k (zero at slot sigma).
+        M, W: [d, L d] the step's delay feedback and W, zero at slot sigma.
+        slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d.
+
+    Returns:
+        (R, R_next): R at k and its rows [d, L d] of the slot that step k-1 eliminates.
+    """
+    nd = row.shape[0]
+    R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row), (slot, 0))
+    R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row.T), (0, slot))
+    R = jax.lax.dynamic_update_slice(R, row, (acting, 0))
+    R = jax.lax.dynamic_update_slice(R, row.T, (0, acting))
+    R = add_symmetric_product(R, M, W)
+    return R, jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
 
 
 def _swap_factors(F, nd: int):

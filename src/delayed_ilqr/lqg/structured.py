@@ -12,6 +12,12 @@ here computes the same numbers (tests/test_stage.py) arranged for speed:
   sizes of motor-control problems (the kernels of :mod:`delayed_ilqr._kernels`);
 * R is updated by a strategy of :mod:`.r_update` (dense, copied factors, deferred blocks).
 
+With a frame (``delay_frame`` L >= l, the delay l as data; docs/derivation.md §17) the command
+acting at step k, du_{k-l}, sits in slot alpha = (k - l) mod L, not in slot sigma = k mod L of the
+command eliminated: the step clears slot sigma (at k it holds du_{k-L}, which has acted) and writes
+du_{k-l}'s blocks into slot alpha (zero at k+1, where du_{k-l} has acted), which is the step above
+when alpha = sigma (l = L). R is then kept whole and symmetric (:func:`.r_update.update_framed`).
+
 The value update is the exact cost-to-go of the quadratic model under whatever gains the gain rule
 returns (regularised, or clamped by control limits; docs/derivation.md §4), so J(0) is always the
 true cost of the returned policy.
@@ -28,9 +34,10 @@ from .. import _precision, _validate
 from .._kernels.dense import matmul, matmul_t
 from .._kernels.scan import Blocks, packed_scan
 from . import r_update
-from .frame import SlotGains, from_slots, slot_offsets, value_blocks
+from .frame import SlotGains, acting_offsets, from_slots, slot_offsets, value_blocks
 from .gains import unconstrained_gains
-from .model import DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, idle_stage, stored_models
+from .model import (DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, fold_current, idle_stage,
+                    stored_models)
 
 __all__ = ["ValueCarry", "Prediction", "structured_scan", "structured_slot_scan", "backward_pass"]
 
@@ -85,6 +92,8 @@ class StepData(NamedTuple):
     live: jax.Array | None       # a step of the horizon (not padding); None without padding
     row: object                  # row k of the StepModels
     bounds: object               # the gain rule's per-step data (None without limits)
+    acting: jax.Array | None = None   # with a frame: ((k - l) mod L) d, the slot of du_{k-l}
+    current: jax.Array | None = None  # with a frame: l == 0 (the acting command is du_k)
 
 
 class ZColumns(NamedTuple):
@@ -117,11 +126,13 @@ def _step_data(models: StepModels, bounds, steps: int, block: int) -> StepData:
     """:class:`StepData` for k = 0..steps-1 (the horizon and any padding, see :func:`_padded_rows`);
     the offsets are computed here, once, rather than in every step."""
     k = jnp.arange(steps)
-    l, nd = max(models.delay_steps, 1), models.n_controls
+    frame, nd = models.frame_steps, models.n_controls
     rows, bounds = _padded_rows(models.rows, bounds, steps - models.horizon)
     live = k < models.horizon if steps > models.horizon else None
-    return StepData(k, slot_offsets(steps, models.delay_steps, nd), ((k - 1) % l) * nd, (k % block) * 2 * nd, live,
-                    rows, bounds)
+    framed = () if models.delay_frame is None else (
+        acting_offsets(steps, models.delay_steps, frame, nd), jnp.broadcast_to(models.delay_steps == 0, (steps,)))
+    return StepData(k, slot_offsets(steps, frame, nd), ((k - 1) % max(frame, 1)) * nd, (k % block) * 2 * nd, live,
+                    rows, bounds, *framed)
 
 
 def _padded_rows(rows, bounds, steps: int):
@@ -146,15 +157,16 @@ def _sym(M):
 # The phases of one step k+1 -> k
 # ---------------------------------------------------------------------------------------------
 
-def _step_stage(model, row, live, l: int):
+def _step_stage(model, row, live, current):
     """Step k's (Z = [A, B0, B1], :class:`Stage`): the idle stage for padding (``live`` False), and
-    B1, C1 folded into B0, C0 for l = 0 (the delayed command is the current one)."""
+    B1, C1 folded into B0, C0 where ``current`` (l = 0: the delayed command is the current one;
+    a Python bool for a static l, a traced one with a frame)."""
     stage = Stage(*model(row))
     if live is not None:
         stage = jax.tree_util.tree_map(lambda m, idle: jnp.where(live, m, idle), stage, idle_stage(stage))
-    if l == 0:
-        stage = stage._replace(B0=stage.B0 + stage.B1, B1=jnp.zeros_like(stage.B1),
-                               C0=stage.C0 + stage.C1, C1=jnp.zeros_like(stage.C1))
+    if current is not False:
+        B0, B1, C0, C1 = fold_current((stage.B0, stage.B1, stage.C0, stage.C1), current)
+        stage = stage._replace(B0=B0, B1=B1, C0=C0, C1=C1)
     return jnp.concatenate([stage.A, stage.B0, stage.B1], axis=1), stage
 
 
@@ -181,10 +193,25 @@ def _noise_terms(stage: Stage, S, nd: int) -> Noise:
     return Noise(XSX[:-1, :-1], XSX[:-1, -1], XSX[-1, -1])
 
 
-def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, value: ValueCarry, r0, slot):
+def _moved(blocks, new, slot, acting, axis: int):
+    """``blocks`` with the acting command's ``new`` blocks written at its slot, along ``axis``.
+
+    Without a frame (``acting`` None) they replace slot sigma's, where du_{k-l} follows du_k. With
+    one, slot sigma is cleared first (du_{k-L} has acted) and slot alpha = ``acting``, zero until
+    now, receives them; alpha = sigma where l = L."""
+    start = lambda offset: (offset,) if blocks.ndim == 1 else ((0, offset) if axis == 1 else (offset, 0))
+    if acting is not None:
+        blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros_like(new), start(slot))
+        slot = acting
+    return jax.lax.dynamic_update_slice(blocks, new, start(slot))
+
+
+def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, value: ValueCarry, r0, slot,
+                      acting=None):
     """The quadratic in du_k: H [d, d], g [d] (g0 with r0), G = [G_x, G_w] [d, n + l d], and Z'Rt.
 
-    Slot sigma's blocks of J(k+1) are those of du_k; in G_w the same slot is du_{k-l}, via B1."""
+    Slot sigma's blocks of J(k+1) are those of du_k; in G_w the same slot is du_{k-l}, via B1 (with a
+    frame, slot alpha = ``acting`` is, and slot sigma is cleared: see :func:`_moved`)."""
     nd = stage.e.shape[0]
     u0, u1 = slice(0, nd), slice(nd, 2 * nd)
     H = stage.E + dyn.ZSZ[z.u, z.u] + noise.CSC[u0, u0]
@@ -203,7 +230,7 @@ def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, 
     Gx = Gx + ZRt_s[z.x].T
     # du_k against the other pending commands; in slot sigma, against du_{k-l} (via B1_k)
     G_new = dyn.ZSZ[z.u, z.ud] + noise.CSC[u0, u1] + ZRt_s[z.ud].T
-    Gw = jax.lax.dynamic_update_slice(ZRt[z.u] + value.R_next, G_new, (0, slot))
+    Gw = _moved(ZRt[z.u] + value.R_next, G_new, slot, acting, axis=1)
     return H, g, g0, jnp.concatenate([Gx, Gw], axis=1), ZRt
 
 
@@ -252,24 +279,27 @@ def _pending_blocks(z: ZColumns, dyn: Propagated, noise: Noise, ZRt, value: Valu
         M_p, W_p = update[rows.Kfb, nx:], update[rows.W, nx:]
     else:
         M_p, W_p = Kfb[:, nx:], W[:, nx:]
-    r_pre = jax.lax.dynamic_update_slice(value.r, dyn.Zs[z.ud] + noise.CSc[u1], (data.slot,))
-    Rt_pre = jax.lax.dynamic_update_slice(ZRt[z.x], dyn.ZSZ[z.x, z.ud], (0, data.slot))
-    row = jax.lax.dynamic_update_slice(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], (0, data.slot))
+    r_pre = _moved(value.r, dyn.Zs[z.ud] + noise.CSc[u1], data.slot, data.acting, axis=0)
+    Rt_pre = _moved(ZRt[z.x], dyn.ZSZ[z.x, z.ud], data.slot, data.acting, axis=1)
+    row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, data.acting, axis=1)
     r = r_pre + update[rows.s, nx:]
     Rt = Rt_pre + update[rows.S, nx:]
+    if data.acting is not None:
+        R, R_next = r_update.update_framed(value.R, row, M_p, W_p, data.slot, data.acting, data.next_slot)
+        return r, Rt, R, value.factors, R_next
     R, factors, R_next = r_update.update(value.R, value.factors, row, M_p, W_p, data.slot, data.next_slot,
                                          data.factor_row)
     return r, Rt, R, factors, R_next
 
 
 def _predicted(prediction: Prediction, z: ZColumns, dyn: Propagated, noise: Noise, stage: Stage, update,
-               rows: UpdateRows, HIK, I, g, g0, slot):
+               rows: UpdateRows, HIK, I, g, g0, slot, acting):
     """The prediction at k: s0, r0 as s, r with I = 0, and the step's terms of a and b."""
     nx, nd = rows.s, I.shape[0]
     s0 = stage.d + dyn.Zs0[z.x] + update[rows.s0, :nx]
     r0 = prediction.r0
     if r0.shape[0] > 0:
-        r0 = jax.lax.dynamic_update_slice(r0, dyn.Zs0[z.ud] + noise.CSc[nd:2 * nd], (slot,)) + update[rows.s0, nx:]
+        r0 = _moved(r0, dyn.Zs0[z.ud] + noise.CSc[nd:2 * nd], slot, acting, axis=0) + update[rows.s0, nx:]
     H_I = HIK[:, 0]
     return Prediction(s0, r0, prediction.a + 2 * I @ g0, prediction.b + I @ H_I + 2 * I @ (g - g0))
 
@@ -282,19 +312,20 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     ``carry = (value, prediction)``: J(k+1) as a :class:`ValueCarry`, and a :class:`Prediction`
     or () without ``predict``. The command eliminated here, du_k, occupies slot sigma = k mod l at
     k+1; at k the same slot holds du_{k-l}, the command acting through B1_k. Every other block
-    keeps its place. ``model`` gives the step's :class:`Stage` from ``data.row``.
+    keeps its place. ``model`` gives the step's :class:`Stage` from ``data.row``. ``l`` is the
+    number of slots (the frame L with a frame, where ``data.acting`` places du_{k-l}).
 
     Returns the carry at k and the outputs (I, Kfb = [L, M by slot], s_tilde (, s, S) (, r, Rt, R
     in eq. 7's order)).
     """
     value, prediction = carry
-    Z, stage = _step_stage(model, data.row, data.live, l)
+    Z, stage = _step_stage(model, data.row, data.live, (l == 0) if data.current is None else data.current)
     nx, nd = Z.shape[0], stage.e.shape[0]
     z = ZColumns(slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd))
     r0 = prediction.r0 if prediction else None
     dyn = _through_dynamics(Z, value, prediction.s0 if prediction else None)
     noise = _noise_terms(stage, value.S, nd)
-    H, g, g0, G, ZRt = _action_quadratic(stage, z, dyn, noise, value, r0, data.slot)
+    H, g, g0, G, ZRt = _action_quadratic(stage, z, dyn, noise, value, r0, data.slot, data.acting)
     H = _sym(H)
     step_ok, I, Kfb = gains_fn(H, reg, g, G, data.bounds, value.warm)
     update, rows, W, HIK, HIg = _value_product(H, g, g0, G, I, Kfb, nx, copy_factors)
@@ -307,11 +338,12 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     else:
         r, Rt, R, factors, R_next = value.r, value.Rt, value.R, value.factors, value.R_next
     if prediction:
-        prediction = _predicted(prediction, z, dyn, noise, stage, update, rows, HIK, I, g, g0, data.slot)
+        prediction = _predicted(prediction, z, dyn, noise, stage, update, rows, HIK, I, g, g0, data.slot, data.acting)
     carry = (ValueCarry(s_tilde, s, S, r, Rt, R, R_next, value.ok & step_ok, I, factors), prediction)
     out = (I, Kfb, s_tilde) + ((s, S) if store_S else ())
     if store_value:
-        out = out + value_blocks(r, Rt, r_update.exact(R, factors, data.k, l, nd) if l > 0 else R, data.k, l, nd)
+        exact = R if l == 0 or data.acting is not None else r_update.exact(R, factors, data.k, l, nd)
+        out = out + value_blocks(r, Rt, exact, data.k, l, nd)
     return carry, out
 
 
@@ -321,7 +353,7 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
 
 def _terminal(models: StepModels, strategy: r_update.RStrategy) -> ValueCarry:
     """J(K): the final cost, no pending blocks (no command acts after K)."""
-    l, nd, nx = models.delay_steps, models.n_controls, models.n_states
+    l, nd, nx = models.frame_steps, models.n_controls, models.n_states
     d_tilde, d, D = models.terminal
     dt = D.dtype
     factors = strategy.initial_factors(nd, l * nd, dt)
@@ -374,8 +406,11 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
     computes by a forward pass; here it costs two columns in products the step makes anyway.
     """
     models = stored_models(lqg) if isinstance(lqg, DelayedLQG) else lqg
-    K, l, nd = models.horizon, models.delay_steps, models.n_controls
-    strategy = r_update.RStrategy.choose(l, nd, None if block is None else _validate.positive_int(block, "block"))
+    K, l, nd = models.horizon, models.frame_steps, models.n_controls
+    if models.delay_frame is None:
+        strategy = r_update.RStrategy.choose(l, nd, None if block is None else _validate.positive_int(block, "block"))
+    else:   # the framed update keeps R whole (r_update.update_framed)
+        strategy = r_update.RStrategy(1, False)
     if store_value and not store_S:
         raise ValueError("store_S=False needs store_value=False: the value blocks include S")
     steps = K + (-K % strategy.block)
