@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision, _validate
+from .lqg.model import frame_delay_leaf
 
 __all__ = ["Problem", "QuadraticCost", "GeneralCost"]
 
@@ -161,11 +162,17 @@ class Problem:
             y_k = h(x_{k-l_s}) + G v_k. With it, :func:`~delayed_ilqr.solve` adds the delayed
             Kalman filter to the policy and :func:`~delayed_ilqr.simulate` runs the controller on
             its estimate; without it (the default) the controller sees the state.
+        delay_frame: optional L >= l: the delay becomes data, the pending commands are kept in a
+            frame of L slots, and problems that differ only in ``delay_steps`` <= L share one
+            compiled solver, under ``jax.vmap`` too (docs/derivation.md §17, docs/sweeps.md). A
+            solve then costs what a solve at delay L costs; the policy's ``delay_feedback`` has L
+            entries, of which those of the L - l commands that have acted are zero (:func:`solve`
+            trims them when l is known). Not with ``observation`` or differentiation.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
                  u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem",
-                 metadata=None, time_dependent: bool = False, observation=None):
+                 metadata=None, time_dependent: bool = False, observation=None, delay_frame=None):
         _precision.require_x64("Problem")
         if not isinstance(time_dependent, (bool, np.bool_)):
             raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
@@ -189,6 +196,7 @@ class Problem:
             raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
                              f"l >= K no command ever acts; got delay_steps={self.delay_steps}, "
                              f"horizon={self.horizon}")
+        self.delay_frame = _validate.delay_frame(delay_frame, self.delay_steps)
         x0 = _validate.array(x0, "x0", (None,))
         nx = x0.shape[0]
         if isinstance(cost, QuadraticCost):
@@ -215,6 +223,10 @@ class Problem:
         _check_labels(metadata, self.n_states, nd)
         self._check_callables()
         self.observation = _observation(observation, self.x0, self.horizon)
+        if self.delay_frame is not None and self.observation is not None:
+            raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
+                             "layer needs a static delay; got delay_frame="
+                             f"{self.delay_frame} with an observation")
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -264,12 +276,18 @@ class Problem:
         """tau = l dt in seconds."""
         return self.delay_steps * self.dt
 
+    @property
+    def frame_steps(self) -> int:
+        """The number of pending command slots (static): ``delay_frame``, or l without a frame."""
+        return self.delay_steps if self.delay_frame is None else self.delay_frame
+
     def replace(self, **changes) -> "Problem":
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``)."""
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
-                      metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation)
+                      metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation,
+                      delay_frame=self.delay_frame)
         fields.update(changes)
         x0 = changes.get("x0")
         if x0 is not None and "cost" not in changes and np.shape(x0) != (self.n_states,):
@@ -316,7 +334,8 @@ class Problem:
 
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
-                f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps})")
+                f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps}"
+                + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}") + ")")
 
 
 def _check_labels(metadata, nx: int, nd: int) -> None:
@@ -394,15 +413,20 @@ def _data_or_static(fn):
 def _problem_flatten(p: Problem):
     dynamics, dynamics_static = _data_or_static(p.dynamics)
     noise, noise_static = _data_or_static(p.noise)
-    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise),
-            (dynamics_static, noise_static, p.dt, p.horizon, p.delay_steps, p.n_controls, p.name, p._has_limits,
-             p.metadata, p.time_dependent))
+    # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
+    framed = p.delay_frame is not None
+    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise)
+            + ((frame_delay_leaf(p.delay_steps),) if framed else ()),
+            (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
+             p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
 
 
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata, new.time_dependent) = aux
+     new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
+    if new.delay_frame is not None:
+        *data, new.delay_steps = data
     new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise = data
     new.dynamics = dynamics_static if dynamics is None else dynamics
     new.noise = noise_static if noise is None else noise

@@ -32,7 +32,7 @@ import numpy as np
 from .._kernels.dense import matmul
 from .._kernels.scan import packed_scan
 from ..lqg.augmented import augmented_scan
-from ..lqg.frame import SlotGains, slot_offsets, to_slots
+from ..lqg.frame import SlotGains, acting_commands, acting_offsets, slot_offsets, to_slots
 from ..lqg.gains import clamped_gains
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..lqg.structured import structured_slot_scan
@@ -52,11 +52,11 @@ _SEARCH, _FINAL, _DONE = 0, 1, 2     # the loop's stages: Newton iterations, the
 def _closed_loop(lqg: DelayedLQG, feedback, data, law):
     """Scan the LQG's linear closed loop from dx_0 = 0, nothing pending, on y = [dx; pending] in the
     slot frame, with (du_k, out_k) = law(data_k, F_k, y_k); returns out [K, ...]."""
-    l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
-    merged = merged_if_undelayed(lqg)
+    l, nd, nx = lqg.frame_steps, lqg.n_controls, lqg.n_states
+    merged = merged_if_undelayed(lqg)   # with a frame and l = 0, B1 = 0: du_delayed is then unused
 
     def step(y, row):
-        slot, Z, F, data = row
+        slot, acting, Z, F, data = row
         du, out = law(data, F, y)
 
         def plant(dx, du, du_delayed):
@@ -64,9 +64,11 @@ def _closed_loop(lqg: DelayedLQG, feedback, data, law):
             return matmul(Z, jnp.concatenate([dx, du, du_delayed])), du, out
 
         # du is chosen already: the step applies it as a feedforward, without feedback
-        return closed_loop_step(y, slot, SlotGains(du, jnp.zeros_like(F)), plant, nx)
+        return closed_loop_step(y, slot, SlotGains(du, jnp.zeros_like(F)), plant, nx, acting=acting)
 
-    _, outs = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(merged.horizon, l, nd), stacked_dynamics(merged),
+    K = merged.horizon
+    acting = None if lqg.delay_frame is None else acting_offsets(K, lqg.delay_steps, l, nd)
+    _, outs = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), acting, stacked_dynamics(merged),
                                                          feedback, data))
     return outs
 
@@ -93,8 +95,7 @@ def model_cost(lqg: DelayedLQG, du):
     """J(du) - J(0) of the LQG without noise for open-loop command deviations du [K, d], dx_0 = 0:
     sum_k 2 d'dx + dx'D dx + 2 e'du + du'E du + 2 du'N dx, plus the final 2 d_K'dx_K + dx_K'D_K dx_K
     (eq. 4), the state driven by A dx + B0 du_k + B1 du_{k-l} (eq. 3)."""
-    l = lqg.delay_steps
-    acting = du if l == 0 else jnp.concatenate([jnp.zeros((l,) + du.shape[1:], du.dtype), du])[: du.shape[0]]
+    acting = acting_commands(du, lqg.delay_steps, lqg.delay_frame is not None)
 
     def step(dx, row):
         A, B0, B1, u, ud = row
@@ -163,7 +164,7 @@ def bounded_step(lqg: DelayedLQG, reg, lower, upper, eps, method: str = "structu
                 stage, gains, ok)
 
     du0 = jnp.zeros((K, lqg.n_controls), lower.dtype)
-    empty = SlotGains(jnp.zeros_like(du0), jnp.zeros((K, lqg.n_controls, n + lqg.delay_steps * lqg.n_controls),
+    empty = SlotGains(jnp.zeros_like(du0), jnp.zeros((K, lqg.n_controls, n + lqg.frame_steps * lqg.n_controls),
                                                      du0.dtype))
     carry = (du0, jnp.zeros((), du0.dtype), *active(du0), 0, jnp.asarray(_SEARCH), empty, jnp.asarray(True))
     du, _, _, _, _, _, gains, ok = jax.lax.while_loop(lambda c: c[5] != _DONE, newton, carry)

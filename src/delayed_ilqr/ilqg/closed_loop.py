@@ -63,12 +63,15 @@ def write_slot(frame, offset, value):
     return jax.lax.dynamic_update_slice_in_dim(frame, value, offset, 0)
 
 
-def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, x_bar=None):
+def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, x_bar=None, acting=None):
     """Step k -> k+1 of the closed loop on y = [x; pending] in the slot frame.
 
     Args:
         y: [n + l d] the state x_k and the pending deviations (du_j in slot j mod l); l = 0 allowed.
         slot: (k mod l) d, the offset of du_{k-l} in pending, where du_k is written (0 for l = 0).
+        acting: with a frame of L slots and the delay as data, ((k - l) mod L) d, where du_{k-l} is
+            read (slot is then (k mod L) d); None: du_{k-l} is at ``slot``. For a framed l = 0 the
+            slot read holds a command that has acted: the plant must use du instead.
         gains: row k of :class:`~delayed_ilqr.lqg.frame.SlotGains`: feedforward [d], feedback [d, n + l d].
         plant: ``plant(x, du, du_delayed) -> (x_new, du_sent, out)``, the plant's step under the
             command deviation du_k, with du_delayed = du_{k-l} [d] (None for l = 0); du_sent is the
@@ -84,7 +87,7 @@ def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, 
     x = y[:nx]
     z = y if x_bar is None else jnp.concatenate([x - x_bar, y[nx:]])
     du = delayed_law(gains.feedforward, gains.feedback, z)
-    x_new, du_sent, out = plant(x, du, read_slot(y, nx + slot, nd) if delayed else None)
+    x_new, du_sent, out = plant(x, du, read_slot(y, nx + (slot if acting is None else acting), nd) if delayed else None)
     y_new = jnp.concatenate([x_new, y[nx:]])
     if delayed:
         y_new = write_slot(y_new, nx + slot, du_sent)

@@ -35,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..lqg.boxqp import free_solve
-from ..lqg.frame import SlotGains, from_slots, slot_offsets
+from ..lqg.frame import SlotGains, acting_offsets, from_slots, slot_offsets
 from ..lqg.gains import margin_width, unconstrained_gains
+from ..lqg.model import merged_if_undelayed
 from ..lqg.structured import structured_slot_scan
 from ..options import Options
 from ..problem import Problem
@@ -181,21 +182,24 @@ def stationarity(problem: Problem, us, fixed, bound, margin: float):
 
 def _linear_closed_loop(lqg, gains: SlotGains):
     """The commands du [K, d] of the delayed law run on the LQ dynamics from dx_0 = 0, nothing pending."""
-    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.delay_steps
+    nx, nd, l = lqg.n_states, lqg.n_controls, lqg.frame_steps
     K = lqg.horizon
+    framed = lqg.delay_frame is not None
+    lqg = merged_if_undelayed(lqg) if framed else lqg     # a framed l = 0 reads a slot that has acted
 
     def step(y, row):
-        A, B0, B1, I, Fb, slot = row
+        A, B0, B1, I, Fb, slot, acting_slot = row
 
         def plant(x, du, du_delayed):
             acting = (B0 + B1) @ du if du_delayed is None else B0 @ du + B1 @ du_delayed
             return A @ x + acting, du, du
 
-        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx)
+        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx, acting=acting_slot)
 
     y0 = jnp.zeros(nx + l * nd, lqg.A.dtype)
     _, du = jax.lax.scan(step, y0, (lqg.A, lqg.B0, lqg.B1, gains.feedforward, gains.feedback,
-                                     slot_offsets(K, l, nd)))
+                                     slot_offsets(K, l, nd),
+                                     acting_offsets(K, lqg.delay_steps, l, nd) if framed else None))
     return du
 
 

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from .._kernels.dense import matmul
 from .._kernels.scan import packed_scan
-from ..lqg.frame import SlotGains, slot_offsets
+from ..lqg.frame import SlotGains, acting_offsets, slot_offsets
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..problem import Problem
 from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
@@ -56,7 +56,7 @@ def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas,
     step = jax.vmap(one, in_axes=(0, 0, None))
     A = alphas.shape[0]
     zero = jnp.zeros(A, us_bar.dtype)
-    y0 = jnp.broadcast_to(initial_frame(problem, us_bar.dtype), (A, problem.n_states + problem.delay_steps
+    y0 = jnp.broadcast_to(initial_frame(problem, us_bar.dtype), (A, problem.n_states + problem.frame_steps
                                                                  * problem.n_controls))
     data = (nominal_rows(problem, xs_bar, us_bar, gains), S[1:] if noisy else None)
     (y, running, noise, finite), _ = packed_scan(lambda c, d: (step(alphas, c, d), ()),
@@ -101,23 +101,24 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     linear in alpha: dx = alpha xi, du = alpha eta. Substituting into the quadratic cost (4) and the
     noise cost gives the exact quadratic in alpha (derivation §12). O(K (n^2 + n d + l d^2)).
     """
-    l, nd, nx = lqg.delay_steps, lqg.n_controls, lqg.n_states
-    lqg = merged_if_undelayed(lqg)
+    l, nd, nx = lqg.frame_steps, lqg.n_controls, lqg.n_states
+    lqg = merged_if_undelayed(lqg)      # with a frame and l = 0, B1 = C1 = 0: eta_d is then unused
 
     # The linear closed loop only (costs come after), on y = [xi, pending] in the slot frame:
     # one product for eta, one for xi_{k+1}.
     def step(y, row):
-        slot, Z, gains = row
+        slot, acting, Z, gains = row
 
         def plant(xi, eta, eta_d):
             eta_d = jnp.zeros_like(eta) if eta_d is None else eta_d
             return matmul(Z, jnp.concatenate([xi, eta, eta_d])), eta, (xi, eta, eta_d)
 
-        return closed_loop_step(y, slot, gains, plant, nx)
+        return closed_loop_step(y, slot, gains, plant, nx, acting=acting)
 
     K = lqg.horizon
+    acting = None if lqg.delay_frame is None else acting_offsets(K, lqg.delay_steps, l, nd)
     y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd),
-                                      (slot_offsets(K, l, nd), stacked_dynamics(lqg), gains))
+                                      (slot_offsets(K, l, nd), acting, stacked_dynamics(lqg), gains))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]

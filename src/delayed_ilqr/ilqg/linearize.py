@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.scan import packed_scan
+from ..lqg.frame import acting_commands
 from ..lqg.model import DelayedLQG, StepModels
 from ..problem import Problem
 
@@ -29,11 +30,9 @@ __all__ = ["delayed_commands", "rollout", "trajectory_cost", "noise_columns", "s
 
 
 def delayed_commands(problem: Problem, us):
-    """u_{k-l} for k = 0..K-1 (zeros before t = 0); [K, d]. For l = 0 this is ``us`` itself."""
-    l = problem.delay_steps
-    if l == 0:
-        return us
-    return jnp.concatenate([jnp.zeros((l,) + us.shape[1:], us.dtype), us])[: us.shape[0]]
+    """u_{k-l} for k = 0..K-1 (zeros before t = 0); [K, d]. For l = 0 this is ``us`` itself.
+    With a frame (``Problem.delay_frame``) l is data: a gather instead of a static shift."""
+    return acting_commands(us, problem.delay_steps, problem.delay_frame is not None)
 
 
 def rollout(problem: Problem, us):
@@ -106,7 +105,7 @@ def step_models(problem: Problem, xs, us) -> StepModels:
     """The delayed LQG (3)-(4) around the nominal (xs [K+1, n], us [K, d]), one step at a time:
     the structured pass linearises each step as it reaches it, and nothing stores the model."""
     return StepModels(partial(_step, problem), _rows(problem, xs, us),
-                      _terminal(problem, xs[-1]), problem.delay_steps, problem.n_controls)
+                      _terminal(problem, xs[-1]), problem.delay_steps, problem.n_controls, problem.delay_frame)
 
 
 def linearize(problem: Problem, xs, us) -> DelayedLQG:
@@ -117,4 +116,4 @@ def linearize(problem: Problem, xs, us) -> DelayedLQG:
     return DelayedLQG.from_traced(
         A=A, B0=B0, B1=B1, c=c, C0=C0, C1=C1, d_tilde=jnp.concatenate([d_tilde, final[0][None]]),
         d=jnp.concatenate([d, final[1][None]]), D=jnp.concatenate([D, final[2][None]]), e=e, E=E, N=N,
-        delay_steps=problem.delay_steps)
+        delay_steps=problem.delay_steps, delay_frame=problem.delay_frame)

@@ -295,7 +295,7 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     nan = jnp.full(options.max_iterations + 1, jnp.nan)
     trace = Trace(cost=nan.at[0].set(cost), merit=nan.at[0].set(cost), expected_reduction=nan,
                   step_size=nan, reg=nan, grad_norm=nan)
-    K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
+    K, nx, nd, l = problem.horizon, problem.n_states, problem.n_controls, problem.frame_steps
     no_gains = SlotGains(jnp.zeros((K, nd)), jnp.zeros((K, nd, nx + l * nd)))
     # a non-finite start stops at once, with one backward pass for the policy it reports
     noisy = problem.noise is not None
@@ -326,7 +326,8 @@ _solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_optio
 def compiled_solver(problem: Problem):
     """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``
     outside JAX transformations."""
-    return _solve_large if problem.delay_steps * problem.n_controls >= DEFER_MIN_LD else _solve
+    return _solve_large if problem.delay_frame is None and problem.delay_steps * problem.n_controls >= DEFER_MIN_LD \
+        else _solve
 
 
 @cache
@@ -376,8 +377,17 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
         return with_estimator(problem, solve(without_observation(problem), u_init, full_state), options)
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
         sol = compiled_solver(problem)(problem, u_init, options)
-        return sol._replace(status=Status(int(sol.status)))
+        return _trimmed(problem, sol._replace(status=Status(int(sol.status))))
     return _differentiable(problem, u_init, options)
+
+
+def _trimmed(problem: Problem, sol: Solution) -> Solution:
+    """With a frame and a known delay l, the policy's delay feedback cut to its l live entries (the
+    frame's first L - l, on commands that have acted, are zero): the policy of the unframed solve."""
+    if problem.delay_frame is None or isinstance(problem.delay_steps, jax.core.Tracer):
+        return sol
+    L, l = problem.delay_frame, int(problem.delay_steps)
+    return sol._replace(policy=sol.policy._replace(delay_feedback=sol.policy.delay_feedback[:, L - l:]))
 
 
 def _traced(problem: Problem, u_init, options: Options) -> Solution:

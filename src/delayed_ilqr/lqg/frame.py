@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offsets", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offsets", "acting_commands", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -52,6 +52,17 @@ def acting_offsets(K: int, l, frame: int, nd: int):
     """((k - l) mod L) d for k = 0..K-1: where du_{k-l}, the command acting at step k, sits in a
     frame of L slots (``l`` traced); for l = 0 that is du_k's own slot (folded, see derivation §17)."""
     return ((jnp.arange(K) - l) % max(frame, 1)) * nd
+
+
+def acting_commands(us, l, framed: bool):
+    """u_{k-l} for k = 0..K-1, zeros before t = 0 ([K, ...] from ``us`` [K, ...]): a static shift,
+    or with a frame (``framed``, l traced) a gather; l = 0 gives ``us`` itself."""
+    if framed:
+        sent = jnp.arange(us.shape[0]) - l
+        return jnp.where((sent >= 0).reshape((-1,) + (1,) * (us.ndim - 1)), us[jnp.maximum(sent, 0)], 0.0)
+    if l == 0:
+        return us
+    return jnp.concatenate([jnp.zeros((l,) + us.shape[1:], us.dtype), us])[: us.shape[0]]
 
 
 def pending_order(k, l: int, nd: int):
