@@ -60,6 +60,8 @@ def predict(problem: Problem, solution: Solution) -> Prediction:
         raise ValueError("predict: problem.observation must be None (full-state feedback); got a policy with "
                          "an estimator, whose closed loop this function does not model")
     policy = solution.policy
+    if problem.delay_frame is not None and policy.delay_feedback.shape[1] != problem.delay_frame:
+        problem = problem.without_frame("predict")       # a policy trimmed by solve
     gains = Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
     moments = closed_loop_moments(linearize(problem, solution.x, solution.u), gains)
     return Prediction(solution.x, moments.state_covariance(problem.n_states))
@@ -250,4 +252,4 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
                          "policy must have no estimator")
     if rule not in RULES:
         raise ValueError(f"rule must be one of {RULES}; got {rule!r}")
-    return _closed_loop_prediction(problem, policy, rule)
+    return _closed_loop_prediction(problem.without_frame("closed_loop_prediction"), policy, rule)

@@ -281,6 +281,20 @@ class Problem:
         """The number of pending command slots (static): ``delay_frame``, or l without a frame."""
         return self.delay_steps if self.delay_frame is None else self.delay_frame
 
+    def without_frame(self, where: str) -> "Problem":
+        """The same problem with its delay static again (itself without a frame), for the parts of
+        the library that need l as a number; ``where`` names the caller in the error raised when l
+        is traced (a framed problem under jit or vmap)."""
+        if self.delay_frame is None:
+            return self
+        if isinstance(self.delay_steps, jax.core.Tracer):
+            raise ValueError(f"{where} needs a static delay: it cannot take a problem with a delay_frame under jit "
+                             "or vmap (its delay_steps is traced); call it outside, or on problems without a frame")
+        new = object.__new__(Problem)
+        new.__dict__.update(self.__dict__)
+        new.delay_steps, new.delay_frame = int(self.delay_steps), None
+        return new
+
     def replace(self, **changes) -> "Problem":
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``)."""
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,

@@ -95,7 +95,7 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
     ..., u_{k-1} - u_bar_{k-1}], with [L, M] in that order (``augmented_feedback``). Time order,
     not the solver's slot frame: under the vmap over trials it runs faster
     (docs/performance.md#simulate-pending-commands-in-time-order)."""
-    l = problem.delay_steps
+    l, framed = problem.delay_steps, problem.delay_frame is not None
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
@@ -104,7 +104,10 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
         pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
         du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-        ud = sent[m - l] if l > 0 else u
+        if framed:      # l is data (Problem.delay_frame <= m): a dynamic index, and u itself for l = 0
+            ud = jnp.where(l == 0, u, sent[jnp.minimum(m - l, m - 1)])
+        else:
+            ud = sent[m - l] if l > 0 else u
 
         x_new = _plant_step(problem, x, u, ud, xi, t, substeps)
         if disturbance:
@@ -121,7 +124,7 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
 def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance=None) -> Runs:
     K, nd, p = problem.horizon, problem.n_controls, problem.n_noise
     l_p = policy.delay_feedback.shape[1]
-    m = max(problem.delay_steps, l_p)
+    m = max(problem.frame_steps, l_p)
     step = _trial_step(problem, l_p, m, substeps)
     dtype = problem.x0.dtype
     # simulate runs the law without its feedforward (see Policy)

@@ -27,7 +27,7 @@ def _sym(M):
 
 def checked_gains(lqg: DelayedLQG, gains: Gains) -> Gains:
     """``gains`` as arrays, after checking their shapes against ``lqg`` and that they are finite."""
-    K, nx, nd, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps
+    K, nx, nd, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.frame_steps
     return Gains(
         jnp.asarray(_validate.array(gains.feedforward, "gains.feedforward", (K, nd))),
         jnp.asarray(_validate.array(gains.state_feedback, "gains.state_feedback", (K, nd, nx))),
@@ -127,7 +127,9 @@ class LQGRuns(NamedTuple):
 @partial(jax.jit, static_argnames=("n_trials",))
 def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
     lqg = merged_if_undelayed(lqg)
-    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
+    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.frame_steps
+    # the command acting, pending[0], or with a frame pending[L - l] (unused for l = 0: B1 = C1 = 0)
+    acting = 0 if lqg.delay_frame is None else jnp.minimum(l - lqg.delay_steps, max(l - 1, 0))
     dt = lqg.A.dtype
 
     def trial(trial_key):
@@ -137,7 +139,7 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
             dx, pending = carry                                       # pending[i] = du_{k+i-l}
             A, B0, B1, c, C0, C1, I, LM, xik, d_tilde, dv, D, e, E, Nxu = data
             du = delayed_law(I, LM, jnp.concatenate([dx, pending.reshape(-1)]))
-            du_delayed = pending[0] if l > 0 else jnp.zeros(nd, dt)
+            du_delayed = pending[acting] if l > 0 else jnp.zeros(nd, dt)
             noise = xik @ (c + C0 @ du + C1 @ du_delayed)
             dx_new = A @ dx + B0 @ du + B1 @ du_delayed + noise
             cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du + 2 * du @ Nxu @ dx

@@ -1,0 +1,172 @@
+"""One compiled solver for many delays: the frame of L pending slots with the delay l as data
+(``delay_frame``, docs/derivation.md §17).
+
+References, all independent of the framed code: the state-augmentation pass of the same LQG
+without a frame (``lqg.augmented_backward_pass``), and the library's unframed solver, simulator
+and prediction, each at the static delay l.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from delayed_ilqr import lqg as _lqg
+from delayed_ilqr import simulate, solve
+from delayed_ilqr.ilqg import solver
+from delayed_ilqr.lqg import DelayedLQG
+from delayed_ilqr.lqg import structured
+from delayed_ilqr.models import arm2, pendulum
+
+from comparisons import WorstDifference, rel_err   # tests/comparisons.py
+from test_lqg import random_arrays                  # tests/test_lqg.py
+
+RTOL = 1e-9
+_WORST = WorstDifference("test_delay_frame: worst framed-vs-unframed relative difference")
+_report_worst = _WORST.fixture()
+
+# (K, n, d, p, L): each frame shape compiles the framed pass once, whatever l; the unframed
+# references compile per l. The second has L >= K: delays l >= K, where no command sent inside
+# the horizon acts, are in the frame too.
+FRAMES = [(6, 2, 2, 2, 4), (5, 3, 1, 1, 7)]
+
+
+def _blocks(framed, unframed, L: int, l: int, axes: int):
+    """(live, dead): the framed pending blocks of the l live commands, and those of the L - l
+    that have acted, along the first ``axes`` pending axes after the time axis."""
+    live = framed[(slice(None),) + (slice(L - l, None),) * axes]
+    dead = [framed[(slice(None),) * (1 + a) + (slice(0, L - l),)] for a in range(axes)]
+    return live, dead
+
+
+@settings(max_examples=12)
+@given(frame=st.sampled_from(FRAMES), data=st.data(), seed=st.integers(0, 2 ** 31 - 1),
+       reg=st.sampled_from([0.0, 0.3]))
+def test_framed_pass_equals_augmentation_for_every_delay_in_the_frame(frame, data, seed, reg):
+    """Structured and augmented passes on the frame, at any l in 0..L (l = 1, l = L, l >= K):
+    every gain and value block of the l live commands equals the unframed augmentation's to
+    round-off, and every block of a command that has acted is exactly zero."""
+    K, n, d, p, L = frame
+    l = data.draw(st.integers(0, L), label="l")
+    arrays = random_arrays(seed, K, n, d, p, l)
+    ref_gains, ref_value = _lqg.augmented_backward_pass(DelayedLQG(**arrays), reg)
+    framed = DelayedLQG(**arrays, delay_frame=L)
+    for name, (gains, value) in (("structured", _lqg.backward_pass(framed, reg)),
+                                 ("augmented", _lqg.augmented_backward_pass(framed, reg))):
+        assert bool(value.positive_definite)
+        errs = {f: rel_err(getattr(gains, f), getattr(ref_gains, f)) for f in ("feedforward", "state_feedback")}
+        errs.update({f: rel_err(getattr(value, f), getattr(ref_value, f)) for f in ("s_tilde", "s", "S")})
+        for field, source, ref, axes in (("M", gains.delay_feedback, ref_gains.delay_feedback, 1),
+                                         ("r", value.r, ref_value.r, 1), ("Rt", value.Rt, ref_value.Rt, 1),
+                                         ("R", value.R, ref_value.R, 2)):
+            live, dead = _blocks(source, ref, L, l, axes)
+            errs[field] = rel_err(live, ref)
+            assert all(not np.any(np.asarray(block)) for block in dead), f"{name}: {field} of acted commands"
+        worst = max(errs, key=errs.get)
+        _WORST.record(errs[worst], f"{name} {worst}, K={K} n={n} d={d} p={p} L={L} l={l} reg={reg}")
+        assert all(e <= RTOL for e in errs.values()), (name, errs)
+
+
+def test_framed_pass_compiles_once_for_all_delays():
+    """The delays 0..L of one frame shape run through one compiled pass."""
+    K, n, d, p, L = FRAMES[0]
+    before = structured._backward_pass._cache_size()
+    costs = [float(_lqg.backward_pass(DelayedLQG(**random_arrays(l, K, n, d, p, l), delay_frame=L), 0.0)[1]
+                   .expected_cost) for l in range(L + 1)]
+    assert structured._backward_pass._cache_size() - before <= 1
+    assert all(np.isfinite(costs))
+
+
+def test_frame_must_hold_the_delay():
+    arrays = random_arrays(0, 6, 2, 2, 1, 3)
+    with pytest.raises(ValueError, match="delay_frame must be at least delay_steps.*delay_frame=2 with delay_steps=3"):
+        DelayedLQG(**arrays, delay_frame=2)
+    with pytest.raises(ValueError, match="delay_frame must be at least delay_steps.*delay_frame=4 with delay_steps=5"):
+        arm2(delay=0.05).replace(delay_frame=4)
+    with pytest.raises(ValueError, match="delay_frame must be a non-negative integer"):
+        arm2(delay=0.05).replace(delay_frame=7.5)
+
+
+# -- the solver ------------------------------------------------------------------------------------
+
+# The arm at 0-150 ms (l = 0..15, dt = 10 ms) in one frame of 15 slots.
+ARM_FRAME = 15
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_framed_solves_equal_unframed_ones_with_one_compilation(noise):
+    """Delays 0, 10, 50 and 150 ms (l = 0, 1, 5 and l = L) of the noisy and the deterministic arm:
+    the four framed solves compile the solver at most once (once per process and problem
+    structure), and each takes the unframed solve's iterations and ends on its commands, cost,
+    expected cost and gains to round-off. The noisy arm's noise depends on the delayed command,
+    which the frame must keep in the backward pass."""
+    problems = [arm2(delay=ms / 1000, noise=noise) for ms in (0, 10, 50, 150)]
+    before = solver._solve._cache_size()
+    framed = [solve(problem.replace(delay_frame=ARM_FRAME)) for problem in problems]
+    assert solver._solve._cache_size() - before <= 1
+    for problem, sol in zip(problems, framed):
+        ref = solve(problem)
+        assert sol.status == ref.status and sol.status.converged
+        assert int(sol.iterations) == int(ref.iterations)
+        assert sol.policy.delay_feedback.shape == ref.policy.delay_feedback.shape     # trimmed to l
+        errs = dict(u=rel_err(sol.u, ref.u), cost=rel_err(sol.cost, ref.cost),
+                    expected_cost=rel_err(sol.expected_cost, ref.expected_cost),
+                    L=rel_err(sol.policy.state_feedback, ref.policy.state_feedback),
+                    M=rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback))
+        worst = max(errs, key=errs.get)
+        _WORST.record(errs[worst], f"{worst}, arm2 noise={noise} l={problem.delay_steps}")
+        assert all(e <= RTOL for e in errs.values()), (problem.delay_steps, errs)
+
+
+def test_solve_under_vmap_over_delays():
+    """Problems of different delays in one frame stack into one batch: ``vmap(solve)`` gives each
+    the unframed solve's result, with the policy over the whole frame (zeros on the commands that
+    have acted); ``simulate`` runs a framed problem's trials as the unframed one's, to round-off."""
+    problems = [arm2(delay=ms / 1000, noise=True).replace(delay_frame=ARM_FRAME) for ms in (0, 30, 150)]
+    batch = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
+    sols = jax.vmap(solve)(batch)
+    for i, problem in enumerate(problems):
+        ref = solve(problem.without_frame("test"))
+        l = problem.delay_steps
+        assert rel_err(sols.u[i], ref.u) <= RTOL and rel_err(sols.cost[i], ref.cost) <= RTOL
+        assert rel_err(sols.policy.delay_feedback[i, :, ARM_FRAME - l:], ref.policy.delay_feedback) <= RTOL
+        assert not np.any(np.asarray(sols.policy.delay_feedback[i, :, :ARM_FRAME - l]))
+    framed = solve(problems[1])
+    runs = simulate(problems[1], framed.policy, n_trials=20, seed=3)
+    ref_runs = simulate(problems[1].without_frame("test"), framed.policy, n_trials=20, seed=3)
+    assert rel_err(runs.x, ref_runs.x) <= 1e-12        # round-off: the framed plant indexes by a traced l
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_framed_solves_with_limits(noise):
+    """With command limits that bind: the bounded step (no noise) and the box QP with the feedback
+    latch (noise) give the unframed solve's result at l = 0 and l = 3."""
+    for ms in (0, 30):
+        problem = arm2(delay=ms / 1000, noise=noise).replace(u_min=-0.3, u_max=0.3)
+        ref, sol = solve(problem), solve(problem.replace(delay_frame=ARM_FRAME))
+        assert np.any(np.abs(ref.u) >= 0.3 - 1e-12)          # the limits bind
+        assert sol.status == ref.status and int(sol.iterations) == int(ref.iterations)
+        assert rel_err(sol.u, ref.u) <= RTOL and rel_err(sol.cost, ref.cost) <= RTOL
+
+
+def test_derivative_through_a_framed_solve():
+    """The implicit derivative (ilqg/implicit.py) of a framed solve against central differences
+    of unframed solves: the pendulum at 60 ms (l = 3) in a frame of 8."""
+    problem = pendulum(delay=0.06, limits=False)
+    x0 = np.array([0.1, 0.0])
+    framed = jax.grad(lambda x: solve(problem.replace(x0=x, delay_frame=8)).cost)(jnp.asarray(x0))
+    h = 1e-5
+    central = [(float(solve(problem.replace(x0=x0 + h * e)).cost) - float(solve(problem.replace(x0=x0 - h * e)).cost))
+               / (2 * h) for e in np.eye(2)]
+    assert np.all(np.isfinite(central)) and np.any(np.asarray(central) != 0)
+    assert rel_err(framed, central) <= 1e-6
+
+
+def test_a_traced_frame_refuses_what_needs_a_static_delay():
+    problem = arm2(delay=0.05, noise=True).replace(delay_frame=ARM_FRAME)
+    with pytest.raises(ValueError, match="closed_loop_prediction needs a static delay"):
+        jax.vmap(lambda p: p.without_frame("closed_loop_prediction").x0)(
+            jax.tree_util.tree_map(lambda leaf: jnp.stack([leaf, leaf]), problem))
