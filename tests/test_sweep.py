@@ -101,6 +101,30 @@ def test_cells_are_grouped_by_structure_and_cut_into_padded_batches():
     assert [padded_size(n, 16) for n in (1, 2, 3, 5, 9, 16)] == [1, 2, 4, 8, 16, 16]
 
 
+def test_a_delay_frame_puts_every_delay_in_one_batch_with_the_unframed_results(reference, monkeypatch):
+    """``delay_frame="auto"``: the two delays of the grid (0 and 30 ms, l = 0 and 3) share one
+    structure, so the six cells are one batch of one compiled solver, and every value equals the
+    unframed sweep's (the module's reference) to round-off (docs/derivation.md §17)."""
+    plans = []
+    real = run.batches
+
+    def recorded(*args, **kwargs):
+        plans.append(real(*args, **kwargs))
+        return plans[-1]
+
+    monkeypatch.setattr(run, "batches", recorded)
+    ds = di.sweep("point_mass", GRID, delay_frame="auto", **dict(ARGS, batch_size=8))
+    assert [(len(b.cells), b.size) for b in plans[0]] == [(6, 8)]
+    assert ds.attrs["delay_frame"] == 3 and reference.attrs["delay_frame"] == -1
+    for name in ("status", "iterations", "mc_diverged"):
+        np.testing.assert_array_equal(ds[name].values, reference[name].values)
+    for name in ("cost", "expected_cost", "endpoint_error", "mc_cost_mean", "mc_cost_median",
+                 "mc_endpoint_error_mean"):
+        np.testing.assert_allclose(ds[name].values, reference[name].values, rtol=1e-9)
+    with pytest.raises(ValueError, match="delay_frame must be at least delay_steps"):
+        di.sweep("point_mass", GRID, delay_frame=2, **ARGS)
+
+
 class Interrupted(Exception):
     pass
 
@@ -244,7 +268,8 @@ def test_the_sweep_command_writes_the_store_and_figure_resumes_and_refuses_bad_a
     out = tmp_path / "out"
     targets = ";".join(json.dumps(list(t)) for t in TARGETS)
     args = ["sweep", "point_mass", "--grid", "delay=0:0.03:0.03", "--grid", f"x_target={targets}", "--set",
-            f"horizon={K}", "--seeds", "0,3", "--trials", "20", "--batch-size", "4", "--no-progress", "--out", out]
+            f"horizon={K}", "--seeds", "0,3", "--trials", "20", "--batch-size", "4", "--no-progress",
+            "--delay-frame", "none", "--out", out]
 
     def invoke(*a):
         return CliRunner().invoke(cli.main, [str(x) for x in a], catch_exceptions=False)
@@ -267,3 +292,7 @@ def test_the_sweep_command_writes_the_store_and_figure_resumes_and_refuses_bad_a
     assert bad.exit_code == 2 and "NAME=VALUES" in bad.output
     refused_delay = invoke("sweep", "point_mass", "--grid", "delay=0.025", "--out", tmp_path / "bad")
     assert refused_delay.exit_code == 2 and "whole number of steps" in refused_delay.output
+    small = invoke("sweep", "point_mass", "--grid", "delay=0:0.03:0.03", "--delay-frame", "2", "--out", tmp_path / "bad")
+    assert small.exit_code == 2 and "delay_frame must be at least delay_steps" in small.output
+    word = invoke("sweep", "point_mass", "--grid", "delay=0.03", "--delay-frame", "some", "--out", tmp_path / "bad")
+    assert word.exit_code == 2 and "must be auto, none or" in word.output

@@ -810,6 +810,26 @@ class _IntList(click.ParamType):
 SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
 
 
+class _DelayFrame(click.ParamType):
+    """``auto``, ``none`` or a whole number of steps: ``sweep``'s ``delay_frame`` ("none" stays a
+    string here: click would take a None for a missing value and use the default)."""
+
+    name = "auto|none|N"
+
+    def convert(self, value, param, ctx):
+        if value in ("auto", "none") or isinstance(value, int):
+            return value
+        if str(value).lower() in ("auto", "none"):
+            return str(value).lower()
+        try:
+            steps = int(value)
+        except ValueError:
+            steps = -1
+        if steps < 0:
+            self.fail(f"must be auto, none or a non-negative whole number of steps; got {value!r}", param, ctx)
+        return steps
+
+
 @main.command("sweep")
 @click.argument("model", type=_ModelType(), metavar="MODEL")
 @click.option("--grid", "axes", type=_GridAxis(), multiple=True, required=True,
@@ -833,10 +853,14 @@ SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Run on the Dask cluster of this scheduler, e.g. tcp://host:8786 (docs/sweeps.md).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar over the cells.")
+@click.option("--delay-frame", type=_DelayFrame(), default="auto", show_default=True,
+              help="auto: the delay is data, in a frame of the grid's longest delay, so all delays share one "
+                   "compiled solver (results equal to round-off; each solve costs one at the longest delay); "
+                   "none: one solver per delay; N: a frame of N steps (docs/sweeps.md).")
 @_out_option(required=True, help="Folder of the sweep: store/ (results.zarr and completion markers; a second "
                                  "run of the same command resumes it), sweep.png, manifest.json.")
 def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_size, workers, scheduler, progress,
-                  out, overwrite):
+                  delay_frame, out, overwrite):
     """Solve and simulate MODEL on every cell of a grid over its factory's arguments.
 
     Each cell is solved (cells of equal structure together, one vmap), run --trials times per seed,
@@ -875,7 +899,8 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
                    scheduler=executor, n_workers=max(workers, 1), batch_size=batch_size, progress=progress,
                    # a LocalCluster's workers share this process's cache; a remote cluster's use their own
                    cache_dir=None if scheduler else jax.config.jax_compilation_cache_dir,
-                   cache=jax.config.jax_compilation_cache_dir is not None)
+                   cache=jax.config.jax_compilation_cache_dir is not None,
+                   delay_frame=None if delay_frame == "none" else delay_frame)
     except (ValueError, TypeError) as exc:
         raise click.UsageError(str(exc)) from None
     elapsed = time.perf_counter() - start

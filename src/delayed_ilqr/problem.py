@@ -296,7 +296,17 @@ class Problem:
         return new
 
     def replace(self, **changes) -> "Problem":
-        """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``)."""
+        """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``,
+        ``delay_frame=15``)."""
+        if set(changes) == {"delay_frame"}:     # nothing else changes: only the frame is checked
+            new = object.__new__(Problem)
+            new.__dict__.update(self.__dict__)
+            new.delay_steps = _validate.delay_steps(int(self.delay_steps))
+            new.delay_frame = _validate.delay_frame(changes["delay_frame"], new.delay_steps)
+            if new.delay_frame is not None and new.observation is not None:
+                raise ValueError("delay_frame is not available with an observation (delayed sensors): the "
+                                 f"output-feedback layer needs a static delay; got delay_frame={new.delay_frame}")
+            return new
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,

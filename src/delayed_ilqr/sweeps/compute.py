@@ -66,10 +66,12 @@ class Settings:
     seeds: tuple[int, ...]
     trials: int
     substeps: int
+    delay_frame: Optional[int] = None    # Problem.delay_frame of every cell (None: each its own delay)
 
     def problem(self, cell: Cell):
-        """The plant of ``cell``: ``factory(**fixed, **cell.kwargs)``."""
-        return self.factory(**dict(self.fixed), **cell.kwargs)
+        """The plant of ``cell``: ``factory(**fixed, **cell.kwargs)``, in the sweep's delay frame."""
+        problem = self.factory(**dict(self.fixed), **cell.kwargs)
+        return problem if self.delay_frame is None else problem.replace(delay_frame=self.delay_frame)
 
 
 def prepare_process(cache_dir=None, cache: bool = True) -> None:

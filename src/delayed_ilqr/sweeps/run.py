@@ -2,6 +2,7 @@
 with results as a labelled xarray Dataset, resumable from its store, locally or on Dask."""
 from __future__ import annotations
 
+import dataclasses
 import importlib.metadata
 import math
 import numbers
@@ -28,14 +29,16 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
           fixed: Optional[Mapping] = None, design: str = "aware", options: Optional[Options] = None,
           substeps: int = 1, store=None, overwrite: bool = False, scheduler=None, n_workers: int = 2,
           batch_size: int = 16, cache: bool = True, cache_dir=None, progress: bool = True,
-          units: Optional[Mapping[str, str]] = None):
+          units: Optional[Mapping[str, str]] = None, delay_frame=None):
     """Solves and runs by Monte Carlo every cell of a grid over a model factory's arguments.
 
     A cell is one combination of the grid's values: ``problem = factory(**fixed, **cell)`` is the
     plant, the design ``design`` of it is solved (:mod:`delayed_ilqr.experiments.designs`), and its
     policy runs ``trials`` times on the plant for each seed. Cells whose problems share a compiled
     solver (equal static structure: same delay, sizes, callables) are solved together by one
-    ``vmap``, in batches of at most ``batch_size`` (:mod:`.grid`).
+    ``vmap``, in batches of at most ``batch_size`` (:mod:`.grid`). With ``delay_frame`` the delay
+    is data (``Problem.delay_frame``): cells of different delays share one compiled solver and
+    one batch.
 
     Args:
         model: a model name (``delayed_ilqr.models.REGISTRY``) or a factory ``(**kwargs) -> Problem``
@@ -62,6 +65,10 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             (:func:`~delayed_ilqr.enable_compilation_cache`); this process's cache is the caller's.
         progress: a progress bar (tqdm) over the cells.
         units: units of further grid arguments, added to :data:`UNITS`.
+        delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
+            ``delay_frame=L``), or "auto": L = the longest delay of the grid in steps, when the
+            cells' delays differ. Each solve then costs what one at delay L costs
+            (docs/performance.md), and the results equal the unframed ones to round-off.
 
     Returns:
         An ``xarray.Dataset`` with one dimension per grid argument (coordinates: its values, with
@@ -89,6 +96,8 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         raise ValueError(f"design must be one of {sorted(designs.REGISTRY)}; got {design!r}")
     if options is not None and not isinstance(options, Options):
         raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
+    if not (delay_frame is None or delay_frame == "auto"):
+        delay_frame = _validate.delay_steps(delay_frame, "delay_frame")
     settings = Settings(factory, tuple(sorted(fixed.items())), design, options, seeds, trials, substeps)
     all_cells = cells(grid)
     problems = {}
@@ -97,6 +106,7 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             problems[cell.index] = settings.problem(cell)
         except (ValueError, TypeError) as exc:
             raise type(exc)(f"grid cell {cell.kwargs}: {exc}") from None
+    settings, problems = _framed(settings, problems, delay_frame)
     plan = batches(all_cells, lambda c: problems[c.index], batch_size)
     template = _template(grid, seeds, problems[all_cells[0].index], dict(UNITS, **(units or {})))
     template.attrs.update(_attributes(model_name, fixed, settings))
@@ -111,6 +121,20 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         todo = [b for b in plan if any(c.index not in done for c in b.cells)]
     _run(settings, todo, target, scheduler, n_workers, cache, cache_dir, progress, len(all_cells), problems)
     return target.dataset()
+
+
+def _framed(settings: Settings, problems: dict, delay_frame):
+    """``settings`` and ``problems`` in the delay frame asked for (see :func:`sweep`)."""
+    delays = {int(p.delay_steps) for p in problems.values()}
+    if delay_frame == "auto":
+        delay_frame = max(delays) if len(delays) > 1 else None
+    if delay_frame is None:
+        return settings, problems
+    try:
+        problems = {index: p.replace(delay_frame=delay_frame) for index, p in problems.items()}
+    except ValueError as exc:
+        raise ValueError(f"delay_frame: {exc}") from None
+    return dataclasses.replace(settings, delay_frame=delay_frame), problems
 
 
 def open_sweep(store):
@@ -236,6 +260,7 @@ def _unit(name: str, units: dict) -> dict:
 def _attributes(model_name: str, fixed: dict, settings: Settings) -> dict:
     import json
     return dict(model=model_name, fixed=json.dumps(fixed, sort_keys=True, default=repr), design=settings.design,
+                delay_frame=-1 if settings.delay_frame is None else settings.delay_frame,
                 options=repr(settings.options or Options()), trials=settings.trials, substeps=settings.substeps,
                 divergence="a trial diverged when its cost is not finite or above 100 times the cost of not "
                            "moving (delayed_ilqr.statistics)",
