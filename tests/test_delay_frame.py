@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from delayed_ilqr import lqg as _lqg
-from delayed_ilqr import simulate, solve
+from delayed_ilqr import Options, simulate, solve
 from delayed_ilqr.ilqg import solver
 from delayed_ilqr.lqg import DelayedLQG
 from delayed_ilqr.lqg import structured
@@ -150,6 +150,18 @@ def test_framed_solves_with_limits(noise):
         assert np.any(np.abs(ref.u) >= 0.3 - 1e-12)          # the limits bind
         assert sol.status == ref.status and int(sol.iterations) == int(ref.iterations)
         assert rel_err(sol.u, ref.u) <= RTOL and rel_err(sol.cost, ref.cost) <= RTOL
+
+
+def test_augmented_method_in_a_frame():
+    """``Options(method="augmented")`` on a framed problem: the solver's reference pass (augmentation
+    over the frame, B1 and C1 on buffer entry L - l) gives the unframed solve's result."""
+    options = Options(method="augmented")
+    for delay in (0.0, 0.06):
+        problem = pendulum(delay=delay, noise=True, limits=False)
+        ref, sol = solve(problem, options=options), solve(problem.replace(delay_frame=8), options=options)
+        assert sol.status == ref.status and sol.status.converged
+        assert rel_err(sol.u, ref.u) <= RTOL and rel_err(sol.expected_cost, ref.expected_cost) <= RTOL
+        assert rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback) <= RTOL
 
 
 def test_derivative_through_a_framed_solve():

@@ -32,7 +32,7 @@ import numpy as np
 from .._kernels.dense import matmul
 from .._kernels.scan import packed_scan
 from ..lqg.augmented import augmented_scan
-from ..lqg.frame import SlotGains, acting_commands, acting_offsets, slot_offsets, to_slots
+from ..lqg.frame import SlotGains, acting_commands, slot_offsets, to_slots
 from ..lqg.gains import clamped_gains
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..lqg.structured import structured_slot_scan
@@ -56,7 +56,7 @@ def _closed_loop(lqg: DelayedLQG, feedback, data, law):
     merged = merged_if_undelayed(lqg)   # with a frame and l = 0, B1 = 0: du_delayed is then unused
 
     def step(y, row):
-        slot, acting, Z, F, data = row
+        slot, Z, F, data = row
         du, out = law(data, F, y)
 
         def plant(dx, du, du_delayed):
@@ -64,11 +64,11 @@ def _closed_loop(lqg: DelayedLQG, feedback, data, law):
             return matmul(Z, jnp.concatenate([dx, du, du_delayed])), du, out
 
         # du is chosen already: the step applies it as a feedforward, without feedback
-        return closed_loop_step(y, slot, SlotGains(du, jnp.zeros_like(F)), plant, nx, acting=acting)
+        return closed_loop_step(y, slot, SlotGains(du, jnp.zeros_like(F)), plant, nx, delay=delay)
 
     K = merged.horizon
-    acting = None if lqg.delay_frame is None else acting_offsets(K, lqg.delay_steps, l, nd)
-    _, outs = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), acting, stacked_dynamics(merged),
+    delay = None if lqg.delay_frame is None else lqg.delay_steps
+    _, outs = packed_scan(step, jnp.zeros(nx + l * nd), (slot_offsets(K, l, nd), stacked_dynamics(merged),
                                                          feedback, data))
     return outs
 

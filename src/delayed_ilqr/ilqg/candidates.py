@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.scan import packed_scan
-from ..lqg.frame import SlotGains, acting_offsets, slot_offsets
+from ..lqg.frame import SlotGains, slot_offsets
 from ..problem import Problem
 from .closed_loop import closed_loop_step
 from .linearize import delayed_commands
@@ -31,8 +31,6 @@ class NominalRow(NamedTuple):
     ud_bar: jax.Array        # [d] u_bar_{k-l}
     gains: SlotGains         # row k
     t: jax.Array | None = None   # t_k = k dt; None when the problem does not depend on time
-    acting: jax.Array | None = None   # with a frame: ((k - l) mod L) d, where u_{k-l} is read
-    current: jax.Array | None = None  # with a frame: l == 0
 
 
 class StepValues(NamedTuple):
@@ -48,11 +46,8 @@ class StepValues(NamedTuple):
 def nominal_rows(problem: Problem, xs_bar, us_bar, gains: SlotGains) -> NominalRow:
     """The :class:`NominalRow` of every step k = 0..K-1 (time-major)."""
     K, nd = us_bar.shape
-    framed = () if problem.delay_frame is None else (
-        acting_offsets(K, problem.delay_steps, problem.frame_steps, nd),
-        jnp.broadcast_to(problem.delay_steps == 0, (K,)))
     return NominalRow(slot_offsets(K, problem.frame_steps, nd), xs_bar[:-1], us_bar,
-                      delayed_commands(problem, us_bar), gains, problem.step_times(us_bar.dtype), *framed)
+                      delayed_commands(problem, us_bar), gains, problem.step_times(us_bar.dtype))
 
 
 def initial_frame(problem: Problem, dtype):
@@ -64,17 +59,20 @@ def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
     """One step of the nonlinear plant under u = clip(u_bar + du), du by the law with feedforward
     alpha I; the frame keeps the clipped deviation u - u_bar, and the plant acts on
     u_{k-l} = u_bar_{k-l} + pending slot. Returns (y_{k+1}, :class:`StepValues`)."""
+    framed = problem.delay_frame is not None
+
     def plant(x, du, du_delayed):
         u = jnp.clip(row.u_bar + du, problem.u_min, problem.u_max)
-        if row.current is not None:      # a frame: l is data
-            ud = jnp.where(row.current, u, row.ud_bar + du_delayed)
+        if framed:      # l is data
+            ud = jnp.where(problem.delay_steps == 0, u, row.ud_bar + du_delayed)
         else:
             ud = row.ud_bar + du_delayed if problem.delay_steps > 0 else u
         x_new = x + problem.dt * problem.dynamics_at(x, u, ud, row.t)
         return x_new, u - row.u_bar, StepValues(x, u, ud, x_new)
 
     gains = SlotGains(alpha * row.gains.feedforward, row.gains.feedback)
-    return closed_loop_step(y, row.slot, gains, plant, problem.n_states, row.x_bar, row.acting)
+    return closed_loop_step(y, row.slot, gains, plant, problem.n_states, row.x_bar,
+                            problem.delay_steps if framed else None)
 
 
 def closed_loop_rollout(problem: Problem, xs_bar, us_bar, gains: SlotGains, alpha):

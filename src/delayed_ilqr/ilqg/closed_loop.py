@@ -21,7 +21,7 @@ commands in time order (faster under its vmap over trials): it applies :func:`de
 :func:`augmented_feedback`. The exact policy cost propagates moments of z instead of samples: it
 uses the law's affine form (:func:`augmented_feedback`, :func:`closed_loop_affine`).
 
-This module depends on nothing but the fused products, so that the LQG layer can use it.
+This module depends on nothing but the fused products and the slot frame, so that the LQG layer can use it.
 """
 from __future__ import annotations
 
@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.dense import matmul
+from ..lqg.frame import acting_offset
 
 if TYPE_CHECKING:       # annotations only: the LQG layer (policy cost, linear Monte Carlo) imports this module
     from ..lqg.frame import SlotGains
@@ -63,15 +64,16 @@ def write_slot(frame, offset, value):
     return jax.lax.dynamic_update_slice_in_dim(frame, value, offset, 0)
 
 
-def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, x_bar=None, acting=None):
+def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, x_bar=None, delay=None):
     """Step k -> k+1 of the closed loop on y = [x; pending] in the slot frame.
 
     Args:
         y: [n + l d] the state x_k and the pending deviations (du_j in slot j mod l); l = 0 allowed.
         slot: (k mod l) d, the offset of du_{k-l} in pending, where du_k is written (0 for l = 0).
-        acting: with a frame of L slots and the delay as data, ((k - l) mod L) d, where du_{k-l} is
-            read (slot is then (k mod L) d); None: du_{k-l} is at ``slot``. For a framed l = 0 the
-            slot read holds a command that has acted: the plant must use du instead.
+        delay: with a frame of L slots and the delay as data (``delay_frame``), the traced l:
+            du_{k-l} is read at slot (k - l) mod L and du_k written at ``slot`` = (k mod L) d;
+            None: du_{k-l} is at ``slot``. For a framed l = 0 the slot read holds a command that
+            has acted: the plant must use du instead.
         gains: row k of :class:`~delayed_ilqr.lqg.frame.SlotGains`: feedforward [d], feedback [d, n + l d].
         plant: ``plant(x, du, du_delayed) -> (x_new, du_sent, out)``, the plant's step under the
             command deviation du_k, with du_delayed = du_{k-l} [d] (None for l = 0); du_sent is the
@@ -87,7 +89,8 @@ def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, 
     x = y[:nx]
     z = y if x_bar is None else jnp.concatenate([x - x_bar, y[nx:]])
     du = delayed_law(gains.feedforward, gains.feedback, z)
-    x_new, du_sent, out = plant(x, du, read_slot(y, nx + (slot if acting is None else acting), nd) if delayed else None)
+    acting = slot if delay is None or not delayed else acting_offset(slot, delay, (y.shape[-1] - nx) // nd, nd)
+    x_new, du_sent, out = plant(x, du, read_slot(y, nx + acting, nd) if delayed else None)
     y_new = jnp.concatenate([x_new, y[nx:]])
     if delayed:
         y_new = write_slot(y_new, nx + slot, du_sent)

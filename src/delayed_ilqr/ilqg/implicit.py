@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..lqg.boxqp import free_solve
-from ..lqg.frame import SlotGains, acting_offsets, from_slots, slot_offsets
+from ..lqg.frame import SlotGains, from_slots, slot_offsets
 from ..lqg.gains import margin_width, unconstrained_gains
 from ..lqg.model import merged_if_undelayed
 from ..lqg.structured import structured_slot_scan
@@ -188,18 +188,17 @@ def _linear_closed_loop(lqg, gains: SlotGains):
     lqg = merged_if_undelayed(lqg) if framed else lqg     # a framed l = 0 reads a slot that has acted
 
     def step(y, row):
-        A, B0, B1, I, Fb, slot, acting_slot = row
+        A, B0, B1, I, Fb, slot = row
 
         def plant(x, du, du_delayed):
             acting = (B0 + B1) @ du if du_delayed is None else B0 @ du + B1 @ du_delayed
             return A @ x + acting, du, du
 
-        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx, acting=acting_slot)
+        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx, delay=lqg.delay_steps if framed else None)
 
     y0 = jnp.zeros(nx + l * nd, lqg.A.dtype)
     _, du = jax.lax.scan(step, y0, (lqg.A, lqg.B0, lqg.B1, gains.feedforward, gains.feedback,
-                                     slot_offsets(K, l, nd),
-                                     acting_offsets(K, lqg.delay_steps, l, nd) if framed else None))
+                                     slot_offsets(K, l, nd)))
     return du
 
 

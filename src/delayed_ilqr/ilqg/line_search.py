@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from .._kernels.dense import matmul
 from .._kernels.scan import packed_scan
-from ..lqg.frame import SlotGains, acting_offsets, slot_offsets
+from ..lqg.frame import SlotGains, slot_offsets
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..problem import Problem
 from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
@@ -107,18 +107,18 @@ def predicted_change(lqg: DelayedLQG, gains: SlotGains, S):
     # The linear closed loop only (costs come after), on y = [xi, pending] in the slot frame:
     # one product for eta, one for xi_{k+1}.
     def step(y, row):
-        slot, acting, Z, gains = row
+        slot, Z, gains = row
 
         def plant(xi, eta, eta_d):
             eta_d = jnp.zeros_like(eta) if eta_d is None else eta_d
             return matmul(Z, jnp.concatenate([xi, eta, eta_d])), eta, (xi, eta, eta_d)
 
-        return closed_loop_step(y, slot, gains, plant, nx, acting=acting)
+        return closed_loop_step(y, slot, gains, plant, nx, delay=delay)
 
     K = lqg.horizon
-    acting = None if lqg.delay_frame is None else acting_offsets(K, lqg.delay_steps, l, nd)
+    delay = None if lqg.delay_frame is None else lqg.delay_steps
     y, (xi, eta, eta_d) = packed_scan(step, jnp.zeros(nx + l * nd),
-                                      (slot_offsets(K, l, nd), acting, stacked_dynamics(lqg), gains))
+                                      (slot_offsets(K, l, nd), stacked_dynamics(lqg), gains))
     xiK = y[:nx]
     dc = jnp.einsum("kpnd,kd->kpn", lqg.C0, eta) + jnp.einsum("kpnd,kd->kpn", lqg.C1, eta_d)  # noise columns
     Sn = S[1:]

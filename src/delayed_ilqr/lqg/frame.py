@@ -9,7 +9,7 @@ and a rollout writes one slot per step instead of shifting a buffer.
 
 With a frame of L >= l slots and the delay l as data (``delay_frame``, docs/derivation.md §17),
 du_j lives in slot j mod L and the command acting at step k, du_{k-l}, in slot (k - l) mod L
-(:func:`acting_offsets`); the other L - l slots hold commands that have acted, with zero blocks
+(:func:`acting_offset`); the other L - l slots hold commands that have acted, with zero blocks
 and zero gains, and for l = L the two slots coincide as above.
 
 Eq. (6)'s order and the slot order differ by a rotation that depends on k: :func:`pending_order`
@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offsets", "acting_commands", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "acting_commands", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -48,18 +48,21 @@ def slot_offsets(K: int, l: int, nd: int):
     return (jnp.arange(K) % max(l, 1)) * nd
 
 
-def acting_offsets(K: int, l, frame: int, nd: int):
-    """((k - l) mod L) d for k = 0..K-1: where du_{k-l}, the command acting at step k, sits in a
-    frame of L slots (``l`` traced); for l = 0 that is du_k's own slot (folded, see derivation §17)."""
-    return ((jnp.arange(K) - l) % max(frame, 1)) * nd
+def acting_offset(slot, l, frame: int, nd: int):
+    """((k - l) mod L) d from slot = (k mod L) d: where du_{k-l}, the command acting at step k,
+    sits in a frame of L >= 1 slots (``l`` traced); for l = 0 that is du_k's own slot (folded, see
+    derivation §17). Computed inside the loops from the step's slot: a per-step array of these
+    offsets as a scan input made the closed loop three times slower (docs/performance.md)."""
+    return (slot - l * nd) % (frame * nd)
 
 
 def acting_commands(us, l, framed: bool):
     """u_{k-l} for k = 0..K-1, zeros before t = 0 ([K, ...] from ``us`` [K, ...]): a static shift,
-    or with a frame (``framed``, l traced) a gather; l = 0 gives ``us`` itself."""
-    if framed:
-        sent = jnp.arange(us.shape[0]) - l
-        return jnp.where((sent >= 0).reshape((-1,) + (1,) * (us.ndim - 1)), us[jnp.maximum(sent, 0)], 0.0)
+    or with a frame (``framed``, l traced) a dynamic slice; l = 0 gives ``us`` itself."""
+    if framed:      # one dynamic slice of us behind K zeros (a gather made the loops that read it slower)
+        K = us.shape[0]
+        padded = jnp.concatenate([jnp.zeros_like(us), us])
+        return jax.lax.dynamic_slice_in_dim(padded, K - jnp.minimum(l, K), K)
     if l == 0:
         return us
     return jnp.concatenate([jnp.zeros((l,) + us.shape[1:], us.dtype), us])[: us.shape[0]]

@@ -34,7 +34,7 @@ from .. import _precision, _validate
 from .._kernels.dense import matmul, matmul_t
 from .._kernels.scan import Blocks, packed_scan
 from . import r_update
-from .frame import SlotGains, acting_offsets, from_slots, slot_offsets, value_blocks
+from .frame import SlotGains, acting_offset, from_slots, slot_offsets, value_blocks
 from .gains import unconstrained_gains
 from .model import (DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, fold_current, idle_stage,
                     stored_models)
@@ -92,8 +92,6 @@ class StepData(NamedTuple):
     live: jax.Array | None       # a step of the horizon (not padding); None without padding
     row: object                  # row k of the StepModels
     bounds: object               # the gain rule's per-step data (None without limits)
-    acting: jax.Array | None = None   # with a frame: ((k - l) mod L) d, the slot of du_{k-l}
-    current: jax.Array | None = None  # with a frame: l == 0 (the acting command is du_k)
 
 
 class ZColumns(NamedTuple):
@@ -129,10 +127,8 @@ def _step_data(models: StepModels, bounds, steps: int, block: int) -> StepData:
     frame, nd = models.frame_steps, models.n_controls
     rows, bounds = _padded_rows(models.rows, bounds, steps - models.horizon)
     live = k < models.horizon if steps > models.horizon else None
-    framed = () if models.delay_frame is None else (
-        acting_offsets(steps, models.delay_steps, frame, nd), jnp.broadcast_to(models.delay_steps == 0, (steps,)))
     return StepData(k, slot_offsets(steps, frame, nd), ((k - 1) % max(frame, 1)) * nd, (k % block) * 2 * nd, live,
-                    rows, bounds, *framed)
+                    rows, bounds)
 
 
 def _padded_rows(rows, bounds, steps: int):
@@ -269,7 +265,7 @@ def _value_product(H, g, g0, G, I, Kfb, nx: int, copy_factors: bool):
 
 
 def _pending_blocks(z: ZColumns, dyn: Propagated, noise: Noise, ZRt, value: ValueCarry, update, rows: UpdateRows,
-                    W, Kfb, data: StepData, copy_factors: bool):
+                    W, Kfb, data: StepData, acting, copy_factors: bool):
     """r, Rt and R at k, and the R update's by-products (factors, R_next): J(k+1) rewritten in
     (dx_k, pending at k), where slot sigma now holds du_{k-l}, plus the gains' terms."""
     nx, nd = rows.s, W.shape[0]
@@ -279,13 +275,13 @@ def _pending_blocks(z: ZColumns, dyn: Propagated, noise: Noise, ZRt, value: Valu
         M_p, W_p = update[rows.Kfb, nx:], update[rows.W, nx:]
     else:
         M_p, W_p = Kfb[:, nx:], W[:, nx:]
-    r_pre = _moved(value.r, dyn.Zs[z.ud] + noise.CSc[u1], data.slot, data.acting, axis=0)
-    Rt_pre = _moved(ZRt[z.x], dyn.ZSZ[z.x, z.ud], data.slot, data.acting, axis=1)
-    row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, data.acting, axis=1)
+    r_pre = _moved(value.r, dyn.Zs[z.ud] + noise.CSc[u1], data.slot, acting, axis=0)
+    Rt_pre = _moved(ZRt[z.x], dyn.ZSZ[z.x, z.ud], data.slot, acting, axis=1)
+    row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, acting, axis=1)
     r = r_pre + update[rows.s, nx:]
     Rt = Rt_pre + update[rows.S, nx:]
-    if data.acting is not None:
-        R, R_next = r_update.update_framed(value.R, row, M_p, W_p, data.slot, data.acting, data.next_slot)
+    if acting is not None:
+        R, R_next = r_update.update_framed(value.R, row, M_p, W_p, data.slot, acting, data.next_slot)
         return r, Rt, R, value.factors, R_next
     R, factors, R_next = r_update.update(value.R, value.factors, row, M_p, W_p, data.slot, data.next_slot,
                                          data.factor_row)
@@ -305,7 +301,7 @@ def _predicted(prediction: Prediction, z: ZColumns, dyn: Propagated, noise: Nois
 
 
 def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, store_S: bool, gains_fn, model,
-                     copy_factors: bool):
+                     copy_factors: bool, delay=None):
     """Step k+1 -> k of the corrected recursion (eq. 8 with the corrections of docs/derivation.md):
     the fused form of :func:`.stage.stage_step`.
 
@@ -313,19 +309,22 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     or () without ``predict``. The command eliminated here, du_k, occupies slot sigma = k mod l at
     k+1; at k the same slot holds du_{k-l}, the command acting through B1_k. Every other block
     keeps its place. ``model`` gives the step's :class:`Stage` from ``data.row``. ``l`` is the
-    number of slots (the frame L with a frame, where ``data.acting`` places du_{k-l}).
+    number of slots: with a frame, L, and ``delay`` the traced l, which places du_{k-l} in slot
+    (k - l) mod L (computed here from the slot, not read from a per-step input: see
+    :func:`.frame.acting_offset`).
 
     Returns the carry at k and the outputs (I, Kfb = [L, M by slot], s_tilde (, s, S) (, r, Rt, R
     in eq. 7's order)).
     """
     value, prediction = carry
-    Z, stage = _step_stage(model, data.row, data.live, (l == 0) if data.current is None else data.current)
+    Z, stage = _step_stage(model, data.row, data.live, (l == 0) if delay is None else delay == 0)
+    acting = None if delay is None or l == 0 else acting_offset(data.slot, delay, l, stage.e.shape[0])
     nx, nd = Z.shape[0], stage.e.shape[0]
     z = ZColumns(slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd))
     r0 = prediction.r0 if prediction else None
     dyn = _through_dynamics(Z, value, prediction.s0 if prediction else None)
     noise = _noise_terms(stage, value.S, nd)
-    H, g, g0, G, ZRt = _action_quadratic(stage, z, dyn, noise, value, r0, data.slot, data.acting)
+    H, g, g0, G, ZRt = _action_quadratic(stage, z, dyn, noise, value, r0, data.slot, acting)
     H = _sym(H)
     step_ok, I, Kfb = gains_fn(H, reg, g, G, data.bounds, value.warm)
     update, rows, W, HIK, HIg = _value_product(H, g, g0, G, I, Kfb, nx, copy_factors)
@@ -333,16 +332,16 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     s = stage.d + dyn.Zs[z.x] + update[rows.s, :nx]
     S = _sym(stage.D + dyn.ZSZ[z.x, z.x] + update[rows.S, :nx])
     if l > 0:
-        r, Rt, R, factors, R_next = _pending_blocks(z, dyn, noise, ZRt, value, update, rows, W, Kfb, data,
+        r, Rt, R, factors, R_next = _pending_blocks(z, dyn, noise, ZRt, value, update, rows, W, Kfb, data, acting,
                                                     copy_factors)
     else:
         r, Rt, R, factors, R_next = value.r, value.Rt, value.R, value.factors, value.R_next
     if prediction:
-        prediction = _predicted(prediction, z, dyn, noise, stage, update, rows, HIK, I, g, g0, data.slot, data.acting)
+        prediction = _predicted(prediction, z, dyn, noise, stage, update, rows, HIK, I, g, g0, data.slot, acting)
     carry = (ValueCarry(s_tilde, s, S, r, Rt, R, R_next, value.ok & step_ok, I, factors), prediction)
     out = (I, Kfb, s_tilde) + ((s, S) if store_S else ())
     if store_value:
-        exact = R if l == 0 or data.acting is not None else r_update.exact(R, factors, data.k, l, nd)
+        exact = R if l == 0 or acting is not None else r_update.exact(R, factors, data.k, l, nd)
         out = out + value_blocks(r, Rt, exact, data.k, l, nd)
     return carry, out
 
@@ -415,7 +414,8 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
         raise ValueError("store_S=False needs store_value=False: the value blocks include S")
     steps = K + (-K % strategy.block)
     step = partial(_structured_step, l=l, reg=reg, store_value=store_value, store_S=store_S, gains_fn=gains_fn,
-                   model=models.model, copy_factors=strategy.copy_factors)
+                   model=models.model, copy_factors=strategy.copy_factors,
+                   delay=None if models.delay_frame is None else models.delay_steps)
     d_K = models.terminal[1]
     zero = jnp.zeros((), d_K.dtype)
     prediction = Prediction(d_K, jnp.zeros(l * nd, d_K.dtype), zero, zero) if predict else ()
