@@ -81,8 +81,9 @@ def _exact_data(params, delay=DELAY):
 def test_fit_recovers_weights_noise_and_delay():
     """From exact statistics at known (r, w_v, sigma_u) and delay, with w_p fixed: the profile over
     whole steps picks the true delay, and at it L-BFGS-B on the implicit gradients finds the
-    parameters again from a start 50 % off in each (the loss is zero at the truth). Slow: each
-    candidate delay compiles a gradient through the solve (about a minute)."""
+    parameters again from a start 50 % off in each (the loss is zero at the truth). The candidate
+    delays share one compilation of the loss's gradient (a frame, docs/derivation.md §17); before
+    the frame each compiled its own (about a minute in all)."""
     data = _exact_data(TRUTH)
     start = dict(r=1.5e-4, w_v=6.0, sigma_u=0.075)
     delays = (0.04, DELAY)
@@ -90,13 +91,26 @@ def test_fit_recovers_weights_noise_and_delay():
     # anything in about +-4e-15 (-1.7e-15, 3.6e-15 at neighbouring points), where its gradient is
     # about 1.6e-8, so at the default gtol = 1e-8 the last line search decided on round-off, and
     # the fit ended ABNORMAL or converged with the last bits of the gradient (2026-12-04)
+    compiled = fitting._value_and_grad._cache_size()
     best, fits = fitting.profile_delay(arm_problem, delays, TARGETS, data, start, gtol=1e-7)
+    assert fitting._value_and_grad._cache_size() - compiled <= 1
     assert best == DELAY, [f.loss for f in fits]
     result = fits[delays.index(DELAY)]
     errors = {k: abs(result.params[k] / TRUTH[k] - 1) for k in TRUTH}
     assert result.converged, result.message
     assert max(errors.values()) < 1e-3, errors
     assert fits[0].loss > 1e3 * max(result.loss, 1e-12), [f.loss for f in fits]
+
+
+def test_a_profile_frames_only_what_differs_only_in_the_delay():
+    """profile_delay's frame needs problems that differ only in delay_steps: the arm's do; a
+    factory whose horizon grows with the delay, or with sensors, falls back to one fit per delay."""
+    params = dict(TRUTH)
+    assert fitting._common_frame(arm_problem, (0.0, 0.04, DELAY), TARGETS, params) == (DELAY, [0, 4, 5])
+    longer = lambda p, target, delay: arm_problem(p, target, delay).replace(horizon=50 + round(100 * delay))
+    assert fitting._common_frame(longer, (0.04, DELAY), TARGETS, params) is None
+    sensed = lambda p, target, delay: arm2(delay=delay, noise=True, sensory_delay=0.02)
+    assert fitting._common_frame(sensed, (0.04, DELAY), TARGETS, params) is None
 
 
 def test_bad_input_is_named():

@@ -297,16 +297,11 @@ class Problem:
 
     def replace(self, **changes) -> "Problem":
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``,
-        ``delay_frame=15``)."""
-        if set(changes) == {"delay_frame"}:     # nothing else changes: only the frame is checked
-            new = object.__new__(Problem)
-            new.__dict__.update(self.__dict__)
-            new.delay_steps = _validate.delay_steps(int(self.delay_steps))
-            new.delay_frame = _validate.delay_frame(changes["delay_frame"], new.delay_steps)
-            if new.delay_frame is not None and new.observation is not None:
-                raise ValueError("delay_frame is not available with an observation (delayed sensors): the "
-                                 f"output-feedback layer needs a static delay; got delay_frame={new.delay_frame}")
-            return new
+        ``delay_frame=15``). Changing only the delay and the frame checks only them; in a frame the
+        delay may then be traced (a fit's delay as data), and is not checked."""
+        if changes and set(changes) <= {"delay_steps", "delay_frame"}:
+            return self._with_delay(changes.get("delay_steps", self.delay_steps),
+                                    changes.get("delay_frame", self.delay_frame))
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
@@ -318,6 +313,26 @@ class Problem:
             raise ValueError(f"x0 must have shape ({self.n_states},), the problem's state size; got shape "
                              f"{np.shape(x0)}")
         return Problem(**fields)
+
+    def _with_delay(self, delay_steps, delay_frame) -> "Problem":
+        """:meth:`replace` of the delay and the frame alone: a copy, the callables not re-checked."""
+        new = object.__new__(Problem)
+        new.__dict__.update(self.__dict__)
+        if delay_frame is not None and isinstance(delay_steps, jax.core.Tracer):
+            new.delay_steps, new.delay_frame = delay_steps, _validate.delay_frame(delay_frame, 0)
+            return new
+        if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
+                and np.issubdtype(delay_steps.dtype, np.integer):
+            delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
+        new.delay_steps = _validate.delay_steps(delay_steps)
+        if new.delay_steps >= new.horizon:
+            raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
+                             f"l >= K no command ever acts; got delay_steps={new.delay_steps}, horizon={new.horizon}")
+        new.delay_frame = _validate.delay_frame(delay_frame, new.delay_steps)
+        if new.delay_frame is not None and new.observation is not None:
+            raise ValueError("delay_frame is not available with an observation (delayed sensors): the "
+                             f"output-feedback layer needs a static delay; got delay_frame={new.delay_frame}")
+        return new
 
     def _check_callables(self):
         nx, nd = self.n_states, self.n_controls

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import Options, Problem, Runs, Status, solve
+from .. import Options, Problem, Runs, Status, _validate, solve
 from ..models.metadata import default_u_init, task_space
 from ..prediction import predict, task_prediction
 
@@ -100,13 +100,16 @@ def reach_loss(mean, cov, data_mean, data_cov, mean_scale):
     return path + kl
 
 
-def _total(log_params, u_init, conditions, data: ReachData, mean_scale, make_problem, options):
+def _total(log_params, u_init, conditions, data: ReachData, mean_scale, delay_steps, make_problem, options):
     """The loss at theta = exp(log_params) (dict), every condition in one vmap, and the statuses [C]
-    of its solves, started from ``u_init`` [C, K, d]."""
+    of its solves, started from ``u_init`` [C, K, d]; ``delay_steps``: None, or the delay (data)
+    of ``make_problem``'s framed problems."""
     params = {k: jnp.exp(v) for k, v in log_params.items()}
 
     def one(condition, start, data_mean, data_cov):
         problem = make_problem(params, condition)
+        if delay_steps is not None:
+            problem = problem.replace(delay_steps=delay_steps)
         sol = solve(problem, start, options)
         mean, cov = predicted_reach(problem, sol)
         return reach_loss(mean, cov, data_mean, data_cov, mean_scale), sol.status
@@ -123,18 +126,22 @@ _value_and_grad = jax.jit(jax.value_and_grad(_total, has_aux=True), static_argna
 @dataclass(frozen=True)
 class AtDelay:
     """``make_problem(params, condition, delay)`` at a fixed delay (seconds), as :func:`fit` takes
-    it; equal (and hashed) by value, so that fits at the same delay share a compilation."""
+    it; equal (and hashed) by value, so that fits at the same delay share a compilation. With
+    ``delay_frame`` L its problems get that frame (:func:`profile_delay`: the fits of every delay
+    then share one compilation, each passing its own delay to :func:`fit` as data)."""
 
     make_problem: Callable
     delay: float
+    delay_frame: Optional[int] = None
 
     def __call__(self, params, condition):
-        return self.make_problem(params, condition, self.delay)
+        problem = self.make_problem(params, condition, self.delay)
+        return problem if self.delay_frame is None else problem.replace(delay_frame=self.delay_frame)
 
 
 def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
         u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
-        max_iterations: int = 100) -> Fit:
+        max_iterations: int = 100, delay_steps: Optional[int] = None) -> Fit:
     """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
 
     Args:
@@ -150,6 +157,9 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         options: the solver's :class:`~delayed_ilqr.Options`.
         gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
         max_iterations: L-BFGS-B's iteration limit.
+        delay_steps: None, or the delay in steps at which to fit when ``make_problem``'s problems
+            have a ``delay_frame``: it replaces their delay and reaches the compiled loss as
+            data, so fits at different delays share one compilation (:func:`profile_delay`).
 
     Returns:
         A :class:`Fit`. An evaluation where a solve did not converge counts as an infinite loss
@@ -173,11 +183,12 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
     # tolerance, and the muscle arm's solves from different starts stop at different commands)
     u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
     options = Options() if options is None else options
+    delay = None if delay_steps is None else jnp.asarray(_validate.delay_steps(delay_steps), jnp.int32)
     last = {}
 
     def value_and_grad(log_values):
         log_params = {k: jnp.asarray(v) for k, v in zip(names, log_values)}
-        (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale,
+        (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale, delay,
                                                 make_problem=make_problem, options=options)
         grad = np.array([float(grad[k]) for k in names])
         last.update(status=np.asarray(status))
@@ -195,14 +206,50 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
 
 
 def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,
-                  data: ReachData, params0: dict, **kwargs) -> tuple:
+                  data: ReachData, params0: dict, delay_frame: bool = True, **kwargs) -> tuple:
     """Fits theta at each candidate delay (:func:`fit`; ``make_problem(params, condition, delay)``,
-    the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay])."""
-    fits = [fit(AtDelay(make_problem, float(delay)), conditions, data, params0, **kwargs) for delay in delays]
+    the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay]).
+
+    With ``delay_frame`` (the default) the problems are built at the longest delay and put in a
+    frame of its steps (``Problem.delay_frame``), and each fit passes its delay as data: the fits
+    share one compilation of the loss and its gradient instead of one per delay (their results
+    equal the unframed fits' to round-off). That needs ``make_problem`` to depend on the delay
+    only through ``delay_steps``; where it does not (the problems at two delays differ in more
+    than the delay), or with sensors, each delay compiles its own.
+    """
+    fits = None
+    if delay_frame:
+        frame = _common_frame(make_problem, delays, conditions, params0)
+        if frame is not None:
+            longest, steps = frame
+            at = AtDelay(make_problem, longest, max(steps))
+            fits = [fit(at, conditions, data, params0, delay_steps=l, **kwargs) for l in steps]
+    if fits is None:
+        fits = [fit(AtDelay(make_problem, float(delay)), conditions, data, params0, **kwargs) for delay in delays]
     # the loss, not Fit.converged: L-BFGS-B often ends a fit on a rough loss with an abnormal line
     # search; a fit whose final solves did not converge has an infinite loss
     losses = [f.loss for f in fits]
     return delays[int(np.argmin(losses))], fits
+
+
+def _common_frame(make_problem, delays: Sequence[float], conditions, params0: dict):
+    """(the longest delay, [delay steps per candidate]) when ``make_problem``'s problems of every
+    candidate delay equal the longest delay's but for ``delay_steps`` (static parts and arrays, at
+    theta0 and the first condition) and have no sensors; else None."""
+    condition = jax.tree_util.tree_map(lambda a: a[0], conditions)
+    params = {k: float(v) for k, v in params0.items()}
+    problems = [make_problem(params, condition, float(delay)) for delay in delays]
+    longest = max(range(len(delays)), key=lambda i: problems[i].delay_steps)
+    frame = problems[longest].delay_steps
+    if any(p.observation is not None for p in problems):
+        return None
+    reference = problems[longest].replace(delay_frame=frame)
+    ref_leaves, ref_tree = jax.tree_util.tree_flatten(reference)
+    for p in problems:
+        leaves, tree = jax.tree_util.tree_flatten(p.replace(delay_frame=frame, delay_steps=frame))
+        if tree != ref_tree or not all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in zip(leaves, ref_leaves)):
+            return None
+    return float(delays[longest]), [int(p.delay_steps) for p in problems]
 
 
 #: The arrays of a data file (:func:`save_reach_data`), by name.
