@@ -125,6 +125,20 @@ def test_a_delay_frame_puts_every_delay_in_one_batch_with_the_unframed_results(r
         di.sweep("point_mass", GRID, delay_frame=2, **ARGS)
 
 
+def test_auto_frames_only_where_it_pays():
+    """"auto" frames a grid of several delays with at most AUTO_FRAME_MAX_CELLS cells each; one
+    delay, or more cells per delay, keep a solver per delay; an int frames whatever the grid."""
+    settings = compute.Settings(point_mass, (), "aware", None, (0,), 10, 1)
+    short, longer = point_mass(delay=0.0), point_mass(delay=0.03)
+    few = {(i,): (short if i % 2 else longer) for i in range(10)}
+    many = {(i,): (short if i % 2 else longer) for i in range(2 * run.AUTO_FRAME_MAX_CELLS + 2)}
+    framed, problems = run._framed(settings, few, "auto")
+    assert framed.delay_frame == 3 and {p.delay_frame for p in problems.values()} == {3}
+    assert run._framed(settings, many, "auto")[0].delay_frame is None
+    assert run._framed(settings, {(0,): short}, "auto")[0].delay_frame is None
+    assert run._framed(settings, many, 5)[0].delay_frame == 5
+
+
 class Interrupted(Exception):
     pass
 

@@ -855,8 +855,9 @@ class _DelayFrame(click.ParamType):
 @click.option("--progress/--no-progress", default=True, show_default=True, help="A progress bar over the cells.")
 @click.option("--delay-frame", type=_DelayFrame(), default="auto", show_default=True,
               help="auto: the delay is data, in a frame of the grid's longest delay, so all delays share one "
-                   "compiled solver (results equal to round-off; each solve costs one at the longest delay); "
-                   "none: one solver per delay; N: a frame of N steps (docs/sweeps.md).")
+                   "compiled solver (results equal to round-off; each solve costs one at the longest delay), "
+                   "when no delay has more than 1000 cells; none: one solver per delay; N: a frame of N steps "
+                   "(docs/sweeps.md).")
 @_out_option(required=True, help="Folder of the sweep: store/ (results.zarr and completion markers; a second "
                                  "run of the same command resumes it), sweep.png, manifest.json.")
 def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_size, workers, scheduler, progress,

@@ -2,6 +2,7 @@
 with results as a labelled xarray Dataset, resumable from its store, locally or on Dask."""
 from __future__ import annotations
 
+import collections
 import dataclasses
 import importlib.metadata
 import math
@@ -67,8 +68,9 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         units: units of further grid arguments, added to :data:`UNITS`.
         delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
             ``delay_frame=L``), or "auto": L = the longest delay of the grid in steps, when the
-            cells' delays differ. Each solve then costs what one at delay L costs
-            (docs/performance.md), and the results equal the unframed ones to round-off.
+            cells' delays differ and no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells.
+            Each solve then costs what one at delay L costs (docs/performance.md), and the
+            results equal the unframed ones to round-off.
 
     Returns:
         An ``xarray.Dataset`` with one dimension per grid argument (coordinates: its values, with
@@ -123,11 +125,19 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
     return target.dataset()
 
 
+#: ``delay_frame="auto"`` frames a sweep's delays only up to this many cells per delay: a framed
+#: solve costs about a millisecond more than an unframed one on the arm, a compilation saved about a
+#: second, so beyond about a thousand solves per delay the frame no longer pays (docs/performance.md,
+#: "One compilation for many delays").
+AUTO_FRAME_MAX_CELLS = 1000
+
+
 def _framed(settings: Settings, problems: dict, delay_frame):
     """``settings`` and ``problems`` in the delay frame asked for (see :func:`sweep`)."""
-    delays = {int(p.delay_steps) for p in problems.values()}
+    counts = collections.Counter(int(p.delay_steps) for p in problems.values())
     if delay_frame == "auto":
-        delay_frame = max(delays) if len(delays) > 1 else None
+        pays = len(counts) > 1 and max(counts.values()) <= AUTO_FRAME_MAX_CELLS
+        delay_frame = max(counts) if pays else None
     if delay_frame is None:
         return settings, problems
     try:
