@@ -98,12 +98,12 @@ ARM_FRAME = 15
 
 @pytest.mark.parametrize("noise", [False, True])
 def test_framed_solves_equal_unframed_ones_with_one_compilation(noise):
-    """Delays 0, 10, 50 and 150 ms (l = 0, 1, 5 and l = L) of the noisy and the deterministic arm:
-    the four framed solves compile the solver at most once (once per process and problem
+    """Delays 0, 10 and 150 ms (l = 0, 1 and l = L) of the noisy and the deterministic arm:
+    the three framed solves compile the solver at most once (once per process and problem
     structure), and each takes the unframed solve's iterations and ends on its commands, cost,
     expected cost and gains to round-off. The noisy arm's noise depends on the delayed command,
     which the frame must keep in the backward pass."""
-    problems = [arm2(delay=ms / 1000, noise=noise) for ms in (0, 10, 50, 150)]
+    problems = [arm2(delay=ms / 1000, noise=noise) for ms in (0, 10, 150)]
     before = solver._solve._cache_size()
     framed = [solve(problem.replace(delay_frame=ARM_FRAME)) for problem in problems]
     assert solver._solve._cache_size() - before <= 1
@@ -164,17 +164,24 @@ def test_augmented_method_in_a_frame():
         assert rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback) <= RTOL
 
 
-def test_derivative_through_a_framed_solve():
-    """The implicit derivative (ilqg/implicit.py) of a framed solve against central differences
-    of unframed solves: the pendulum at 60 ms (l = 3) in a frame of 8."""
-    problem = pendulum(delay=0.06, limits=False)
-    x0 = np.array([0.1, 0.0])
-    framed = jax.grad(lambda x: solve(problem.replace(x0=x, delay_frame=8)).cost)(jnp.asarray(x0))
-    h = 1e-5
-    central = [(float(solve(problem.replace(x0=x0 + h * e)).cost) - float(solve(problem.replace(x0=x0 - h * e)).cost))
-               / (2 * h) for e in np.eye(2)]
-    assert np.all(np.isfinite(central)) and np.any(np.asarray(central) != 0)
-    assert rel_err(framed, central) <= 1e-6
+def test_implicit_derivative_preconditioner_in_a_frame():
+    """The implicit derivative's only framed code is its preconditioner (the Gauss-Newton delayed
+    LQ solve, a backward pass and a linear closed loop; ilqg/implicit.py): on the noisy pendulum's
+    linearisation at its solution, with some commands held, the framed preconditioner gives the
+    unframed one's result at l = 0 and l = 3 in a frame of 8 (the rest of the derivative is the
+    problem's own arithmetic)."""
+    from delayed_ilqr.ilqg.implicit import preconditioner
+    from delayed_ilqr.ilqg.linearize import linearize
+    rng = np.random.default_rng(0)
+    for delay in (0.0, 0.06):
+        problem = pendulum(delay=delay, noise=True, limits=False)
+        sol = solve(problem)
+        fixed = jnp.asarray(rng.random(sol.u.shape) < 0.2)
+        r = jnp.asarray(rng.standard_normal(sol.u.shape))
+        ref = preconditioner(linearize(problem, sol.x, sol.u), fixed)(r)
+        framed_problem = problem.replace(delay_frame=8)
+        framed = preconditioner(linearize(framed_problem, sol.x, sol.u), fixed)(r)
+        assert np.all(np.isfinite(ref)) and rel_err(framed, ref) <= RTOL
 
 
 def test_a_traced_frame_refuses_what_needs_a_static_delay():
