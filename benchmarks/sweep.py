@@ -6,6 +6,7 @@ ways, one after another in this process (and its workers):
 
 * naive loop: for each cell, ``solve(arm2(...))``, ``simulate``, ``statistics.summarize``;
 * ``sweep`` here, in memory (cells of one delay solved by one vmap, batches of 16);
+* the same with ``delay_frame="auto"`` (both delays in one frame: one structure, docs/sweeps.md);
 * ``sweep`` here, into a Zarr store (the same, plus the writes and checksummed markers);
 * ``sweep`` on a ``LocalCluster`` of 2 worker processes, into a Zarr store.
 
@@ -83,6 +84,7 @@ def main():
 
         way("naive loop", lambda g, store: naive(g, a.trials))
         way("sweep, in memory", lambda g, store: di.sweep("arm2", g, **common))
+        way("sweep, in memory, one delay frame", lambda g, store: di.sweep("arm2", g, delay_frame="auto", **common))
         way("sweep, Zarr store", lambda g, store: di.sweep("arm2", g, store=store, **common))
 
         from distributed import Client, LocalCluster

@@ -126,9 +126,10 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
 
 
 #: ``delay_frame="auto"`` frames a sweep's delays only up to this many cells per delay: a framed
-#: solve costs about a millisecond more than an unframed one on the arm, a compilation saved about a
-#: second, so beyond about a thousand solves per delay the frame no longer pays (docs/performance.md,
-#: "One compilation for many delays").
+#: solve costs about a millisecond more than an unframed one on the arm and a compilation saved about
+#: a second, so beyond about a thousand solves per delay the frame saves nothing. Within a sweep the
+#: difference is small either way, a cell's Monte Carlo costing more than its solve
+#: (docs/performance.md, "One compilation for many delays" and "sweep throughput").
 AUTO_FRAME_MAX_CELLS = 1000
 
 
