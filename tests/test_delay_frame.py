@@ -189,3 +189,20 @@ def test_a_traced_frame_refuses_what_needs_a_static_delay():
     with pytest.raises(ValueError, match="closed_loop_prediction needs a static delay"):
         jax.vmap(lambda p: p.without_frame("closed_loop_prediction").x0)(
             jax.tree_util.tree_map(lambda leaf: jnp.stack([leaf, leaf]), problem))
+
+
+def test_delay_study_in_one_frame():
+    """``compare_delays(..., delay_frame="auto")``: the point mass at 0 and 30 ms, both designs, in
+    one frame: the same statuses and iterations as the unframed study, and costs, predictions and
+    Monte Carlo statistics equal to round-off."""
+    from delayed_ilqr.experiments.delay_study import compare_delays
+    args = dict(n_trials=50, seed=2, controllers=("aware", "ignorant"), model_kwargs=dict(horizon=20))
+    ref = compare_delays("point_mass", (0.0, 0.03), **args)
+    framed = compare_delays("point_mass", (0.0, 0.03), delay_frame="auto", **args)
+    for a, b in zip(framed, ref):
+        assert (a.delay_steps, a.controller, a.status, a.iterations) == (b.delay_steps, b.controller, b.status,
+                                                                         b.iterations)
+        assert a.problem.delay_frame == 3 and b.problem.delay_frame is None
+        for field in ("nominal_cost", "predicted_cost"):
+            assert rel_err(getattr(a, field), getattr(b, field)) <= RTOL
+        assert rel_err(a.cost.mean, b.cost.mean) <= RTOL and rel_err(a.endpoint_error.median, b.endpoint_error.median) <= RTOL

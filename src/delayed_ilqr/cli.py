@@ -56,6 +56,26 @@ _SEED = click.IntRange(min=0, max=2 ** 63 - 1)       # what simulate accepts
 _OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
 
 
+class _DelayFrame(click.ParamType):
+    """``auto``, ``none`` or a whole number of steps: ``sweep``'s ``delay_frame`` ("none" stays a
+    string here: click would take a None for a missing value and use the default)."""
+
+    name = "auto|none|N"
+
+    def convert(self, value, param, ctx):
+        if value in ("auto", "none") or isinstance(value, int):
+            return value
+        if str(value).lower() in ("auto", "none"):
+            return str(value).lower()
+        try:
+            steps = int(value)
+        except ValueError:
+            steps = -1
+        if steps < 0:
+            self.fail(f"must be auto, none or a non-negative whole number of steps; got {value!r}", param, ctx)
+        return steps
+
+
 class _DelayList(click.ParamType):
     """A comma-separated list of non-negative delays in seconds, e.g. ``0,0.05,0.1``."""
 
@@ -424,10 +444,11 @@ def _json_ready(value) -> bool:
     return True
 
 
-def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None):
+def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None, delay_frame="none"):
     model = model.factory if isinstance(model, _Model) else model
     return delay_study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
-                                      substeps=substeps, model_kwargs=model_kwargs, progress=True)
+                                      substeps=substeps, model_kwargs=model_kwargs, progress=True,
+                                      delay_frame=None if delay_frame == "none" else delay_frame)
 
 
 def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> list[str]:
@@ -451,9 +472,14 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Also evaluate the state-augmentation solution (delay-aware reference).")
 @click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
               help="Euler-Maruyama sub-steps per control step.")
+@click.option("--delay-frame", type=_DelayFrame(), default="none", show_default=True,
+              help="auto: the delays share one compiled solver and Monte Carlo (the delay as data, in a frame "
+                   "of the longest delay; results equal to round-off, first-call times at the first delay "
+                   "only); none: each delay compiles its own; N: a frame of N steps.")
 @_model_options
 @_out_option(default=None, help="Folder for compare.json, compare.md, compare_runs.npz and figures.")
-def compare_command(model, delays, trials, seed, noise, augmented, substeps, params, dt, out, overwrite):
+def compare_command(model, delays, trials, seed, noise, augmented, substeps, delay_frame, params, dt, out,
+                    overwrite):
     """Delay-aware vs delay-ignorant control of MODEL at several delays, by Monte Carlo.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
@@ -465,12 +491,15 @@ def compare_command(model, delays, trials, seed, noise, augmented, substeps, par
     kwargs = _model_kwargs(params, dt)
     _check_study(model, delays, trials, noise, controllers, substeps, kwargs)
     with _Output(out, overwrite) as output:
-        results = _run_study(model, delays, trials, seed, noise, controllers, substeps, kwargs)
+        try:
+            results = _run_study(model, delays, trials, seed, noise, controllers, substeps, kwargs, delay_frame)
+        except ValueError as exc:       # a frame shorter than a delay
+            raise click.UsageError(str(exc)) from None
         table = tables.delay_study_rows(results)
         click.echo(tables.text_table(table))
         if out is not None:
             settings = dict(_settings(model.name, noise, trials, seed, substeps), delays=list(delays),
-                            controllers=controllers, **_kwargs_settings(kwargs))
+                            controllers=controllers, delay_frame=delay_frame, **_kwargs_settings(kwargs))
             _study_outputs(results, output.staging, settings, "compare")
             (output.staging / "compare.md").write_text(tables.markdown_table(table) + "\n")
             written = output.commit(settings)
@@ -808,26 +837,6 @@ class _IntList(click.ParamType):
 
 
 SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
-
-
-class _DelayFrame(click.ParamType):
-    """``auto``, ``none`` or a whole number of steps: ``sweep``'s ``delay_frame`` ("none" stays a
-    string here: click would take a None for a missing value and use the default)."""
-
-    name = "auto|none|N"
-
-    def convert(self, value, param, ctx):
-        if value in ("auto", "none") or isinstance(value, int):
-            return value
-        if str(value).lower() in ("auto", "none"):
-            return str(value).lower()
-        try:
-            steps = int(value)
-        except ValueError:
-            steps = -1
-        if steps < 0:
-            self.fail(f"must be auto, none or a non-negative whole number of steps; got {value!r}", param, ctx)
-        return steps
 
 
 @main.command("sweep")

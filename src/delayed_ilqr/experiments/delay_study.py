@@ -193,7 +193,7 @@ def _controllers(controllers) -> list[str]:
 def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: int = 0, *, noise: bool = True,
                    controllers: Sequence[str] = ("aware", "ignorant"), options: Optional[Options] = None,
                    substeps: int = 1, u_init=None, model_kwargs: Optional[dict] = None,
-                   progress: bool = False) -> list[ControllerResult]:
+                   progress: bool = False, delay_frame=None) -> list[ControllerResult]:
     """For each delay, designs each controller and measures it by Monte Carlo on the delayed plant.
 
     Args:
@@ -210,6 +210,11 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
             model's, see :func:`evaluate`).
         model_kwargs: further keyword arguments of the factory (e.g. ``dt``).
         progress: show a ``tqdm`` progress bar on stderr.
+        delay_frame: None (each delay compiles its solvers and its Monte Carlo), an int L, or
+            "auto" (L = the longest delay in steps): every problem gets ``delay_frame=L``, so the
+            delays share one compilation of each (docs/derivation.md §17). Results equal the
+            unframed ones to round-off; ``first_solve_time`` then holds the compilation at the
+            first delay only.
 
     Returns:
         A list of :class:`ControllerResult`, delay-major in the order given.
@@ -223,6 +228,10 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
     controllers = _controllers(controllers)
     kwargs = dict(model_kwargs or {})
     problems = [factory(delay=tau, noise=noise, **kwargs) for tau in delays]
+    if delay_frame == "auto":
+        delay_frame = max(int(p.delay_steps) for p in problems)
+    if delay_frame is not None:
+        problems = [p.replace(delay_frame=delay_frame) for p in problems]
     from tqdm.auto import tqdm
     results = []
     with tqdm(total=len(problems) * len(controllers), disable=not progress, unit="controller",
