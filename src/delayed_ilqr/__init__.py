@@ -8,6 +8,8 @@ Notation (used in names throughout the library; arrays are time-major):
 =========  =====================================================================================
 n, d, p    number of states, controls, noise columns
 l          ``delay_steps``: the command u_k acts on the plant from step k + l (tau = l dt)
+L          ``delay_frame``: with it, the pending commands live in L >= l slots and l is data,
+           so problems of different delays share one compiled solver (docs/derivation.md §17)
 K          ``horizon``: controls u_0..u_{K-1}, states x_0..x_K
 x, u, ud   state, command sent now, command acting now (ud = u_{k-l}; u_k = 0 for k < 0)
 xs, us     trajectories [K+1, n], [K, d]
