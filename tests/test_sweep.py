@@ -125,6 +125,20 @@ def test_a_delay_frame_puts_every_delay_in_one_batch_with_the_unframed_results(r
         di.sweep("point_mass", GRID, delay_frame=2, **ARGS)
 
 
+def test_the_sweep_figure_draws_the_datasets_values_in_mm(reference):
+    """plot_sweep: one line per target; the cost panel is the seed-mean of mc_cost_mean, the error
+    panel the seed-mean median endpoint error in mm (the Dataset's unit is m), labelled so."""
+    from delayed_ilqr.plot import plot_sweep
+    fig = plot_sweep(reference)
+    cost_ax, error_ax = fig.axes
+    assert "[mm]" in error_ax.get_ylabel() and error_ax.get_xlabel() == "delay [s]"
+    for j, (cost_line, error_line) in enumerate(zip(cost_ax.get_lines(), error_ax.get_lines())):
+        cell = reference.isel(x_target=j)
+        np.testing.assert_allclose(cost_line.get_ydata(), cell.mc_cost_mean.mean("seed").values)
+        np.testing.assert_allclose(error_line.get_ydata(), 1e3 * cell.mc_endpoint_error_median.mean("seed").values)
+    assert len(error_ax.get_lines()) == len(TARGETS)
+
+
 def test_auto_frames_only_where_it_pays():
     """"auto" frames a grid of several delays with at most AUTO_FRAME_MAX_CELLS cells each; one
     delay, or more cells per delay, keep a solver per delay; an int frames whatever the grid."""

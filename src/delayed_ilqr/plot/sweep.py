@@ -6,20 +6,23 @@ from typing import Mapping, Optional
 
 import numpy as np
 
+from ..experiments.tables import unit_scale
 from ._common import figure
 
 __all__ = ["plot_sweep"]
 
 
-def _label(da) -> str:
+def _label(da, unit: Optional[str] = None) -> str:
+    """Axis label from ``da``'s long name and unit (``unit`` overrides its own)."""
     name = da.attrs.get("long_name", da.name).split(" (")[0]
-    unit = da.attrs.get("units", "")
+    unit = da.attrs.get("units", "") if unit is None else unit
     return f"{name} [{unit}]" if unit and unit != "1" else name
 
 
 def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: Optional[Mapping] = None):
     """Two panels against grid dimension ``x``: the Monte Carlo mean cost with its bootstrap 95 %
-    interval (log scale), and the median endpoint error; one line per value of ``hue``.
+    interval (log scale), and the median endpoint error (in mm when the Dataset's unit is m); one
+    line per value of ``hue``.
 
     Args:
         ds: the Dataset of :func:`delayed_ilqr.sweep` (or :func:`delayed_ilqr.open_sweep`).
@@ -49,6 +52,8 @@ def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: O
     cost_ax, error_ax = fig.subplots(1, 2)
     hues = [None] if hue is None else list(range(sub.sizes[hue]))
     xs = np.asarray(sub[x].values)
+    # endpoint errors in mm, as the sweep's table prints them (metres read badly at this scale)
+    scale, error_unit = unit_scale(ds.mc_endpoint_error_median.attrs.get("units", ""))
     for j in hues:
         line = sub if j is None else sub.isel({hue: j})
         label = None if j is None else f"{hue} = {_value(line, hue)}"
@@ -56,10 +61,10 @@ def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: O
         low, high = line.mc_cost_ci_low.min("seed").values, line.mc_cost_ci_high.max("seed").values
         drawn = cost_ax.plot(xs, mean, marker="o", label=label)[0]
         cost_ax.fill_between(xs, low, high, color=drawn.get_color(), alpha=0.2)
-        error_ax.plot(xs, line.mc_endpoint_error_median.mean("seed").values, marker="o", label=label)
+        error_ax.plot(xs, scale * line.mc_endpoint_error_median.mean("seed").values, marker="o", label=label)
     cost_ax.set_yscale("log")
     cost_ax.set_ylabel(_label(ds.mc_cost_mean) + ", 95 % CI")
-    error_ax.set_ylabel(_label(ds.mc_endpoint_error_median))
+    error_ax.set_ylabel(_label(ds.mc_endpoint_error_median, error_unit))
     for ax in (cost_ax, error_ax):
         ax.set_xlabel(_label(ds[x]))
         ax.grid(alpha=0.3)
