@@ -206,3 +206,11 @@ def test_delay_study_in_one_frame():
         for field in ("nominal_cost", "predicted_cost"):
             assert rel_err(getattr(a, field), getattr(b, field)) <= RTOL
         assert rel_err(a.cost.mean, b.cost.mean) <= RTOL and rel_err(a.endpoint_error.median, b.endpoint_error.median) <= RTOL
+
+
+def test_shared_delay_frame_frames_only_different_delays():
+    """"auto" (sweep, compare_delays) frames problems of different delays at the longest; problems
+    of one delay keep their own solver, which a frame would only slow down."""
+    from delayed_ilqr.problem import shared_delay_frame
+    assert shared_delay_frame([arm2(delay=0.05), arm2(delay=0.0), arm2(delay=0.12)]) == 12
+    assert shared_delay_frame([arm2(delay=0.05), arm2(delay=0.05)]) is None

@@ -57,8 +57,8 @@ _OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=
 
 
 class _DelayFrame(click.ParamType):
-    """``auto``, ``none`` or a whole number of steps: ``sweep``'s ``delay_frame`` ("none" stays a
-    string here: click would take a None for a missing value and use the default)."""
+    """``auto``, ``none`` or a whole number of steps: the ``delay_frame`` of ``sweep`` and ``compare``
+    ("none" stays a string here: click would take a None for a missing value and use the default)."""
 
     name = "auto|none|N"
 

@@ -167,7 +167,7 @@ class Problem:
             compiled solver, under ``jax.vmap`` too (docs/derivation.md §17, docs/sweeps.md). A
             solve then costs what a solve at delay L costs; the policy's ``delay_feedback`` has L
             entries, of which those of the L - l commands that have acted are zero (:func:`solve`
-            trims them when l is known). Not with ``observation`` or differentiation.
+            trims them when l is known). Not with ``observation``.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
@@ -191,12 +191,7 @@ class Problem:
         self.metadata = metadata
         self.dt = _validate.positive_float(dt, "dt")
         self.horizon = _validate.positive_int(horizon, "horizon")
-        self.delay_steps = _validate.delay_steps(delay_steps)
-        if self.delay_steps >= self.horizon:
-            raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
-                             f"l >= K no command ever acts; got delay_steps={self.delay_steps}, "
-                             f"horizon={self.horizon}")
-        self.delay_frame = _validate.delay_frame(delay_frame, self.delay_steps)
+        self.delay_steps = _delay_below_horizon(delay_steps, self.horizon)
         x0 = _validate.array(x0, "x0", (None,))
         nx = x0.shape[0]
         if isinstance(cost, QuadraticCost):
@@ -223,10 +218,7 @@ class Problem:
         _check_labels(metadata, self.n_states, nd)
         self._check_callables()
         self.observation = _observation(observation, self.x0, self.horizon)
-        if self.delay_frame is not None and self.observation is not None:
-            raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
-                             "layer needs a static delay; got delay_frame="
-                             f"{self.delay_frame} with an observation")
+        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -290,10 +282,7 @@ class Problem:
         if isinstance(self.delay_steps, jax.core.Tracer):
             raise ValueError(f"{where} needs a static delay: it cannot take a problem with a delay_frame under jit "
                              "or vmap (its delay_steps is traced); call it outside, or on problems without a frame")
-        new = object.__new__(Problem)
-        new.__dict__.update(self.__dict__)
-        new.delay_steps, new.delay_frame = int(self.delay_steps), None
-        return new
+        return self._with_delay(self.delay_steps, None)
 
     def replace(self, **changes) -> "Problem":
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``,
@@ -324,14 +313,8 @@ class Problem:
         if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
                 and np.issubdtype(delay_steps.dtype, np.integer):
             delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
-        new.delay_steps = _validate.delay_steps(delay_steps)
-        if new.delay_steps >= new.horizon:
-            raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
-                             f"l >= K no command ever acts; got delay_steps={new.delay_steps}, horizon={new.horizon}")
-        new.delay_frame = _validate.delay_frame(delay_frame, new.delay_steps)
-        if new.delay_frame is not None and new.observation is not None:
-            raise ValueError("delay_frame is not available with an observation (delayed sensors): the "
-                             f"output-feedback layer needs a static delay; got delay_frame={new.delay_frame}")
+        new.delay_steps = _delay_below_horizon(delay_steps, new.horizon)
+        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation)
         return new
 
     def _check_callables(self):
@@ -375,6 +358,31 @@ class Problem:
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
                 f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps}"
                 + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}") + ")")
+
+
+def _delay_below_horizon(delay_steps, horizon: int) -> int:
+    """A valid l for a horizon K: a whole number of steps, below K."""
+    delay_steps = _validate.delay_steps(delay_steps)
+    if delay_steps >= horizon:
+        raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
+                         f"l >= K no command ever acts; got delay_steps={delay_steps}, horizon={horizon}")
+    return delay_steps
+
+
+def _frame(delay_frame, delay_steps: int, observation):
+    """A valid delay_frame for delay l (None, or L >= l), refused with sensors."""
+    delay_frame = _validate.delay_frame(delay_frame, delay_steps)
+    if delay_frame is not None and observation is not None:
+        raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
+                         f"layer needs a static delay; got delay_frame={delay_frame} with an observation")
+    return delay_frame
+
+
+def shared_delay_frame(problems) -> Optional[int]:
+    """The frame that gives ``problems`` of different delays one compiled solver: their longest
+    delay in steps; None when they all have the same delay (a frame would only cost)."""
+    delays = {int(p.delay_steps) for p in problems}
+    return max(delays) if len(delays) > 1 else None
 
 
 def _check_labels(metadata, nx: int, nd: int) -> None:

@@ -32,6 +32,7 @@ import numpy as np
 
 from .. import Options, Problem, Runs, Solution, Status
 from ..models.metadata import default_u_init
+from ..problem import shared_delay_frame
 from ..statistics import SampleStats, Summary, divergence_bound, diverged_trials, sample_stats, summarize
 from . import designs
 from .engine import endpoint_description, monte_carlo, timed_solve
@@ -211,8 +212,8 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
         model_kwargs: further keyword arguments of the factory (e.g. ``dt``).
         progress: show a ``tqdm`` progress bar on stderr.
         delay_frame: None (each delay compiles its solvers and its Monte Carlo), an int L, or
-            "auto" (L = the longest delay in steps): every problem gets ``delay_frame=L``, so the
-            delays share one compilation of each (docs/derivation.md §17). Results equal the
+            "auto" (L = the longest delay in steps, when the delays differ): every problem gets
+            ``delay_frame=L``, so the delays share one compilation of each (docs/derivation.md §17). Results equal the
             unframed ones to round-off; ``first_solve_time`` then holds the compilation at the
             first delay only.
 
@@ -229,7 +230,7 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
     kwargs = dict(model_kwargs or {})
     problems = [factory(delay=tau, noise=noise, **kwargs) for tau in delays]
     if delay_frame == "auto":
-        delay_frame = max(int(p.delay_steps) for p in problems)
+        delay_frame = shared_delay_frame(problems)
     if delay_frame is not None:
         problems = [p.replace(delay_frame=delay_frame) for p in problems]
     from tqdm.auto import tqdm

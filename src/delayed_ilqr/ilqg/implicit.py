@@ -184,17 +184,17 @@ def _linear_closed_loop(lqg, gains: SlotGains):
     """The commands du [K, d] of the delayed law run on the LQ dynamics from dx_0 = 0, nothing pending."""
     nx, nd, l = lqg.n_states, lqg.n_controls, lqg.frame_steps
     K = lqg.horizon
-    framed = lqg.delay_frame is not None
-    lqg = merged_if_undelayed(lqg) if framed else lqg     # a framed l = 0 reads a slot that has acted
+    delay = None if lqg.delay_frame is None else lqg.delay_steps
+    lqg = merged_if_undelayed(lqg)      # for l = 0, B1 = 0 (a framed l = 0 reads a slot that has acted)
 
     def step(y, row):
         A, B0, B1, I, Fb, slot = row
 
         def plant(x, du, du_delayed):
-            acting = (B0 + B1) @ du if du_delayed is None else B0 @ du + B1 @ du_delayed
+            acting = B0 @ du if du_delayed is None else B0 @ du + B1 @ du_delayed
             return A @ x + acting, du, du
 
-        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx, delay=lqg.delay_steps if framed else None)
+        return closed_loop_step(y, slot, SlotGains(I, Fb), plant, nx, delay=delay)
 
     y0 = jnp.zeros(nx + l * nd, lqg.A.dtype)
     _, du = jax.lax.scan(step, y0, (lqg.A, lqg.B0, lqg.B1, gains.feedforward, gains.feedback,

@@ -31,7 +31,7 @@ __all__ = ["delayed_commands", "rollout", "trajectory_cost", "noise_columns", "s
 
 def delayed_commands(problem: Problem, us):
     """u_{k-l} for k = 0..K-1 (zeros before t = 0); [K, d]. For l = 0 this is ``us`` itself.
-    With a frame (``Problem.delay_frame``) l is data: a gather instead of a static shift."""
+    With a frame (``Problem.delay_frame``) l is data: a dynamic slice instead of a static shift."""
     return acting_commands(us, problem.delay_steps, problem.delay_frame is not None)
 
 

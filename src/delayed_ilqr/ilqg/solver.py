@@ -325,7 +325,8 @@ _solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_optio
 
 def compiled_solver(problem: Problem):
     """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``
-    outside JAX transformations."""
+    outside JAX transformations. A framed problem's pass keeps R whole (no deferred blocks), so it
+    never needs the large products' compilation."""
     return _solve_large if problem.delay_frame is None and problem.delay_steps * problem.n_controls >= DEFER_MIN_LD \
         else _solve
 
@@ -384,7 +385,7 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
 def _trimmed(problem: Problem, sol: Solution) -> Solution:
     """With a frame and a known delay l, the policy's delay feedback cut to its l live entries (the
     frame's first L - l, on commands that have acted, are zero): the policy of the unframed solve."""
-    if problem.delay_frame is None or isinstance(problem.delay_steps, jax.core.Tracer):
+    if problem.delay_frame is None:
         return sol
     L, l = problem.delay_frame, int(problem.delay_steps)
     return sol._replace(policy=sol.policy._replace(delay_feedback=sol.policy.delay_feedback[:, L - l:]))

@@ -46,8 +46,9 @@ def augment(lqg: DelayedLQG):
     if l > 0:
         # du_{k-l} acts now: entry 0 of the buffer, or entry L - l of a frame (none for l = 0, where
         # merged_if_undelayed folded B1, C1 into B0, C0)
+        # (here l is the buffer's length: the delay, or the frame L)
         entry = jnp.zeros(l, dt).at[0].set(1.0) if lqg.delay_frame is None else \
-            (jnp.arange(l) == l - lqg.delay_steps).astype(dt)
+            (jnp.arange(l) == lqg.frame_steps - lqg.delay_steps).astype(dt)
         at = lambda X: (X[..., None, :] * entry[:, None]).reshape(X.shape[:-1] + (l * nd,))
         Az = Az.at[:, :nx, nx:].set(at(lqg.B1))
         Az = Az.at[:, nx:m - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts

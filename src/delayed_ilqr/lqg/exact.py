@@ -127,28 +127,29 @@ class LQGRuns(NamedTuple):
 @partial(jax.jit, static_argnames=("n_trials",))
 def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
     lqg = merged_if_undelayed(lqg)
-    K, nx, nd, p, l = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.frame_steps
-    # the command acting, pending[0], or with a frame pending[L - l] (unused for l = 0: B1 = C1 = 0)
-    acting = 0 if lqg.delay_frame is None else jnp.minimum(l - lqg.delay_steps, max(l - 1, 0))
+    K, nx, nd, p, slots = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.frame_steps
+    # pending holds du_{k-slots} .. du_{k-1}; the command acting is pending[0], or with a frame of L
+    # slots pending[L - l] (clipped for l = 0, where B1 = C1 = 0 and it is unused)
+    acting = 0 if lqg.delay_frame is None else jnp.minimum(slots - lqg.delay_steps, max(slots - 1, 0))
     dt = lqg.A.dtype
 
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, p), dt)
 
         def step(carry, data):
-            dx, pending = carry                                       # pending[i] = du_{k+i-l}
+            dx, pending = carry                                       # pending[i] = du_{k+i-slots}
             A, B0, B1, c, C0, C1, I, LM, xik, d_tilde, dv, D, e, E, Nxu = data
             du = delayed_law(I, LM, jnp.concatenate([dx, pending.reshape(-1)]))
-            du_delayed = pending[acting] if l > 0 else jnp.zeros(nd, dt)
+            du_delayed = pending[acting] if slots > 0 else jnp.zeros(nd, dt)
             noise = xik @ (c + C0 @ du + C1 @ du_delayed)
             dx_new = A @ dx + B0 @ du + B1 @ du_delayed + noise
             cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du + 2 * du @ Nxu @ dx
-            pending = jnp.concatenate([pending[1:], du[None]]) if l > 0 else pending
+            pending = jnp.concatenate([pending[1:], du[None]]) if slots > 0 else pending
             return (dx_new, pending), (dx, du, cost)
 
         data = (lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, gains.feedforward, augmented_feedback(gains), xi,
                 lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e, lqg.E, lqg.N)
-        (dxK, _), (dx, du, cost) = jax.lax.scan(step, (jnp.zeros(nx, dt), jnp.zeros((l, nd), dt)), data)
+        (dxK, _), (dx, du, cost) = jax.lax.scan(step, (jnp.zeros(nx, dt), jnp.zeros((slots, nd), dt)), data)
         final = lqg.d_tilde[-1] + 2 * dxK @ lqg.d[-1] + dxK @ lqg.D[-1] @ dxK
         return jnp.concatenate([dx, dxK[None]]), du, jnp.sum(cost) + final
 

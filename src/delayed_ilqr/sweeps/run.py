@@ -15,6 +15,7 @@ import numpy as np
 from .. import Options, _precision, _validate
 from ..experiments import designs
 from ..experiments.engine import endpoint_description
+from ..problem import shared_delay_frame
 from .compute import VARIABLES, Settings, compute_batch
 from .grid import batches, cells, check_grid
 
@@ -135,10 +136,10 @@ AUTO_FRAME_MAX_CELLS = 1000
 
 def _framed(settings: Settings, problems: dict, delay_frame):
     """``settings`` and ``problems`` in the delay frame asked for (see :func:`sweep`)."""
-    counts = collections.Counter(int(p.delay_steps) for p in problems.values())
     if delay_frame == "auto":
-        pays = len(counts) > 1 and max(counts.values()) <= AUTO_FRAME_MAX_CELLS
-        delay_frame = max(counts) if pays else None
+        counts = collections.Counter(int(p.delay_steps) for p in problems.values())
+        few = max(counts.values()) <= AUTO_FRAME_MAX_CELLS
+        delay_frame = shared_delay_frame(problems.values()) if few else None
     if delay_frame is None:
         return settings, problems
     try:
