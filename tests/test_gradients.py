@@ -98,10 +98,6 @@ def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
         assert err < 1e-8, (name, key, err)
 
 
-def test_arm_delayed_matches_finite_differences():
-    check_against_fd("arm 50 ms", arm2(delay=0.05), None, h=6e-4, rtol=1e-5)
-
-
 @pytest.mark.slow
 def test_arm_noisy_delayed_matches_finite_differences():
     """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
@@ -135,9 +131,10 @@ def test_arm_no_delay_noisy_limits_matches_finite_differences():
     check_against_fd("arm noisy limits 0 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
 
 
-def test_cost_gradient_in_x0_is_the_value_gradient(delay=0.0):
+def test_cost_gradient_in_x0_is_the_value_gradient(delay=0.05):
     """dJ*/dx0 = 2 s_0 (eq. 7's value function in the factor-2 convention): the envelope theorem,
-    s_0 from the structured backward pass at the solution."""
+    s_0 from the structured backward pass at the solution; reverse mode through the noise-free
+    delayed solve against this independent value (measured 5.8e-9 at 50 ms, 2026-12-04)."""
     problem = arm2(delay=delay)
     grad = jax.jit(jax.grad(lambda dx0: solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT).cost))(
         jnp.zeros(4))
@@ -210,40 +207,6 @@ def test_dynamics_parameter_of_a_pytree_dynamics():
     err = abs(grad - fd) / abs(fd)
     worst.record(err, "damped mass, d/db")
     assert err < 1e-6, err
-
-
-@pytest.mark.slow
-def test_six_muscle_arm_commands_match_finite_differences():
-    """The six-muscle arm (no delay, signal-dependent noise, excitations in [0, 1] with about half of
-    them at 0): du*/dx0 in forward mode against central differences of re-solves, at two steps that
-    leave the set of commands held at a limit unchanged and agree with each other (the differences
-    have converged), within 1e-5 of the largest component (measured 1.5e-8; 4.7e-6 while commands
-    near 0 were held by distance alone). With the activation
-    switch smoothed over 1e-3 the re-solves were not reproducible to this precision (derivation §16)."""
-    problem = arm2_muscle6(delay=0.0, noise=True)
-    u_init = rest_commands(problem)
-    options = Options(max_iterations=1000, tol_cost=1e-15, tol_grad=1e-11)
-    solve_at = jax.jit(lambda x0: solve(problem.replace(x0=x0), u_init, options))
-    base = solve_at(problem.x0)
-    assert Status(int(base.status)).converged, base.status
-    held, _ = implicit.fixed_commands(problem, base.u, options.limit_margin)
-    e = jnp.zeros(problem.n_states).at[0].set(1.0)         # the shoulder angle
-    _, du = jax.jit(lambda x0: jax.jvp(lambda x: solve(problem.replace(x0=x), u_init, options).u, (x0,), (e,)))(
-        problem.x0)
-    du = np.asarray(du)
-    fds = []
-    for h in (5e-5, 2.5e-5):
-        plus, minus = solve_at(problem.x0 + h * e), solve_at(problem.x0 - h * e)
-        for sign, sol in ((1, plus), (-1, minus)):
-            assert Status(int(sol.status)).converged, sol.status
-            moved = problem.replace(x0=problem.x0 + sign * h * e)
-            np.testing.assert_array_equal(implicit.fixed_commands(moved, sol.u, options.limit_margin)[0], held)
-        fds.append((np.asarray(plus.u) - np.asarray(minus.u)) / (2 * h))
-    scale = np.max(np.abs(du))
-    assert np.max(np.abs(fds[0] - fds[1])) < 1e-6 * scale
-    err = np.max(np.abs(fds[1] - du)) / scale
-    worst.record(err, "six-muscle arm forward u")
-    assert err < 1e-5, err
 
 
 def _newton_polished(problem: Problem, u, held, iterations=2):
