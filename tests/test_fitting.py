@@ -114,19 +114,19 @@ def test_a_profile_frames_only_what_differs_only_in_the_delay():
 
 
 def test_bad_input_is_named():
-    """Starting values, the mean's scale, a policy with an estimator and a plant without a task
-    space are refused with the argument's name."""
+    """Starting values, the mean's scale, a plant with sensors and a plant without a task space
+    are refused with the argument's name."""
     data = fitting.ReachData(jnp.zeros((2, 51, 2)), jnp.tile(jnp.eye(2), (2, 1, 1)))
     with pytest.raises(ValueError, match="params0"):
         fitting.fit(arm_problem, TARGETS, data, dict(r=-1.0, w_v=1.0, sigma_u=0.1))
     with pytest.raises(ValueError, match="mean_scale"):
         fitting.fit(arm_problem, TARGETS, data, TRUTH, mean_scale=0.0)
-    sensed = arm2(delay=DELAY, noise=True, sensory_delay=0.02)
-    with pytest.raises(ValueError, match="observation"):
-        predict(sensed, solve(sensed))
     plain = point_mass().replace(metadata=None)
+    solution = solve(plain)
+    with pytest.raises(ValueError, match="observation"):       # refused by the plant, before any use of the solution
+        predict(point_mass(sensory_delay=0.02), solution)
     with pytest.raises(ValueError, match="task space"):
-        task_prediction(plain, predict(plain, solve(plain)))
+        task_prediction(plain, predict(plain, solution))
 
 
 def test_fit_command_profiles_a_data_file(tmp_path):
