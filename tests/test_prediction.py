@@ -49,6 +49,29 @@ def test_exact_on_a_linear_plant(delay):
         assert abs(float(pred.expected_cost) - c.mean()) < 4 * c.std() / np.sqrt(c.size)
 
 
+def test_chain_moments_on_a_linear_plant():
+    """The moments of the whole chain z_k = [dx_k; du_{k-l}; ...; du_{k-1}] (P1) at l = 3 (30 ms,
+    dt = 10 ms): on P1-noisy every rule's z equals closed_loop_moments' augmented state (same
+    order, oldest pending command first; mean 0, so its second moment is the covariance) to
+    round-off, pending-command block included."""
+    problem = point_mass(delay=0.03, noise=True)
+    assert problem.delay_steps >= 1
+    sol = solve(problem)
+    policy = sol.policy
+    gains = lqg.Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
+    moments = lqg.closed_loop_moments(linearize(problem, sol.x, sol.u), gains)
+    N = problem.n_states + problem.delay_steps * problem.n_controls
+    assert moments.second.shape == (problem.horizon + 1, N, N)
+    pending = moments.second[:, problem.n_states:, problem.n_states:]
+    assert float(jnp.max(jnp.abs(pending))) > 0                   # the block is tested, not zeros
+    for rule in RULES:
+        z = closed_loop_prediction(problem, policy, rule).z
+        assert z.cov.shape == moments.second.shape, rule
+        np.testing.assert_allclose(z.mean, 0.0, rtol=0, atol=1e-12)
+        assert rel_err(z.cov, moments.second) < 1e-9, rule
+        assert rel_err(z.cov[:, problem.n_states:, problem.n_states:], pending) < 1e-9, rule
+
+
 def test_closer_to_monte_carlo_on_the_torque_arm():
     """The torque arm at 100 ms, dt = 20 ms (a coarse version of the demo's plant, K = 25, l = 5),
     noise-aware design: the linearised prediction (Solution.expected_cost) is about half the

@@ -87,10 +87,17 @@ class ClosedLoopPrediction(NamedTuple):
     Attributes:
         expected_cost: [] E[J], eq. (2) of the trials as :func:`delayed_ilqr.simulate` scores them.
         state: :class:`Prediction` of the states: mean [K+1, n] E[x_k], cov [K+1, n, n] Cov(x_k).
+        z: :class:`Prediction` of the whole Markov state of eq. P1, z_k = [dx_k; du_{k-m}; ...;
+            du_{k-1}] (deviations from the nominal; the pending commands' deviations are those of
+            the clipped commands sent, oldest first): mean [K+1, N] E[z_k], cov [K+1, N, N]
+            Cov(z_k), N = n + m d. Its first n entries are ``state`` less the nominal; the rest is
+            what a model of the closed loop around its actual distribution (rather than the
+            nominal) needs, e.g. expected Jacobians.
     """
 
     expected_cost: jax.Array
     state: Prediction
+    z: Prediction
 
 
 def _sigma_points(mean, cov, rule: str):
@@ -182,9 +189,10 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     else:
         Z, w = _sigma_points(mean, cov, rule)
         expected_final = w @ jax.vmap(final_cost)(Z)
-    means = jnp.concatenate([init[0][None], means])[:, :nx]
-    covs = jnp.concatenate([init[1][None], covs])[:, :nx, :nx]
-    return ClosedLoopPrediction(total + expected_final, Prediction(policy.x_nominal + means, covs))
+    means = jnp.concatenate([init[0][None], means])
+    covs = jnp.concatenate([init[1][None], covs])
+    state = Prediction(policy.x_nominal + means[:, :nx], covs[:, :nx, :nx])
+    return ClosedLoopPrediction(total + expected_final, state, Prediction(means, covs))
 
 
 def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second_order") -> ClosedLoopPrediction:
@@ -238,7 +246,9 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
         rule: ``"second_order"``, ``"fifth_degree"`` or ``"cubature"``.
 
     Returns:
-        :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n].
+        :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n],
+        and z, the moments of the whole chain (P1): mean [K+1, N] and cov [K+1, N, N] of
+        z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (the clipped commands' deviations, oldest first).
         One compiled scan over time; cost per step O(n N^3) (second order), O(N^2) plant
         evaluations (fifth degree), O(N) (cubature).
 
