@@ -35,9 +35,13 @@ the noise-aware design and the SL policy is run ``TRIALS`` times on the plant
 expected cost of its gains on its LQG (``lqg.policy_cost``, feedforward 0) and the Gaussian
 closure's (``closed_loop_prediction``, ``rule``).
 
-Not done: the nominal and feedforward are not re-optimised with the SL model, the noise and cost
-terms are not averaged, and the solver's feedback latch (commands held without feedback) is not
-known from a Solution (the gains at iteration 0 are compared with the solver's: "repro").
+The solver's feedback latch (commands held without feedback, derivation §12) is not part of a
+Solution: it is recovered as the commands the pass on the nominal's LQG gives feedback and the
+solver's policy does not (grown to a fixed point), and held in every SL pass ("latch"; "repro", the relative difference of
+that pass's feedback from the solver's, checks the recovery).
+
+Not done: the nominal and feedforward are not re-optimised with the SL model, and the noise and
+cost terms are not averaged.
 
     PYTHONPATH=src .venv/bin/python benchmarks/studies/statistical_linearisation.py CASES TRIALS ITERS RULE RELAX
     e.g. ... muscle:50:8,muscle:50:6,muscle:100:8,arm2:100 2000 8 fifth_degree 0.5
@@ -106,28 +110,58 @@ def expected_jacobians(problem, policy, z_mean, z_cov, rule: str):
     return jax.lax.map(step, rows)
 
 
-def backward_gains(problem, lqg, u_bar, limit_margin) -> Gains:
+def backward_gains(problem, lqg, u_bar, limit_margin, held=None) -> Gains:
     """Step 3 of SL2: the gains of ``lqg`` by the solver's structured pass and gain rule
-    (``ilqg.backward.backward`` with lambda = 0, the feedback latch empty)."""
+    (``ilqg.backward.backward`` with lambda = 0 and the feedback latch ``held`` [K, d] bool, None:
+    none)."""
     gains_fn, bounds = unconstrained_gains, None
     if problem.has_limits:
         gains_fn, bounds = partial(boxed_gains, margin=limit_margin), (problem.u_min - u_bar, problem.u_max - u_bar)
+        bounds += () if held is None else (held,)
     if problem.noise is not None:
         gains_fn = unregularized_feedback(gains_fn)
     slots, _, _ = structured_slot_scan(lqg, 0.0, store_value=False, gains_fn=gains_fn, bounds=bounds, store_S=False)
     return from_slots(slots, problem.n_states)
 
 
+def feedback_rows(gains: Gains):
+    """[K, d] bool: the commands with a nonzero feedback row."""
+    return jnp.any(augmented_feedback(gains) != 0, axis=-1)
+
+
+@jax.jit
+def solver_latch(problem, policy, limit_margin):
+    """The solver's feedback latch, which a Solution does not return, recovered: (held [K, d], the
+    relative difference between the solver's feedback and the backward pass's on the nominal's own
+    LQG with that latch). held grows from none by the commands without feedback in the solver's
+    policy that the pass with the latch so far gives feedback (holding one command frees others
+    upstream), until none is left; the difference is then round-off unless the solver's last pass
+    was regularised where H is not positive definite."""
+    nominal = linearize(problem, policy.x_nominal, policy.u_nominal)
+    without = ~feedback_rows(gains_of(policy))
+
+    def grow(state):
+        held, _ = state
+        more = held | (feedback_rows(backward_gains(problem, nominal, policy.u_nominal, limit_margin, held)) & without)
+        return more, jnp.any(more != held)
+
+    held, _ = jax.lax.while_loop(lambda state: state[1], grow, (jnp.zeros_like(without), jnp.asarray(True)))
+    again = backward_gains(problem, nominal, policy.u_nominal, limit_margin, held)
+    F_old, F_new = augmented_feedback(gains_of(policy)), augmented_feedback(again)
+    return held, jnp.linalg.norm(F_new - F_old) / jnp.linalg.norm(F_old)
+
+
 @partial(jax.jit, static_argnames=("rule",))
-def sl_iteration(problem, policy, limit_margin, relax, rule: str):
-    """One iteration of SL2: (the relaxed policy, the relative change of the feedback, the
-    SL model's exact expected cost of the current gains, their closure prediction)."""
+def sl_iteration(problem, policy, held, limit_margin, relax, rule: str):
+    """One iteration of SL2 with the solver's latch ``held`` [K, d]: (the relaxed policy, the
+    relative change of the feedback, the SL model's exact expected cost of the current gains,
+    their closure prediction)."""
     nominal = linearize(problem, policy.x_nominal, policy.u_nominal)
     closure = closed_loop_prediction(problem, policy, rule)
     A, B0, B1 = expected_jacobians(problem, policy, closure.z.mean, closure.z.cov, rule)
     model = nominal.replace(A=A, B0=B0, B1=B1)
     old = gains_of(policy)
-    new = backward_gains(problem, model, policy.u_nominal, limit_margin)
+    new = backward_gains(problem, model, policy.u_nominal, limit_margin, held)
     F_old, F_new = augmented_feedback(old), augmented_feedback(new)
     change = jnp.linalg.norm(F_new - F_old) / jnp.linalg.norm(F_old)
     relaxed = jax.tree_util.tree_map(lambda a, b: relax * a + (1 - relax) * b, new, old)
@@ -135,26 +169,15 @@ def sl_iteration(problem, policy, limit_margin, relax, rule: str):
     return policy._replace(**relaxed._asdict()), change, lqg_cost, closure.expected_cost
 
 
-@jax.jit
-def reproduction(problem, policy, limit_margin):
-    """The relative difference between the solver's feedback and that of the backward pass on the
-    nominal's own LQG (step 3 with the nominal's Jacobians): ~0 unless the solver's latch held
-    some commands or its last pass was regularised where H is not positive definite."""
-    new = backward_gains(problem, linearize(problem, policy.x_nominal, policy.u_nominal), policy.u_nominal,
-                         limit_margin)
-    F_old, F_new = augmented_feedback(gains_of(policy)), augmented_feedback(new)
-    return jnp.linalg.norm(F_new - F_old) / jnp.linalg.norm(F_old)
-
-
-def statistical_linearisation(problem, policy, iters, rule, relax, limit_margin):
+def statistical_linearisation(problem, policy, held, iters, rule, relax, limit_margin):
     """ITERS iterations of SL2 from ``policy``: (policy, last change, the SL model's exact expected
     cost and closure prediction of the returned gains, log of (change, lqg cost, closure) per iteration)."""
     log = []
     for _ in range(iters):
-        policy, change, lqg_cost, closure = sl_iteration(problem, policy, limit_margin, relax, rule)
+        policy, change, lqg_cost, closure = sl_iteration(problem, policy, held, limit_margin, relax, rule)
         log.append((float(change), float(lqg_cost), float(closure)))
     # the predictions of the returned (relaxed) gains: one more evaluation, its step discarded
-    _, _, lqg_cost, closure = sl_iteration(problem, policy, limit_margin, relax, rule)
+    _, _, lqg_cost, closure = sl_iteration(problem, policy, held, limit_margin, relax, rule)
     return policy, log[-1][0], float(lqg_cost), float(closure), log
 
 
@@ -192,9 +215,10 @@ def cell(stats):
 def run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled):
     for label, plant, det, aware, margin in designs_of(model, delay_ms, targets):
         t0 = time.perf_counter()
-        repro = float(reproduction(plant, aware, margin))
-        sl, change, lqg_cost, closure, log = statistical_linearisation(plant, aware, iters, rule, relax, margin)
-        print(f"  {model} {delay_ms:g} ms target {label}: repro {repro:.2g}; per iteration (change, SL LQG cost, "
+        held, repro = solver_latch(plant, aware, margin)
+        sl, change, lqg_cost, closure, log = statistical_linearisation(plant, aware, held, iters, rule, relax, margin)
+        print(f"  {model} {delay_ms:g} ms target {label}: latch {int(jnp.sum(held))} commands, repro {float(repro):.2g}; "
+              f"per iteration (change, SL LQG cost, "
               f"closure): " + "; ".join(f"{c:.3g}, {q:.3g}, {p:.3g}" for c, q, p in log)
               + f" ({time.perf_counter() - t0:.0f} s)", flush=True)
         stats = {}
