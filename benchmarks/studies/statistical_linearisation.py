@@ -43,8 +43,9 @@ that pass's feedback from the solver's, checks the recovery).
 Not done: the nominal and feedforward are not re-optimised with the SL model, and the noise and
 cost terms are not averaged.
 
-    PYTHONPATH=src .venv/bin/python benchmarks/studies/statistical_linearisation.py CASES TRIALS ITERS RULE RELAX
+    PYTHONPATH=src .venv/bin/python benchmarks/studies/statistical_linearisation.py CASES TRIALS ITERS RULE RELAX [SEEDS]
     e.g. ... muscle:50:8,muscle:50:6,muscle:100:8,arm2:100 2000 8 fifth_degree 0.5
+         ... muscle:50:8 2000 8 fifth_degree 0.5 0,1,2,3,4   (also each design's MC mean under these seeds)
 
 CASES: model:delay_ms[:target], model "muscle" (``arm2_muscle6`` center-out reach to target
 1-8 of ``center_out_targets(8, 0.1)``, the center-out study's design options) or "arm2"
@@ -201,8 +202,8 @@ def designs_of(model: str, delay_ms: float, targets):
             for i, (j, plant) in enumerate(zip(targets, plants))]
 
 
-def monte_carlo(plant, policy, trials):
-    cost = np.asarray(di.simulate(plant, policy, trials, seed=0).cost)
+def monte_carlo(plant, policy, trials, seed=0):
+    cost = np.asarray(di.simulate(plant, policy, trials, seed=seed).cost)
     return cost, sample_stats(cost, diverged_trials(cost, divergence_bound(plant)))
 
 
@@ -212,7 +213,7 @@ def cell(stats):
     return f"{stats.mean:.3g} [{low:.3g}, {high:.3g}{div}]"
 
 
-def run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled):
+def run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled, seeds):
     for label, plant, det, aware, margin in designs_of(model, delay_ms, targets):
         t0 = time.perf_counter()
         held, repro = solver_latch(plant, aware, margin)
@@ -225,6 +226,10 @@ def run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled):
         for name, policy in (("det", det), ("aware", aware), ("sl", sl)):
             cost, stats[name] = monte_carlo(plant, policy, trials)
             pooled.setdefault((model, delay_ms, name), []).append(cost)
+            if seeds:
+                means = [monte_carlo(plant, policy, trials, seed)[1].mean for seed in seeds]
+                print(f"  {name}: MC mean under seeds {seeds}: " + " ".join(f"{m:.3g}" for m in means)
+                      + f" (their mean {np.mean(means):.3g})", flush=True)
         s = stats["sl"]
         yield (f"| {delay_ms:g} ms | {model} {label} | {cell(stats['det'])} | {cell(stats['aware'])} | {cell(s)} | "
                f"{stats['det'].median:.3g} / {stats['aware'].median:.3g} / {s.median:.3g} | "
@@ -244,9 +249,10 @@ def parse_cases(text):
 def main(argv):
     di.configure_cpu()
     cases, trials, iters, rule, relax = parse_cases(argv[1]), int(argv[2]), int(argv[3]), argv[4], float(argv[5])
+    seeds = [int(seed) for seed in argv[6].split(",")] if len(argv) > 6 else []
     rows, pooled = [], {}
     for model, delay_ms, targets in cases:
-        rows += list(run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled))
+        rows += list(run_case(model, delay_ms, targets, trials, iters, rule, relax, pooled, seeds))
     print(f"\n{trials} trials, seed 0; {iters} SL iterations, rule {rule}, relax {relax}\n")
     print("| delay | case | MC mean det [95 % CI] | noise-aware | SL | median det / noise-aware / SL | "
           "SL predicted / MC: LQG / closure | SL gain change |")
