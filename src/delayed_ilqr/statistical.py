@@ -6,8 +6,8 @@ closed loop's trials leave the range of that linearisation (the six-muscle arm w
 delay), the LQG's model is wrong where the trials are. SL keeps the nominal and replaces the
 LQG's dynamics matrices by their expectations under the closed loop's own distribution, then
 re-solves for the gains, to a fixed point. With the policy's gains G = (I, L, M) and its closed
-loop's Markov state z_k = [dx_k; du_{k-l}; ...; du_{k-1}] [N], N = n + l d (deviations from the
-nominal; the pending commands' are those of the clipped commands sent, oldest first), each
+loop's Markov state z_k = [dx_k; du_{k-l}; ...; du_{k-1}] (N = n + l d entries; deviations from the
+nominal, the pending commands' those of the clipped commands sent, oldest first), each
 iteration:
 
 1. (mean_k [N], P_k [N, N]) = ``prediction.closed_loop_prediction(problem, G, rule).z``, the moments
@@ -99,7 +99,8 @@ def _gains(policy: Policy) -> Gains:
 
 def expected_jacobians(problem: Problem, policy: Policy, z_mean, z_cov, rule: str):
     """Eq. SL1: A [K, n, n], B0 [K, n, d], B1 [K, n, d], each step's Jacobians of the Euler step
-    averaged over the points of ``rule`` for z_k ~ N(z_mean [K+1, N][k], z_cov [K+1, N, N][k]),
+    averaged over the points of ``rule`` for z_k ~ N(z_mean_k, z_cov_k) (z_mean [K+1, N], z_cov
+    [K+1, N, N]),
     at the points' actual states and clipped commands, as ``closed_loop_prediction`` runs them.
     ``problem`` without a frame; ``policy`` of delay l (N = n + l d)."""
     nx, nd, l, dt = problem.n_states, problem.n_controls, problem.delay_steps, problem.dt
