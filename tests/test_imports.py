@@ -75,7 +75,7 @@ def test_models_is_an_attribute_of_the_package():
 
 ENTRY_POINTS = ["Problem", "lqg.DelayedLQG", "solve", "simulate", "lqg.backward_pass",
                 "lqg.augmented_backward_pass", "lqg.policy_cost", "lqg.simulate_lqg",
-                "prediction.closed_loop_prediction"]
+                "prediction.closed_loop_prediction", "statistical.statistical_feedback"]
 
 
 def test_every_entry_point_refuses_float32_with_the_line_to_add():
@@ -86,6 +86,7 @@ def test_every_entry_point_refuses_float32_with_the_line_to_add():
         from delayed_ilqr import lqg
         from delayed_ilqr.models import point_mass
         from delayed_ilqr.prediction import closed_loop_prediction
+        from delayed_ilqr.statistical import statistical_feedback
 
         K, n, d = 5, 2, 1
         arrays = dict(A=np.tile(np.eye(n), (K, 1, 1)), B0=np.zeros((K, n, d)), B1=np.ones((K, n, d)),
@@ -108,6 +109,7 @@ def test_every_entry_point_refuses_float32_with_the_line_to_add():
             "lqg.policy_cost": lambda: lqg.policy_cost(linear, gains),
             "lqg.simulate_lqg": lambda: lqg.simulate_lqg(linear, gains, 2),
             "prediction.closed_loop_prediction": lambda: closed_loop_prediction(problem, policy),
+            "statistical.statistical_feedback": lambda: statistical_feedback(problem, policy),
         }
         refusals = {}
         for name, call in calls.items():
