@@ -17,9 +17,13 @@ import delayed_ilqr as di
 from delayed_ilqr import Options, Policy, lqg, solve
 from delayed_ilqr.ilqg.closed_loop import augmented_feedback
 from delayed_ilqr.ilqg.linearize import linearize, rollout
+from delayed_ilqr.experiments import designs
+from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS
 from delayed_ilqr.models import arm2, point_mass
+from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets
 from delayed_ilqr.prediction import RULES, closed_loop_prediction
 from delayed_ilqr.statistical import expected_jacobians, solver_latch, statistical_feedback
+from delayed_ilqr.statistics import divergence_bound, diverged_trials, sample_stats
 
 from comparisons import rel_err
 
@@ -149,3 +153,30 @@ def test_bad_input_is_refused_by_name():
     sensed = point_mass(delay=0.02, sensory_delay=0.0)
     with pytest.raises(ValueError, match="problem.observation must be None"):
         statistical_feedback(sensed, policy)
+
+
+@pytest.mark.slow
+def test_muscle_arm_sl_design_beats_both_designs_where_the_tail_dominates():
+    """Issue 19's ordering on its worst case: the six-muscle arm at 50 ms, target 8 of the
+    center-out study (down and to the right), where the noise-aware design's Monte Carlo mean is
+    above the deterministic design's at 2000 trials (2.1e-2 against 9.9e-3, noise_calibration.md
+    §5.5). SL's re-design of the noise-aware gains (8 iterations, relax 0.5, fifth degree) lies
+    below both: its upper 95 % bound under the lower bound of each, 500 trials, seed 0 (measured
+    [4.3e-4, 1.5e-3] against [1.8e-2, 2.9e-2] and [1.5e-2, 2.4e-2]; no trial diverges)."""
+    plant = arm2_muscle6(delay=0.05, target=tuple(center_out_targets(8, 0.1)[7]))
+    stats = {}
+    for name in ("deterministic", "noise-aware"):
+        problem, options = designs.design(plant, name, DEFAULT_OPTIONS)
+        sol = solve(problem, options=options)
+        assert di.Status(int(sol.status)).converged, (name, sol.status)
+        stats[name] = _monte_carlo(plant, sol.policy)
+        if name == "noise-aware":
+            stats["sl"] = _monte_carlo(plant, statistical_feedback(plant, sol.policy, DEFAULT_OPTIONS).policy)
+    assert all(s.n_diverged == 0 for s in stats.values()), stats
+    for name in ("deterministic", "noise-aware"):
+        assert stats["sl"].ci95[1] < stats[name].ci95[0], (name, stats)
+
+
+def _monte_carlo(plant, policy, trials=500):
+    cost = np.asarray(di.simulate(plant, policy, trials, seed=0).cost)
+    return sample_stats(cost, diverged_trials(cost, divergence_bound(plant)))
