@@ -553,10 +553,12 @@ def demo_command(out, overwrite, trials, seed):
 @click.option("--seed", type=_SEED, default=0, show_default=True, help="Seed of the noise.")
 @click.option("--sigma-u", type=click.FloatRange(min=0.0), default=center_out.SIGMA_U, show_default=True,
               help="Excitation noise of the plant the policies run on.")
-@click.option("--design", "designs", type=click.Choice(center_out.DESIGNS), multiple=True,
+@click.option("--design", "designs", type=click.Choice(center_out.AVAILABLE_DESIGNS), multiple=True,
               default=center_out.DESIGNS, show_default=True,
-              help="Controller design, repeatable: noise-aware (iLQG, made for the noisy plant) or "
-                   "deterministic (iLQR, made for the noise-free arm).")
+              help="Controller design, repeatable: noise-aware (iLQG, made for the noisy plant), "
+                   "deterministic (iLQR, made for the noise-free arm) or statistical (the noise-aware "
+                   "design with its feedback re-designed by statistical linearisation; full-state "
+                   "feedback only, not with --sensory-delay).")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=center_out.DEFAULT_OPTIONS.max_iterations,
               show_default=True, help="Iteration limit of each reach's solve.")
 @click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=None,
@@ -586,6 +588,9 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             arm2_muscle6(sensory_delay=sensory_delay)
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="'--sensory-delay'") from exc
+        if "statistical" in designs:
+            raise click.BadParameter("the statistical design needs full-state feedback; drop --sensory-delay "
+                                     "or the design", param_hint="'--design'")
     with _Output(out, overwrite) as output:
         start = time.perf_counter()
         options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)

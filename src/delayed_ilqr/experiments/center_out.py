@@ -6,12 +6,19 @@ hand position are solved in one compiled, vectorised call (``jax.vmap`` of
 :func:`.engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
 times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s ``noise=True``).
 
-Two designs of the same plant (:mod:`.designs`):
+Three designs of the same plant (:mod:`.designs`; the first two by default):
 
 * ``"noise-aware"`` (iLQG, the default): designed on the noisy arm itself, so the signal-dependent
   noise enters the backward pass (Todorov & Li 2005): the nominal trades accuracy for smaller,
   less noisy excitations and the feedback is the LQG optimum for the multiplicative noise.
 * ``"deterministic"`` (iLQR): designed on the noise-free arm, then run in the noise.
+* ``"statistical"`` (opt-in): the noise-aware design's nominal and feedforward with its feedback
+  re-designed by statistical linearisation around the closed loop's predicted distribution
+  (:func:`~delayed_ilqr.statistical.statistical_feedback` with its defaults, vmapped over the
+  targets; ``docs/results/noise_calibration.md`` §5.5), for the delays where the noise-aware
+  design's trials leave its linearisation. Full-state feedback only. Its solver statistics are
+  the noise-aware solve's (the same solve, done once when both designs run); its predicted cost
+  is the Gaussian closure's E[J] of the SL policy (the solver has no LQG prediction for SL gains).
 
 Per delay and design the study reports iterations, solve time, the final hand error of the
 nominal, the predicted expected cost (J(0) of the last LQG) against the Monte Carlo mean, and the
@@ -20,6 +27,7 @@ the task space of the model's metadata.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import NamedTuple, Optional, Sequence
 
@@ -33,17 +41,25 @@ from ..models.arm2 import hand_velocity
 from ..models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets
 from ..models.metadata import task_position, task_target
 from . import designs
-from .engine import monte_carlo, take, timed_batched_solve
+from ..statistical import statistical_feedback
+from .engine import Timed, monte_carlo, take, timed_batched_solve
 
 __all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
+           "AVAILABLE_DESIGNS",
            "SIGMA_U", "PEAK_PROMINENCE"]
 
 #: Muscle reaches take 30-200 iterations (the excitations saturate at 0 and 1 on long stretches,
 #: where the box-QP's active set changes slowly); 300 leaves a margin.
 DEFAULT_OPTIONS = Options(max_iterations=300)
 
-#: The designs the study compares, by name (see :mod:`.designs`).
+#: The designs the study compares by default, by name (see :mod:`.designs`).
 DESIGNS = ("noise-aware", "deterministic")
+
+#: Every design the study offers: :data:`DESIGNS` and the opt-in ``"statistical"`` (module docstring).
+AVAILABLE_DESIGNS = DESIGNS + ("statistical",)
+
+#: Designs that re-design the feedback of another design's solve: name -> the design solved.
+_SOLVED_AS = {"statistical": "noise-aware"}
 
 
 @dataclass(frozen=True)
@@ -55,7 +71,8 @@ class TargetResult:
         status: the solver's :class:`~delayed_ilqr.Status` name; iterations: its iteration count.
         cost: eq. (2) of the noise-free nominal.
         predicted_cost: the design's expected cost J(0) of its last LQG (for the deterministic
-            design, the noise-free cost: it does not know the noise).
+            design, the noise-free cost: it does not know the noise; for the statistical design,
+            the Gaussian closure's E[J] of its policy, ``StatisticalFeedback.predicted_cost``).
         hand_error: distance of the nominal's final hand position from the target.
         hand_speed: the nominal's final hand speed (m/s).
         endpoints: [N, 2] final hand positions of the noisy trials.
@@ -64,6 +81,8 @@ class TargetResult:
         diverged: [N] bool, the trials that diverged (:func:`~delayed_ilqr.statistics.diverged_trials`
             with the plant's :func:`~delayed_ilqr.statistics.divergence_bound`); every statistic
             below leaves them out of its mean and spread.
+        sl_change: the statistical design's last relative feedback change
+            (``StatisticalFeedback.change``, near 0 at a fixed point); None for the other designs.
     """
 
     target: np.ndarray
@@ -77,6 +96,7 @@ class TargetResult:
     mc_error: np.ndarray
     mc_cost: np.ndarray
     diverged: np.ndarray
+    sl_change: Optional[float] = None
 
     @property
     def converged(self) -> bool:
@@ -109,9 +129,10 @@ class DelayResult:
 
     Attributes:
         delay: tau in seconds; delay_steps: l; dt: the time step (s).
-        design: "noise-aware" or "deterministic" (see the module docstring).
-        solve_time: seconds of the compiled batched solve of all targets (second call).
-        first_call: seconds of the first call (compilation included).
+        design: one of :data:`AVAILABLE_DESIGNS` (see the module docstring).
+        solve_time: seconds of the compiled batched solve of all targets (second call); for the
+            statistical design, the noise-aware solve's plus the batched SL re-design's.
+        first_call: seconds of the first call (compilation included), summed likewise.
         targets: one :class:`TargetResult` per target.
         solutions: the batched :class:`~delayed_ilqr.Solution` (leading axis: target).
         runs: the Monte Carlo :class:`~delayed_ilqr.Runs` per target.
@@ -181,10 +202,14 @@ def reach_shape(plant: Problem, x) -> ReachShape:
                       peak_to_mean=float(speed.max() / speed.mean()))
 
 
-def _designs(names) -> tuple:
+def _designs(names, sensory_delay) -> tuple:
     names = tuple(names)
-    if not names or any(d not in DESIGNS for d in names):
-        raise ValueError(f"designs must be a non-empty selection of {DESIGNS}; got {names!r}")
+    if not names or any(d not in AVAILABLE_DESIGNS for d in names):
+        raise ValueError(f"designs must be a non-empty selection of {AVAILABLE_DESIGNS}; got {names!r}")
+    if sensory_delay is not None and "statistical" in names:
+        # statistical_feedback re-designs full-state feedback gains; it refuses an observation
+        raise ValueError("the statistical design needs full-state feedback: run it without sensory_delay "
+                         f"(got sensory_delay={sensory_delay!r})")
     return names
 
 
@@ -205,24 +230,28 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
         sigma_u: excitation noise of the plant (the model's default 0.01, calibrated to human force
             variability, ``docs/models.md`` §4.5); the noise-aware design
             is made for it.
-        designs: a non-empty selection of :data:`DESIGNS`.
+        designs: a non-empty selection of :data:`AVAILABLE_DESIGNS` (default :data:`DESIGNS`).
         sensory_delay: None (default): the controllers see the state. A delay in seconds (0
             allowed): they see the arm's proprioception that late through its sensory noise
             (``arm2_muscle6``'s ``sensory_delay``; each design gets the delayed Kalman filter of
             its own problem, the noise-aware one with Todorov's alternation), the sensorimotor
             loop whose noise and delay make human endpoint scatter (``docs/results/noise_calibration.md``).
+
+    Raises:
+        ValueError: an unknown design, or ``"statistical"`` with a ``sensory_delay``.
     """
     options = DEFAULT_OPTIONS if options is None else options
     if not isinstance(options, Options):
         raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
-    names = _designs(designs)
+    names = _designs(designs, sensory_delay)
     targets = center_out_targets(n_targets, radius)
     results = []
     for delay in delays:
         plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u,
                                sensory_delay=sensory_delay) for t in targets]
+        solved = {}                 # design solved -> Timed, shared by the designs built on it
         for name in names:
-            results.append(_reaches(float(delay), name, plants, options, n_trials, seed))
+            results.append(_reaches(float(delay), name, plants, options, n_trials, seed, solved))
     return results
 
 
@@ -230,14 +259,55 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
 _filter_on_plants = jax.jit(jax.vmap(designs.filter_on_plant))
 
 
-def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
-             seed: int) -> DelayResult:
-    """One delay and design: the batched solve of all targets, then the Monte Carlo of each policy."""
+_statistical_on_plants = jax.jit(jax.vmap(statistical_feedback, in_axes=(0, 0, None)), static_argnums=2)
+
+
+def _stack(trees):
+    """Pytrees of equal structure (plants that differ only in data) stacked on a leading axis."""
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
+
+
+def _solve(name: str, plants: list[Problem], options: Options) -> Timed:
+    """The batched solve of design ``name`` for all plants (with the plant's filter if it has one)."""
     problems = [designs.design(plant, name, options)[0] for plant in plants]
-    sols, solve_time, first = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
+    timed = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
     if plants[0].observation is not None and designs.REGISTRY[name].filter_on_plant:
-        stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *plants)
-        sols = _filter_on_plants(stacked, sols)
+        timed = timed._replace(solution=_filter_on_plants(_stack(plants), timed.solution))
+    return timed
+
+
+def _statistical(plants: list[Problem], base: Timed, options: Options):
+    """The SL re-design of the batched noise-aware solution ``base`` on every plant: (solution with
+    the SL policies and the closure's E[J] as expected_cost, [targets] SL change, seconds, first-call
+    seconds); the times include ``base``'s.
+
+    Compiled ahead and run once (seconds: the run; first: compilation and run), not called twice
+    as the solves are: one SL run of 8 targets at 100 ms costs as much as the whole study's solves.
+    """
+    args = (_stack(plants), base.solution.policy)
+    start = time.perf_counter()
+    compiled = _statistical_on_plants.lower(*args, options).compile()
+    compile_seconds = time.perf_counter() - start
+    start = time.perf_counter()
+    sl = jax.block_until_ready(compiled(*args))
+    seconds = time.perf_counter() - start
+    first = compile_seconds + seconds
+    sols = base.solution._replace(policy=sl.policy, expected_cost=sl.predicted_cost)
+    return sols, np.asarray(sl.change), base.seconds + seconds, base.first_seconds + first
+
+
+def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
+             seed: int, solved: dict) -> DelayResult:
+    """One delay and design: the batched solve of all targets (taken from ``solved`` when another
+    design of this delay made it, stored there otherwise), for the statistical design its batched
+    SL re-design, then the Monte Carlo of each policy."""
+    base = _SOLVED_AS.get(name, name)
+    if base not in solved:
+        solved[base] = _solve(base, plants, options)
+    sols, solve_time, first = solved[base]
+    sl_change = None
+    if name == "statistical":
+        sols, sl_change, solve_time, first = _statistical(plants, solved[base], options)
     per_target, runs = [], []
     for j, plant in enumerate(plants):
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
@@ -250,8 +320,9 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
             hand_error=float(np.linalg.norm(nominal_end - target)),
             hand_speed=float(np.linalg.norm(hand_velocity(sols.x[j, -1, :2], sols.x[j, -1, 2:4]))), endpoints=trials.endpoints,
             mc_error=trials.errors, mc_cost=mc_cost,
-            diverged=diverged_trials(mc_cost, divergence_bound(plant))))
+            diverged=diverged_trials(mc_cost, divergence_bound(plant)),
+            sl_change=None if sl_change is None else float(sl_change[j])))
         runs.append(trials.runs)
-    return DelayResult(delay=delay, delay_steps=problems[0].delay_steps, dt=problems[0].dt, design=name,
+    return DelayResult(delay=delay, delay_steps=plants[0].delay_steps, dt=plants[0].dt, design=name,
                        solve_time=solve_time, first_call=first, targets=per_target, solutions=sols, runs=runs,
                        plants=plants)
