@@ -70,14 +70,16 @@ def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
 
 def center_out_records(results: Sequence) -> list[dict]:
     """Every number of the center-out study as JSON-ready dicts (one per delay and design, with a
-    list of targets)."""
+    list of targets; the statistical design's targets add ``sl_change``, SL's last relative feedback
+    change)."""
     return [dict(delay=r.delay, delay_steps=r.delay_steps, dt=r.dt, design=r.design, solve_time=r.solve_time,
                  first_call=r.first_call,
                  targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
                                predicted_cost=t.predicted_cost, mc_cost=t.cost_stats.to_dict(),
                                hand_error=t.hand_error, hand_speed=t.hand_speed, mc_error=t.error_stats.to_dict(),
                                endpoint_mean=_json_list(t.endpoints[~t.diverged].mean(axis=0)),
-                               endpoint_cov=[_json_list(row) for row in t.endpoint_cov], spread=_json_float(t.spread))
+                               endpoint_cov=[_json_list(row) for row in t.endpoint_cov], spread=_json_float(t.spread),
+                               **({} if t.sl_change is None else dict(sl_change=_json_float(t.sl_change))))
                           for t in r.targets])
             for r in results]
 
@@ -220,6 +222,16 @@ def _caption(file_name: str) -> str:
     return ""
 
 
+_STATISTICAL_NOTE = (
+    "*statistical*: the noise-aware design with its feedback gains re-designed by statistical linearisation "
+    "around the closed loop's predicted distribution (`delayed_ilqr.statistical.statistical_feedback`: "
+    "fifth-degree rule, 8 iterations, relaxation 0.5; docs/results/noise_calibration.md §5.5). Its converged, "
+    "iterations and nominal columns are the noise-aware solve's; its solve time adds the SL re-design; its "
+    "predicted E[J] is the Gaussian closure's for the SL gains (the solver has no LQG prediction for them). "
+    "center_out.json gives each target's `sl_change`, SL's last relative feedback change (near 0 at a "
+    "fixed point).")
+
+
 def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict, table: str,
                             figures: Sequence[str]) -> list[str]:
     """center_out.json (settings and every number) and center_out.md (setting, table, figures)."""
@@ -233,6 +245,8 @@ def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict
                 "Kalman filter")
              + f". Study time {s['elapsed_seconds']:.1f} s.", "",
              table, ""]
+    if "statistical" in s["designs"]:
+        lines += [_STATISTICAL_NOTE, ""]
     for f in figures:
         lines += [f"![{f}]({f})", "", _caption(f), ""]
     (out / "center_out.md").write_text("\n".join(lines))

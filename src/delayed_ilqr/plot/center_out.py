@@ -50,7 +50,14 @@ CAPTIONS = {
         "Shahani & Young 1975, J Neurol Neurosurg Psychiatry 38:1154).",
 }
 
-_DESIGN_COLORS = {"noise-aware": "tab:blue", "deterministic": "tab:red"}
+_DESIGN_COLORS = {"noise-aware": "tab:blue", "deterministic": "tab:red", "statistical": "tab:green"}
+
+#: Titles and legends name a design in words where its CLI name does not say what it is.
+_DESIGN_LABELS = {"statistical": "noise-aware + SL feedback"}
+
+
+def _label(design: str) -> str:
+    return _DESIGN_LABELS.get(design, design)
 
 
 def _grid(results, width: float, height: float, **kwargs):
@@ -90,7 +97,7 @@ def _reaches_panel(ax, r, n_paths: int, colors):
     ax.set_xlabel(f"{task.point} x [{task.unit}]")
     ax.set_ylabel(f"{task.point} y [{task.unit}]")
     converged = sum(t.converged for t in r.targets)
-    ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms (converged {converged}/{len(r.targets)})")
+    ax.set_title(f"{_label(r.design)}, {1e3 * r.delay:g} ms (converged {converged}/{len(r.targets)})")
     ax.grid(alpha=0.3)
 
 
@@ -149,7 +156,7 @@ def plot_speed_profiles(results: Sequence):
         t_axis = r.dt * np.arange(1, speed.shape[1] + 1)
         for j in range(speed.shape[0]):
             ax.plot(t_axis, speed[j], color=colors[j], lw=1.5, label=f"target {j + 1}")
-        ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms")
+        ax.set_title(f"{_label(r.design)}, {1e3 * r.delay:g} ms")
         ax.grid(alpha=0.3)
     for ax in grid[-1]:
         ax.set_xlabel("time [s]")
@@ -194,7 +201,7 @@ def plot_endpoints(results: Sequence):
         ax.set_aspect("equal")
         ax.set_xlabel("endpoint x - target x [mm]")
         ax.set_ylabel("endpoint y - target y [mm]")
-        ax.set_title(f"{r.design}, {1e3 * r.delay:g} ms")
+        ax.set_title(f"{_label(r.design)}, {1e3 * r.delay:g} ms")
         ax.grid(alpha=0.3)
     grid[0, 0].legend(fontsize=7, loc="upper left", ncol=2)
     fig.suptitle(f"six-muscle arm, center-out: endpoints relative to the target (N = "
@@ -228,13 +235,13 @@ def plot_center_out_vs_delay(results: Sequence):
         mean = np.array([s.mean for s in stats])
         ci = np.array([s.ci95 for s in stats]).T
         ax_cost.errorbar(tau, mean, yerr=np.abs(ci - mean), fmt="o-", color=color, capsize=4,
-                         label=f"{design}: Monte Carlo mean, 95 % CI")
+                         label=f"{_label(design)}: Monte Carlo mean, 95 % CI")
         ax_cost.plot(tau, [np.mean([t.predicted_cost for t in r.targets]) for r in rows], ls="--", marker="o",
-                     mfc="white", color=color, label=f"{design}: predicted E[J]")
+                     mfc="white", color=color, label=f"{_label(design)}: predicted E[J]")
         spread = np.array([[1e3 * t.spread for t in r.targets] for r in rows])          # [delays, targets] mm
         mid = spread.mean(axis=1)
         ax_spread.errorbar(tau, mid, yerr=[mid - spread.min(axis=1), spread.max(axis=1) - mid], fmt="o-",
-                           color=color, capsize=4, label=f"{design}: mean over targets [range]")
+                           color=color, capsize=4, label=f"{_label(design)}: mean over targets [range]")
     for ax, label, title in ((ax_cost, "cost J (eq. 2)", "expected cost"),
                              (ax_spread, "endpoint spread, 1-sigma major axis [mm]", "endpoint spread")):
         ax.set_yscale("log")
@@ -277,7 +284,7 @@ def plot_excitations(result):
         ax.set_xlabel("time sent [s]")
     for ax in axes[::cols]:
         ax.set_ylabel("excitation")
-    fig.suptitle(f"six-muscle arm: nominal excitations per target, {result.design} design, "
+    fig.suptitle(f"six-muscle arm: nominal excitations per target, {_label(result.design)} design, "
                  f"delay {1e3 * result.delay:g} ms")
     return fig
 
