@@ -195,6 +195,19 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     return ClosedLoopPrediction(total + expected_final, state, Prediction(means, covs))
 
 
+def _check_closure_input(entry_point: str, problem: Problem, policy: Policy, rule: str) -> None:
+    """The checks of the closure's callers (:func:`closed_loop_prediction` and
+    ``statistical.statistical_feedback``, ``entry_point`` as "module.function"): float64 on,
+    full-state feedback, a known rule; a ``ValueError`` naming the function otherwise."""
+    _precision.require_x64(entry_point)
+    caller = entry_point.rsplit(".", 1)[-1]
+    if problem.observation is not None or policy.estimator is not None:
+        raise ValueError(f"{caller}: problem.observation must be None (full-state feedback) and the "
+                         "policy must have no estimator")
+    if rule not in RULES:
+        raise ValueError(f"{caller}: rule must be one of {RULES}; got {rule!r}")
+
+
 def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second_order") -> ClosedLoopPrediction:
     """E[J] and the states' moments of ``policy`` on ``problem``'s nonlinear plant, as
     :func:`delayed_ilqr.simulate` runs it (``substeps=1``), by moment propagation (no sampling).
@@ -256,10 +269,5 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
         ValueError: for a problem with an observation or a policy with an estimator, or an unknown
             rule.
     """
-    _precision.require_x64("prediction.closed_loop_prediction")
-    if problem.observation is not None or policy.estimator is not None:
-        raise ValueError("closed_loop_prediction: problem.observation must be None (full-state feedback) and the "
-                         "policy must have no estimator")
-    if rule not in RULES:
-        raise ValueError(f"rule must be one of {RULES}; got {rule!r}")
+    _check_closure_input("prediction.closed_loop_prediction", problem, policy, rule)
     return _closed_loop_prediction(problem.without_frame("closed_loop_prediction"), policy, rule)

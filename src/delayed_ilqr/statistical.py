@@ -47,7 +47,6 @@ from typing import NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 
-from . import _precision
 from .ilqg.closed_loop import augmented_feedback
 from .ilqg.linearize import delayed_commands, linearize
 from .lqg import Gains, policy_cost
@@ -55,7 +54,7 @@ from .lqg.frame import from_slots
 from .lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
 from .lqg.structured import structured_slot_scan
 from .options import Options
-from .prediction import RULES, _closed_loop_prediction, _sigma_points
+from .prediction import _closed_loop_prediction, _sigma_points, _check_closure_input
 from .problem import Problem
 from .solution import Policy
 
@@ -231,12 +230,7 @@ def statistical_feedback(problem: Problem, policy: Policy, options: Optional[Opt
             policy whose delay is not the plant's, an unknown rule, iterations < 1, relax outside
             (0, 1].
     """
-    _precision.require_x64("statistical.statistical_feedback")
-    if problem.observation is not None or policy.estimator is not None:
-        raise ValueError("statistical_feedback: problem.observation must be None (full-state feedback) and the "
-                         "policy must have no estimator")
-    if rule not in RULES:
-        raise ValueError(f"statistical_feedback: rule must be one of {RULES}; got {rule!r}")
+    _check_closure_input("statistical.statistical_feedback", problem, policy, rule)
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"statistical_feedback: iterations must be an integer >= 1; got {iterations!r}")
     if not 0.0 < float(relax) <= 1.0:

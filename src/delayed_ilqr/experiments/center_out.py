@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple, Optional, Sequence
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .. import Options, Policy, Problem, Solution, Status
@@ -42,7 +41,7 @@ from ..models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets
 from ..models.metadata import task_position, task_target
 from . import designs
 from ..statistical import statistical_feedback
-from .engine import Timed, monte_carlo, take, timed_batched_solve
+from .engine import Timed, monte_carlo, stack, take, timed_batched_solve
 
 __all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
            "AVAILABLE_DESIGNS",
@@ -262,17 +261,13 @@ _filter_on_plants = jax.jit(jax.vmap(designs.filter_on_plant))
 _statistical_on_plants = jax.jit(jax.vmap(statistical_feedback, in_axes=(0, 0, None)), static_argnums=2)
 
 
-def _stack(trees):
-    """Pytrees of equal structure (plants that differ only in data) stacked on a leading axis."""
-    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
-
 
 def _solve(name: str, plants: list[Problem], options: Options) -> Timed:
     """The batched solve of design ``name`` for all plants (with the plant's filter if it has one)."""
     problems = [designs.design(plant, name, options)[0] for plant in plants]
     timed = timed_batched_solve(problems, designs.design(plants[0], name, options)[1])
     if plants[0].observation is not None and designs.REGISTRY[name].filter_on_plant:
-        timed = timed._replace(solution=_filter_on_plants(_stack(plants), timed.solution))
+        timed = timed._replace(solution=_filter_on_plants(stack(plants), timed.solution))
     return timed
 
 
@@ -285,7 +280,7 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
     as the solves are: an SL run costs many times the solve it starts from (2 targets at 20 ms:
     4.3 s against 0.24 s on the shared 2-core machine).
     """
-    args = (_stack(plants), base.solution.policy)
+    args = (stack(plants), base.solution.policy)
     start = time.perf_counter()
     compiled = _statistical_on_plants.lower(*args, options).compile()
     compile_seconds = time.perf_counter() - start

@@ -18,7 +18,7 @@ import numpy as np
 from .. import Options, Policy, Problem, Runs, Solution, simulate, solve
 from ..models.metadata import default_u_init, task_position, task_space, task_target
 
-__all__ = ["Timed", "Trials", "timed_solve", "solve_batch", "timed_batched_solve", "monte_carlo", "endpoint_error",
+__all__ = ["Timed", "Trials", "timed_solve", "solve_batch", "timed_batched_solve", "monte_carlo", "endpoint_error", "stack",
            "endpoint_description", "take"]
 
 
@@ -71,7 +71,7 @@ def solve_batch(problems: Sequence[Problem], options: Optional[Options] = None, 
     (default: the model's, :func:`~delayed_ilqr.models.metadata.default_u_init` of the first)."""
     if u_init is None:
         u_init = default_u_init(problems[0])
-    stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
+    stacked = stack(problems)
     return _batched_solve(stacked, u_init, Options() if options is None else options)
 
 
@@ -87,8 +87,14 @@ def timed_batched_solve(problems: Sequence[Problem], options: Options, u_init=No
     """
     if u_init is None:
         u_init = default_u_init(problems[0])
-    stacked = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
+    stacked = stack(problems)
     return _timed(lambda: _batched_solve(stacked, u_init, options))
+
+
+def stack(trees):
+    """Pytrees of equal structure (e.g. problems that differ only in their arrays) stacked on a new
+    leading axis of every leaf: the batch that ``vmap`` and :func:`take` work on."""
+    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
 
 
 def take(tree, j: int):

@@ -13,12 +13,11 @@ from functools import partial
 from typing import Callable, NamedTuple, Optional
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .. import Options, Status
 from ..experiments import designs
-from ..experiments.engine import endpoint_error, solve_batch, take
+from ..experiments.engine import endpoint_error, solve_batch, stack, take
 from ..simulate import _simulate, check_memory
 from ..models.metadata import default_u_init
 from ..statistics import divergence_bound, diverged_trials, sample_stats
@@ -103,16 +102,12 @@ def compute_batch(settings: Settings, batch: Batch, plants=None) -> list[tuple[t
     else:
         padded_designs = problems + [problems[-1]] * (batch.size - len(problems))
         solved = jax.tree_util.tree_map(np.asarray, solve_batch(padded_designs, options, u_init))  # one transfer
-    stacked_plants = _stack(padded)
+    stacked_plants = stack(padded)
     check_memory(plants[0], settings.trials * batch.size, settings.substeps)
     monte_carlo = [_monte_carlo(stacked_plants, solved.policy, settings.trials, settings.substeps,
                                 jax.random.PRNGKey(seed)) for seed in settings.seeds]
     return [(cell.index, _cell_results(plant, take(solved, j), [(c[j], x[j]) for c, x in monte_carlo]))
             for j, (cell, plant) in enumerate(zip(batch.cells, plants))]
-
-
-def _stack(trees):
-    return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
 
 
 @partial(jax.jit, static_argnames=("n_trials", "substeps"))
