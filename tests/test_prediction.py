@@ -10,12 +10,14 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from delayed_ilqr import lqg, simulate, solve
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN
-from delayed_ilqr.prediction import closed_loop_prediction
+from delayed_ilqr.prediction import _sigma_points, closed_loop_prediction
 
 from comparisons import rel_err
 
@@ -47,6 +49,35 @@ def test_exact_on_a_linear_plant(delay):
         pred = closed_loop_prediction(problem, ignorant)
         c = np.asarray(runs.cost)
         assert abs(float(pred.expected_cost) - c.mean()) < 4 * c.std() / np.sqrt(c.size)
+
+
+@settings(max_examples=25, deadline=None)
+@given(N=st.integers(1, 9), r=st.integers(1, 9), rank=st.integers(0, 9), seed=st.integers(0, 2 ** 31 - 1))
+def test_points_in_the_inputs_reproduce_the_gaussian(N, r, rank, seed):
+    """Eq. P5's decomposition z = mean + R eta + E-part, for random sizes, a random input map T [r, N]
+    and a covariance of random rank (0 = a point, as at time 0): the points' mean is mean, their
+    covariance plus E is cov, T E = 0, and the fifth-degree rule's fourth moments of y = T z are
+    the Gaussian's, E[(a'(y - Tm))^4] = 3 (a' T P T' a)^2 (exact for degree <= 5; cubature is
+    degree 3: moments up to 2 and 3 only). The rule runs in min(r, N) dimensions."""
+    rng = np.random.default_rng(seed)
+    mean = rng.normal(size=N)
+    root = rng.normal(size=(N, min(rank, N)))
+    cov, T, a = root @ root.T, rng.normal(size=(r, N)), rng.normal(size=r)
+    scale = max(1.0, float(np.abs(cov).max()))
+    for rule in RULES[1:]:
+        Z, w, E = (np.asarray(v) for v in _sigma_points(jnp.asarray(mean), jnp.asarray(cov), rule, jnp.asarray(T)))
+        dim = min(r, N)
+        assert len(w) == (2 * dim ** 2 + 1 if rule == "fifth_degree" else 2 * dim), rule
+        np.testing.assert_allclose(w.sum(), 1.0, atol=1e-13)
+        np.testing.assert_allclose(w @ Z, mean, atol=1e-11 * scale)
+        centred = Z - mean
+        np.testing.assert_allclose(np.einsum("i,ij,ik->jk", w, centred, centred) + E, cov, atol=1e-11 * scale)
+        np.testing.assert_allclose(T @ E, 0.0, atol=1e-10 * scale * np.abs(T).max())
+        y = centred @ T.T @ a
+        np.testing.assert_allclose(w @ y ** 3, 0.0, atol=1e-9 * scale ** 1.5 * np.abs(a @ T).sum() ** 3)
+        if rule == "fifth_degree":
+            want = 3 * (a @ T @ cov @ T.T @ a) ** 2
+            np.testing.assert_allclose(w @ y ** 4, want, rtol=1e-9, atol=1e-9 * scale ** 2 * np.abs(a @ T).sum() ** 4)
 
 
 def test_chain_moments_on_a_linear_plant():

@@ -41,23 +41,23 @@ def moments(problem, sol, x):
 
 
 def rotated_cubature(problem, policy, seed):
-    """E[J] by the cubature rule on the root R Q of P_k, Q a random orthogonal matrix (R R' = P_k
-    still): the rule's points, and its answer beyond degree 3, depend on that choice."""
-    symmetric = prediction._sigma_points
+    """E[J] by the cubature rule on the root R Q of eq. P5 (``prediction._rule_root``), Q a random
+    orthogonal matrix (R Q (R Q)' = R R' still): the rule's points, and its answer beyond degree 3,
+    depend on that choice."""
+    symmetric = prediction._rule_root
 
-    def rotated(mean, cov, rule):
-        points, weights = symmetric(mean, cov, rule)
-        N = mean.shape[0]
-        Q = jnp.linalg.qr(jax.random.normal(jax.random.PRNGKey(seed), (N, N), mean.dtype))[0]
-        offsets = Q.T @ (points[:N] - mean)                 # rows: the columns of sqrt(N) R Q
-        return mean + jnp.concatenate([offsets, -offsets]), weights
+    def rotated(cov, inputs):
+        root, rest = symmetric(cov, inputs)
+        r = root.shape[1]
+        Q = jnp.linalg.qr(jax.random.normal(jax.random.PRNGKey(seed), (r, r), cov.dtype))[0]
+        return root @ Q, rest
 
-    prediction._sigma_points = rotated
+    prediction._rule_root = rotated
     prediction._closed_loop_prediction.clear_cache()
     try:
         return float(closed_loop_prediction(problem, policy, "cubature").expected_cost)
     finally:
-        prediction._sigma_points = symmetric
+        prediction._rule_root = symmetric
         prediction._closed_loop_prediction.clear_cache()
 
 

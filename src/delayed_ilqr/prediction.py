@@ -100,25 +100,58 @@ class ClosedLoopPrediction(NamedTuple):
     z: Prediction
 
 
-def _sigma_points(mean, cov, rule: str):
-    """Points [P, N] and weights [P] (sum 1) of ``rule`` for N(mean [N], cov [N, N]) (eq. P4); cov
-    PSD and possibly singular (the pending commands before time 0): its square root is the
-    symmetric one, from ``eigh``, with columns s_i."""
+def _inputs_map(nx: int, nd: int, l: int, l_p: int, m: int, LMk):
+    """T_k [r, N] of eq. P5: y = T_k z = [dx_k; L_k dx_k + sum_i M_k^i du_{k+i-l_p}; du_{k-l}] (the
+    last block only for l > 0), the arguments of everything nonlinear in eq. P1 (the plant, the
+    clip, the noise and the running cost); z_k of N = nx + m nd entries, ``LMk`` [nd, nx + l_p nd]."""
+    N = nx + m * nd
+    feedback = jnp.zeros((nd, N), LMk.dtype).at[:, :nx].set(LMk[:, :nx]).at[:, nx + (m - l_p) * nd:].set(LMk[:, nx:])
+    rows = [jnp.eye(nx, N, dtype=LMk.dtype), feedback]
+    if l > 0:
+        rows.append(jnp.eye(nd, N, nx + (m - l) * nd, dtype=LMk.dtype))
+    return jnp.concatenate(rows)
+
+
+def _rule_root(cov, inputs):
+    """(R [N, r], E [N, N]) with R R' + E = cov and inputs E = 0 (eq. P5): R spans what ``inputs``
+    [r, N] sees of z ~ N(., cov), E is the rest. cov PSD and possibly singular (the pending commands
+    before time 0): its square root S is the symmetric one, from ``eigh``. ``inputs`` None, or with
+    r >= N rows: R = S, E = 0 (the rule runs in all N dimensions)."""
     values, vectors = jnp.linalg.eigh(0.5 * (cov + cov.T))
     root = vectors * jnp.sqrt(jnp.maximum(values, 0.0))[None, :]      # root root' = cov
-    N = mean.shape[0]
+    N = cov.shape[0]
+    if inputs is None or inputs.shape[0] >= N:
+        return root, jnp.zeros_like(cov)
+    # inputs S = U s W' (thin SVD, W [N, r] orthonormal): y - mean_y = U s W' xi, xi ~ N(0, I_N); the
+    # part of S xi that y sees is S W (W' xi), and S (I - W W') xi is independent of y
+    W = jnp.linalg.svd(inputs @ root, full_matrices=False)[2].T
+    seen = root @ W
+    rest = root - seen @ W.T
+    return seen, rest @ rest.T
+
+
+def _unit_rule(r: int, rule: str):
+    """The unit points [P, r] and weights [P] (sum 1) of ``rule`` for N(0, I_r) (eq. P4); numpy, r
+    static."""
+    eye = np.eye(r)
     if rule == "cubature":
-        offsets = jnp.sqrt(N) * jnp.concatenate([root.T, -root.T])
-        return mean + offsets, jnp.full(2 * N, 1.0 / (2 * N), mean.dtype)
-    # fifth_degree: the unit points (built with numpy: N is static) mapped by the root
-    eye = np.eye(N)
-    i, j = np.triu_indices(N, 1)
+        return np.sqrt(r) * np.concatenate([eye, -eye]), np.full(2 * r, 1.0 / (2 * r))
+    i, j = np.triu_indices(r, 1)
     pairs = np.concatenate([eye[i] + eye[j], eye[i] - eye[j], -eye[i] + eye[j], -eye[i] - eye[j]])
-    unit = np.concatenate([np.zeros((1, N)), np.sqrt(N + 2.0) * eye, -np.sqrt(N + 2.0) * eye,
-                           np.sqrt((N + 2.0) / 2) * pairs])
-    weights = np.concatenate([[2.0 / (N + 2)], np.full(2 * N, (4.0 - N) / (2 * (N + 2) ** 2)),
-                              np.full(len(pairs), 1.0 / (N + 2) ** 2)])
-    return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype)
+    unit = np.concatenate([np.zeros((1, r)), np.sqrt(r + 2.0) * eye, -np.sqrt(r + 2.0) * eye,
+                           np.sqrt((r + 2.0) / 2) * pairs])
+    weights = np.concatenate([[2.0 / (r + 2)], np.full(2 * r, (4.0 - r) / (2 * (r + 2) ** 2)),
+                              np.full(len(pairs), 1.0 / (r + 2) ** 2)])
+    return unit, weights
+
+
+def _sigma_points(mean, cov, rule: str, inputs=None):
+    """Points Z [P, N] and weights w [P] (sum 1) of ``rule`` for the functions of y = inputs z,
+    z ~ N(mean [N], cov [N, N]), and the covariance E [N, N] of the part of z they leave out (eq.
+    P5): the rule runs in r = min(rows of inputs, N) dimensions."""
+    root, rest = _rule_root(cov, inputs)
+    unit, weights = _unit_rule(root.shape[1], rule)
+    return mean + jnp.asarray(unit, mean.dtype) @ root.T, jnp.asarray(weights, mean.dtype), rest
 
 
 @partial(jax.jit, static_argnames=("rule",))
@@ -149,13 +182,16 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         return jnp.concatenate([x_next - x_bar_next, sent_next]), G, problem.dt * problem.cost.running(x, u, t)
 
     def sigma_step(mean, cov, args):
-        """Eq. P2 with the expectations by the rule's points (eq. P4)."""
-        Z, w = _sigma_points(mean, cov, rule)
+        """Eq. P2 with the expectations by the rule's points (eq. P4) in y = T_k z (eq. P5)."""
+        Z, w, rest = _sigma_points(mean, cov, rule, _inputs_map(nx, nd, l, l_p, m, args[4]))
         Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, *args)
         mean_next = w @ Z_next
         centred = Z_next - mean_next
         cov_next = jnp.einsum("i,ij,ik->jk", w, centred, centred)
         noise = jnp.einsum("i,ijp,ikp->jk", w, G, G)                  # E[G G']
+        # the part y does not see only moves down the pending queue (eq. P5)
+        shifted = rest[nx + nd:, nx + nd:]
+        cov_next = cov_next.at[nx:nx + shifted.shape[0], nx:nx + shifted.shape[0]].add(shifted)
         return mean_next, cov_next.at[:nx, :nx].add(noise), w @ running
 
     def taylor_step(mean, cov, args):
@@ -187,7 +223,7 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     if rule == "second_order":
         expected_final = final_cost(mean) + 0.5 * jnp.sum(jax.hessian(final_cost)(mean) * cov)
     else:
-        Z, w = _sigma_points(mean, cov, rule)
+        Z, w, _ = _sigma_points(mean, cov, rule, jnp.eye(nx, nz, dtype=dtype))
         expected_final = w @ jax.vmap(final_cost)(Z)
     means = jnp.concatenate([init[0][None], means])
     covs = jnp.concatenate([init[1][None], covs])
@@ -234,14 +270,26 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
           E[g] = g(mean) + tr(H P) / 2,   Cov(g) = J P J' + [tr(H_i P H_j P)]_ij / 2          (P3)
 
     - ``"fifth_degree"``: Stroud's symmetric rule, exact for polynomials of degree <= 5 of a
-      Gaussian: mean_k (weight 2 / (N+2)), mean_k +- sqrt(N+2) s_i ((4-N) / (2 (N+2)^2)) and
-      mean_k + sqrt((N+2)/2) (+-s_i +- s_j), i < j (1 / (N+2)^2), with s_i the columns of P_k^{1/2};
-      2 N^2 + 1 points.
-    - ``"cubature"``: mean_k +- sqrt(N) s_i, weights 1 / (2N) (degree 3). The points lie sqrt(N)
-      standard deviations out, along the eigenvectors of P_k (the symmetric root): beyond degree 3
-      its answer depends on N and on that choice of root, not only on the plant (on the torque
-      arm at 100-150 ms it is 0.95-1.8x the Monte Carlo mean, 0.73-0.82x with rotated roots,
-      ``docs/results/noise_calibration.md`` §2); the cheapest rule, for checks.              (P4)
+      Gaussian: mean_k (weight 2 / (r+2)), mean_k +- sqrt(r+2) s_i ((4-r) / (2 (r+2)^2)) and
+      mean_k + sqrt((r+2)/2) (+-s_i +- s_j), i < j (1 / (r+2)^2), with s_i the r columns of the
+      root R_k of eq. P5; 2 r^2 + 1 points.
+    - ``"cubature"``: mean_k +- sqrt(r) s_i, weights 1 / (2r) (degree 3). The points lie sqrt(r)
+      standard deviations out: beyond degree 3 its answer depends on r and on the choice of root,
+      not only on the plant (``docs/results/noise_calibration.md`` §2); the cheapest rule, for
+      checks.                                                                                (P4)
+
+    The sigma points live where the nonlinearity does. Everything nonlinear in P1 (f, the clip, F,
+    l) is a function of r = n + 2d linear combinations y = T_k z of the N entries of z (n + d at
+    l = 0): dx_k, the feedback's du_k and the delayed du_{k-l}. For a Gaussian z, z = mean_k +
+    R_k eta + e with eta ~ N(0, I_r), e ~ N(0, E_k) independent of eta and T_k e = 0 (R_k = S W,
+    E_k = S (I - W W') S', S the symmetric root of P_k and W the right singular vectors of T_k S),
+    so g_k(z) = g_k(mean_k + R_k eta) + D e, D the shift of the pending queue, and::
+
+        E[g_k] = E_eta[g_k(mean_k + R_k eta)],   Cov(g_k) = Cov_eta(g_k(mean_k + R_k eta)) + D E_k D'  (P5)
+
+    exactly; the rules integrate over eta in r dimensions (all N when N <= r; the final cost over
+    the n of dx_K). Their points then do not grow in number or reach with the delay: at l = 15 on
+    the six-muscle arm, 969 fifth-degree points instead of 20001.
 
     On a linear plant with quadratic cost g is affine and G G', l and h quadratic: every rule is
     then exact (equal to :func:`delayed_ilqr.lqg.closed_loop_moments` and
@@ -262,8 +310,8 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
         :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n],
         and z, the moments of the whole chain (P1): mean [K+1, N] and cov [K+1, N, N] of
         z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (the clipped commands' deviations, oldest first).
-        One compiled scan over time; cost per step O(n N^3) (second order), O(N^2) plant
-        evaluations (fifth degree), O(N) (cubature).
+        One compiled scan over time; cost per step O(n N^3) (second order), O(r^2) plant
+        evaluations (fifth degree) and O(r) (cubature), r = min(n + 2d, N), plus O(N^3).
 
     Raises:
         ValueError: for a problem with an observation or a policy with an estimator, or an unknown

@@ -13,8 +13,9 @@ iteration:
 1. (mean_k [N], P_k [N, N]) = ``prediction.closed_loop_prediction(problem, G, rule).z``, the moments
    of z_k under the Gaussian closure (eq. P1-P4 there);
 2. the expected Jacobians of the Euler step x' = x + dt f(x, u, ud) over z_k ~ N(mean_k, P_k), by
-   sigma points Z_i, weights w_i (the rule's; fifth-degree points for ``"second_order"``, whose
-   expansion of a Jacobian would need the plant's third derivatives)::
+   sigma points Z_i, weights w_i (the rule's, in the r = n + 2d inputs of the plant's step,
+   ``prediction`` eq. P5; fifth-degree points for ``"second_order"``, whose expansion of a
+   Jacobian would need the plant's third derivatives)::
 
        x_i = x_bar_k + dx_i,  u_i = clip(u_bar_k + [L_k M_k] Z_i),  ud_i = u_bar_{k-l} + du_{k-l,i}
        A_k = sum_i w_i (I + dt f_x(x_i, u_i, ud_i)),   B0_k = sum_i w_i dt f_u(.),
@@ -54,7 +55,7 @@ from .lqg.frame import from_slots
 from .lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
 from .lqg.structured import structured_slot_scan
 from .options import Options
-from .prediction import _closed_loop_prediction, _sigma_points, _check_closure_input
+from .prediction import _closed_loop_prediction, _check_closure_input, _inputs_map, _sigma_points
 from .problem import Problem
 from .solution import Policy
 
@@ -115,7 +116,7 @@ def expected_jacobians(problem: Problem, policy: Policy, z_mean, z_cov, rule: st
 
     def step(row):
         mean, cov, *args = row
-        Z, w = _sigma_points(mean, cov, points_rule)
+        Z, w, _ = _sigma_points(mean, cov, points_rule, _inputs_map(nx, nd, l, l, l, args[3]))
         A, B0, B1 = jax.vmap(at_point, in_axes=(0,) + (None,) * 5)(Z, *args)
         return tuple(jnp.tensordot(w, J, axes=1) for J in (A, B0, B1))
 
@@ -223,7 +224,7 @@ def statistical_feedback(problem: Problem, policy: Policy, options: Optional[Opt
         :class:`StatisticalFeedback`: the policy with SL gains, the last and every change, the
         closure's and the SL model's expected cost, the latch held. One compiled function: a
         ``lax.scan`` over iterations; per iteration one closure and one Jacobian pass over the
-        rule's points (O(K N^2) plant Jacobians for fifth degree) and one backward pass.
+        rule's points (O(K r^2) plant Jacobians for fifth degree, r = n + 2d) and one backward pass.
 
     Raises:
         ValueError: float64 off, a problem with an observation or a policy with an estimator, a
