@@ -1,6 +1,6 @@
 """The center-out study of the six-muscle arm: convergence to every target at every delay, the
 noise-aware design against the deterministic one in the noise, the delay gains doing their job,
-the opt-in statistical design, and the ``center-out`` command's files and exit status."""
+the statistical design, and the ``center-out`` command's files and exit status."""
 import json
 
 import jax
@@ -25,7 +25,7 @@ def test_reaches_converge_to_all_eight_targets_with_delay():
     table = tables.markdown_table(tables.center_out_rows(results))
     print("\n" + table)
     assert [(r.delay, r.design) for r in results] == [(delay, design) for design in co.DESIGNS]
-    aware, deterministic = results
+    aware, deterministic, statistical = results
     for r in results:
         for j, t in enumerate(r.targets):
             assert t.converged, (r.design, j, t.status)
@@ -37,9 +37,14 @@ def test_reaches_converge_to_all_eight_targets_with_delay():
     # same noise, at most 0.7 of the deterministic design's (measured 0.34 in an earlier
     # model version, 0.16 on 2026-12-03)
     mean = lambda r: np.mean([t.cost_stats.mean for t in r.targets])
+    print(f"MC mean J over the targets: noise-aware {mean(aware):.3g}, deterministic {mean(deterministic):.3g}, "
+          f"statistical {mean(statistical):.3g}")
     assert mean(aware) < 0.7 * mean(deterministic), (mean(aware), mean(deterministic))
+    # SL's feedback keeps the trials where its model is: below the noise-aware design on the same
+    # noise (measured 4.1e-4 against 1.3e-3 with 200 trials, docs/results/noise_calibration.md §5.5)
+    assert mean(statistical) < 0.7 * mean(aware), (mean(statistical), mean(aware))
     records = json.loads(json.dumps(report.center_out_records(results)))
-    assert [len(r["targets"]) for r in records] == [8, 8]
+    assert [len(r["targets"]) for r in records] == [8, 8, 8]
     assert [r["design"] for r in records] == list(co.DESIGNS)
 
 
@@ -103,7 +108,7 @@ def _relative(a, b) -> float:
 
 
 def test_statistical_design_is_sl_of_the_noise_aware_solve_on_the_same_noise():
-    """The opt-in "statistical" design: per target, statistical_feedback (defaults) of the
+    """The "statistical" design: per target, statistical_feedback (defaults) of the
     noise-aware solve's policy, its Monte Carlo on the noise the other designs meet (seed + j).
     10 ms and 2 targets keep it cheap (50 ms: 6x the SL sigma points)."""
     statistical, aware = co.center_out(delays=(0.01,), n_targets=2, n_trials=4, designs=("statistical", "noise-aware"))

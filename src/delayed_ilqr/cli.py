@@ -553,12 +553,12 @@ def demo_command(out, overwrite, trials, seed):
 @click.option("--seed", type=_SEED, default=0, show_default=True, help="Seed of the noise.")
 @click.option("--sigma-u", type=click.FloatRange(min=0.0), default=center_out.SIGMA_U, show_default=True,
               help="Excitation noise of the plant the policies run on.")
-@click.option("--design", "designs", type=click.Choice(center_out.AVAILABLE_DESIGNS), multiple=True,
-              default=center_out.DESIGNS, show_default=True,
+@click.option("--design", "designs", type=click.Choice(center_out.DESIGNS), multiple=True,
               help="Controller design, repeatable: noise-aware (iLQG, made for the noisy plant), "
                    "deterministic (iLQR, made for the noise-free arm) or statistical (the noise-aware "
                    "design with its feedback re-designed by statistical linearisation; full-state "
-                   "feedback only, not with --sensory-delay).")
+                   "feedback only, not with --sensory-delay).  [default: all three; noise-aware and "
+                   "deterministic with --sensory-delay]")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=center_out.DEFAULT_OPTIONS.max_iterations,
               show_default=True, help="Iteration limit of each reach's solve.")
 @click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=None,
@@ -595,7 +595,8 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
         start = time.perf_counter()
         options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
         results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
-                                        designs=designs, sensory_delay=sensory_delay)
+                                        designs=designs or None, sensory_delay=sensory_delay)
+        designs = list(dict.fromkeys(r.design for r in results))
         elapsed = time.perf_counter() - start
         table = tables.markdown_table(tables.center_out_rows(results))
         click.echo(table)
@@ -603,7 +604,7 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             from . import plot
             figures = report.save_figures(plot.center_out_figures(results), output.staging)
             settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
-                            sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
+                            sigma_u=sigma_u, designs=designs, max_iterations=max_iterations,
                             sensory_delay=sensory_delay, elapsed_seconds=elapsed)
             report.write_center_out_report(output.staging, results, settings, table, figures)
             written = output.commit(settings)

@@ -6,17 +6,18 @@ hand position are solved in one compiled, vectorised call (``jax.vmap`` of
 :func:`.engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
 times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s ``noise=True``).
 
-Three designs of the same plant (:mod:`.designs`; the first two by default):
+Three designs of the same plant (:mod:`.designs`; all three by default, the first two with
+sensors):
 
 * ``"noise-aware"`` (iLQG, the default): designed on the noisy arm itself, so the signal-dependent
   noise enters the backward pass (Todorov & Li 2005): the nominal trades accuracy for smaller,
   less noisy excitations and the feedback is the LQG optimum for the multiplicative noise.
 * ``"deterministic"`` (iLQR): designed on the noise-free arm, then run in the noise.
-* ``"statistical"`` (opt-in): the noise-aware design's nominal and feedforward with its feedback
+* ``"statistical"``: the noise-aware design's nominal and feedforward with its feedback
   re-designed by statistical linearisation around the closed loop's predicted distribution
   (:func:`~delayed_ilqr.statistical.statistical_feedback` with its defaults, vmapped over the
   targets; ``docs/results/noise_calibration.md`` §5.5), for the delays where the noise-aware
-  design's trials leave its linearisation. Full-state feedback only. Its solver statistics are
+  design's trials leave its linearisation. Full-state feedback only (not with ``sensory_delay``). Its solver statistics are
   the noise-aware solve's (the same solve, done once when both designs run); its predicted cost
   is the Gaussian closure's E[J] of the SL policy (the solver has no LQG prediction for SL gains).
 
@@ -44,18 +45,18 @@ from ..statistical import statistical_feedback
 from .engine import Timed, monte_carlo, stack, take, timed_batched_solve
 
 __all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
-           "AVAILABLE_DESIGNS",
+           "SENSING_DESIGNS",
            "SIGMA_U", "PEAK_PROMINENCE"]
 
 #: Muscle reaches take 30-200 iterations (the excitations saturate at 0 and 1 on long stretches,
 #: where the box-QP's active set changes slowly); 300 leaves a margin.
 DEFAULT_OPTIONS = Options(max_iterations=300)
 
-#: The designs the study compares by default, by name (see :mod:`.designs`).
-DESIGNS = ("noise-aware", "deterministic")
+#: Every design the study offers, by name (module docstring); its default with full-state feedback.
+DESIGNS = ("noise-aware", "deterministic", "statistical")
 
-#: Every design the study offers: :data:`DESIGNS` and the opt-in ``"statistical"`` (module docstring).
-AVAILABLE_DESIGNS = DESIGNS + ("statistical",)
+#: The default with ``sensory_delay`` (the statistical design needs full-state feedback).
+SENSING_DESIGNS = ("noise-aware", "deterministic")
 
 #: Designs that re-design the feedback of another design's solve: name -> the design solved.
 _SOLVED_AS = {"statistical": "noise-aware"}
@@ -128,7 +129,7 @@ class DelayResult:
 
     Attributes:
         delay: tau in seconds; delay_steps: l; dt: the time step (s).
-        design: one of :data:`AVAILABLE_DESIGNS` (see the module docstring).
+        design: one of :data:`DESIGNS` (see the module docstring).
         solve_time: seconds of the compiled batched solve of all targets (second call); for the
             statistical design, the noise-aware solve's plus the batched SL re-design's.
         first_call: seconds of the first call (compilation included), summed likewise.
@@ -202,9 +203,11 @@ def reach_shape(plant: Problem, x) -> ReachShape:
 
 
 def _designs(names, sensory_delay) -> tuple:
+    if names is None:
+        return DESIGNS if sensory_delay is None else SENSING_DESIGNS
     names = tuple(names)
-    if not names or any(d not in AVAILABLE_DESIGNS for d in names):
-        raise ValueError(f"designs must be a non-empty selection of {AVAILABLE_DESIGNS}; got {names!r}")
+    if not names or any(d not in DESIGNS for d in names):
+        raise ValueError(f"designs must be a non-empty selection of {DESIGNS}; got {names!r}")
     if sensory_delay is not None and "statistical" in names:
         # statistical_feedback re-designs full-state feedback gains; it refuses an observation
         raise ValueError("the statistical design needs full-state feedback: run it without sensory_delay "
@@ -215,7 +218,7 @@ def _designs(names, sensory_delay) -> tuple:
 def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, radius: float = 0.1,
                n_trials: int = 200, seed: int = 0, options: Optional[Options] = None,
                geometry: str = "angle_dependent", sigma_u: float = SIGMA_U,
-               designs: Sequence[str] = DESIGNS, sensory_delay: Optional[float] = None) -> list[DelayResult]:
+               designs: Optional[Sequence[str]] = None, sensory_delay: Optional[float] = None) -> list[DelayResult]:
     """Runs the center-out study; one :class:`DelayResult` per delay and design (delay-major).
 
     Args:
@@ -229,7 +232,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
         sigma_u: excitation noise of the plant (the model's default 0.01, calibrated to human force
             variability, ``docs/models.md`` §4.5); the noise-aware design
             is made for it.
-        designs: a non-empty selection of :data:`AVAILABLE_DESIGNS` (default :data:`DESIGNS`).
+        designs: a non-empty selection of :data:`DESIGNS` (default: all of them, or
+            :data:`SENSING_DESIGNS` with a ``sensory_delay``).
         sensory_delay: None (default): the controllers see the state. A delay in seconds (0
             allowed): they see the arm's proprioception that late through its sensory noise
             (``arm2_muscle6``'s ``sensory_delay``; each design gets the delayed Kalman filter of
