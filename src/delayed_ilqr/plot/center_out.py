@@ -53,7 +53,7 @@ CAPTIONS = {
 _DESIGN_COLORS = {"noise-aware": "tab:blue", "deterministic": "tab:red", "statistical": "tab:green"}
 
 #: Titles and legends name a design in words where its CLI name does not say what it is.
-_DESIGN_LABELS = {"statistical": "noise-aware + SL feedback"}
+_DESIGN_LABELS = {"statistical": "noise-aware + SL"}
 
 
 def _label(design: str) -> str:
