@@ -17,9 +17,10 @@ sensors):
   re-designed by statistical linearisation around the closed loop's predicted distribution
   (:func:`~delayed_ilqr.statistical.statistical_feedback` with its defaults, vmapped over the
   targets; ``docs/results/noise_calibration.md`` §5.5), for the delays where the noise-aware
-  design's trials leave its linearisation. Full-state feedback only (not with ``sensory_delay``). Its solver statistics are
-  the noise-aware solve's (the same solve, done once when both designs run); its predicted cost
-  is the Gaussian closure's E[J] of the SL policy (the solver has no LQG prediction for SL gains).
+  design's trials leave its linearisation. Full-state feedback only (not with
+  ``sensory_delay``). Its solver statistics are the noise-aware solve's (the same solve, done
+  once when both designs run); its predicted cost is the Gaussian closure's E[J] of the SL policy
+  (the solver has no LQG prediction for SL gains).
 
 Per delay and design the study reports iterations, solve time, the final hand error of the
 nominal, the predicted expected cost (J(0) of the last LQG) against the Monte Carlo mean, and the
