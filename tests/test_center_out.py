@@ -110,7 +110,7 @@ def _relative(a, b) -> float:
 def test_statistical_design_is_sl_of_the_noise_aware_solve_on_the_same_noise():
     """The "statistical" design: per target, statistical_feedback (defaults) of the
     noise-aware solve's policy, its Monte Carlo on the noise the other designs meet (seed + j).
-    10 ms and 2 targets keep it cheap (50 ms: 6x the SL sigma points)."""
+    10 ms and 2 targets keep it cheap."""
     statistical, aware = co.center_out(delays=(0.01,), n_targets=2, n_trials=4, designs=("statistical", "noise-aware"))
     assert (statistical.design, aware.design) == ("statistical", "noise-aware")
     for j, (s, a) in enumerate(zip(statistical.targets, aware.targets)):
