@@ -282,8 +282,8 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
     seconds); the times include ``base``'s.
 
     Compiled ahead and run once (seconds: the run; first: compilation and run), not called twice
-    as the solves are: an SL run costs many times the solve it starts from (2 targets at 20 ms:
-    4.3 s against 0.24 s on the shared 2-core machine).
+    as the solves are: an SL run costs several times the solve it starts from (the README's
+    center-out table gives both).
     """
     args = (stack(plants), base.solution.policy)
     start = time.perf_counter()
