@@ -183,7 +183,8 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
 
     def sigma_step(mean, cov, args):
         """Eq. P2 with the expectations by the rule's points (eq. P4) in y = T_k z (eq. P5)."""
-        Z, w, rest = _sigma_points(mean, cov, rule, _inputs_map(nx, nd, l, l_p, m, args[4]))
+        LMk = args[4]                   # args: point's (x_bar, x_bar_next, u_bar, u_bar_delayed, LM_k, t)
+        Z, w, rest = _sigma_points(mean, cov, rule, _inputs_map(nx, nd, l, l_p, m, LMk))
         Z_next, G, running = jax.vmap(point, in_axes=(0,) + (None,) * 6)(Z, *args)
         mean_next = w @ Z_next
         centred = Z_next - mean_next

@@ -115,9 +115,9 @@ def expected_jacobians(problem: Problem, policy: Policy, z_mean, z_cov, rule: st
         return eye + dt * fx, dt * fu, dt * fud
 
     def step(row):
-        mean, cov, *args = row
-        Z, w, _ = _sigma_points(mean, cov, points_rule, _inputs_map(nx, nd, l, l, l, args[3]))
-        A, B0, B1 = jax.vmap(at_point, in_axes=(0,) + (None,) * 5)(Z, *args)
+        mean, cov, x_bar, u_bar, u_bar_delayed, LMk, t = row
+        Z, w, _ = _sigma_points(mean, cov, points_rule, _inputs_map(nx, nd, l, l, l, LMk))
+        A, B0, B1 = jax.vmap(at_point, in_axes=(0,) + (None,) * 5)(Z, x_bar, u_bar, u_bar_delayed, LMk, t)
         return tuple(jnp.tensordot(w, J, axes=1) for J in (A, B0, B1))
 
     rows = (z_mean[:-1], z_cov[:-1], policy.x_nominal[:-1], policy.u_nominal,

@@ -9,7 +9,7 @@ times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s 
 Three designs of the same plant (:mod:`.designs`; all three by default, the first two with
 sensors):
 
-* ``"noise-aware"`` (iLQG, the default): designed on the noisy arm itself, so the signal-dependent
+* ``"noise-aware"`` (iLQG): designed on the noisy arm itself, so the signal-dependent
   noise enters the backward pass (Todorov & Li 2005): the nominal trades accuracy for smaller,
   less noisy excitations and the feedback is the LQG optimum for the multiplicative noise.
 * ``"deterministic"`` (iLQR): designed on the noise-free arm, then run in the noise.

@@ -223,7 +223,7 @@ def plot_center_out_vs_delay(results: Sequence):
         covariance) in mm: mean over targets, bars from the smallest to the largest target.
     """
     results = _nonempty(results)
-    fig = figure(figsize=(11.5, 4.8), layout="constrained")
+    fig = figure(figsize=(11.5, 5.8), layout="constrained")
     ax_cost, ax_spread = fig.subplots(1, 2)
     designs = list(dict.fromkeys(r.design for r in results))
     for i, design in enumerate(designs):
@@ -249,7 +249,8 @@ def plot_center_out_vs_delay(results: Sequence):
         ax.set_ylabel(label)
         ax.set_title(title)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=8)
+        # below the axes: inside, two entries per design cover the low predicted costs
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
     fig.suptitle("six-muscle arm, center-out: what the delay costs")
     return fig
 
