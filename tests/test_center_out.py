@@ -144,6 +144,16 @@ def test_statistical_design_refuses_observations():
     assert result.exit_code == 2 and "full-state feedback" in result.output, result.output
 
 
+def test_designs_for_gives_the_default_and_each_design_once():
+    assert co.designs_for(None, None) == co.DESIGNS
+    assert co.designs_for(None, 0.05) == co.SENSING_DESIGNS
+    assert co.designs_for(["statistical", "noise-aware", "statistical"], None) == ("statistical", "noise-aware")
+    # the CLI's help states the defaults from the same constants
+    help_text = " ".join(CliRunner().invoke(cli.main, ["center-out", "--help"]).output.split())
+    assert f"[default: {', '.join(co.DESIGNS)}; {', '.join(co.SENSING_DESIGNS)} with --sensory-delay]" \
+        in help_text.replace("- ", "-"), help_text
+
+
 def test_center_out_command_refuses_a_delay_off_the_grid():
     result = CliRunner().invoke(cli.main, ["center-out", "--delays", "0.005"])
     assert result.exit_code == 2

@@ -557,8 +557,8 @@ def demo_command(out, overwrite, trials, seed):
               help="Controller design, repeatable: noise-aware (iLQG, made for the noisy plant), "
                    "deterministic (iLQR, made for the noise-free arm) or statistical (the noise-aware "
                    "design with its feedback re-designed by statistical linearisation; full-state "
-                   "feedback only, not with --sensory-delay).  [default: all three; noise-aware and "
-                   "deterministic with --sensory-delay]")
+                   "feedback only, not with --sensory-delay).  [default: "
+                   f"{', '.join(center_out.DESIGNS)}; {', '.join(center_out.SENSING_DESIGNS)} with --sensory-delay]")
 @click.option("--max-iterations", type=click.IntRange(min=1), default=center_out.DEFAULT_OPTIONS.max_iterations,
               show_default=True, help="Iteration limit of each reach's solve.")
 @click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=None,
@@ -588,15 +588,15 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             arm2_muscle6(sensory_delay=sensory_delay)
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="'--sensory-delay'") from exc
-        if "statistical" in designs:
-            raise click.BadParameter("the statistical design needs full-state feedback; drop --sensory-delay "
-                                     "or the design", param_hint="'--design'")
+    try:
+        designs = center_out.designs_for(designs or None, sensory_delay)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="'--design'") from exc
     with _Output(out, overwrite) as output:
         start = time.perf_counter()
         options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
         results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
-                                        designs=designs or None, sensory_delay=sensory_delay)
-        designs = list(dict.fromkeys(r.design for r in results))
+                                        designs=designs, sensory_delay=sensory_delay)
         elapsed = time.perf_counter() - start
         table = tables.markdown_table(tables.center_out_rows(results))
         click.echo(table)
@@ -604,7 +604,7 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
             from . import plot
             figures = report.save_figures(plot.center_out_figures(results), output.staging)
             settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
-                            sigma_u=sigma_u, designs=designs, max_iterations=max_iterations,
+                            sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
                             sensory_delay=sensory_delay, elapsed_seconds=elapsed)
             report.write_center_out_report(output.staging, results, settings, table, figures)
             written = output.commit(settings)

@@ -46,7 +46,7 @@ from ..statistical import statistical_feedback
 from .engine import Timed, monte_carlo, stack, take, timed_batched_solve
 
 __all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
-           "SENSING_DESIGNS",
+           "SENSING_DESIGNS", "designs_for",
            "SIGMA_U", "PEAK_PROMINENCE"]
 
 #: Muscle reaches take 30-200 iterations (the excitations saturate at 0 and 1 on long stretches,
@@ -203,10 +203,14 @@ def reach_shape(plant: Problem, x) -> ReachShape:
                       peak_to_mean=float(speed.max() / speed.mean()))
 
 
-def _designs(names, sensory_delay) -> tuple:
+def designs_for(names: Optional[Sequence[str]], sensory_delay: Optional[float]) -> tuple:
+    """The designs :func:`center_out` runs: ``names`` (a non-empty selection of :data:`DESIGNS`),
+    in their order, each once, checked against ``sensory_delay``; for None the default,
+    :data:`DESIGNS` with the state seen and :data:`SENSING_DESIGNS` with a ``sensory_delay``.
+    ``ValueError`` names the rule broken."""
     if names is None:
         return DESIGNS if sensory_delay is None else SENSING_DESIGNS
-    names = tuple(names)
+    names = tuple(dict.fromkeys(names))           # a design named twice runs once
     if not names or any(d not in DESIGNS for d in names):
         raise ValueError(f"designs must be a non-empty selection of {DESIGNS}; got {names!r}")
     if sensory_delay is not None and "statistical" in names:
@@ -247,7 +251,7 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
     options = DEFAULT_OPTIONS if options is None else options
     if not isinstance(options, Options):
         raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
-    names = _designs(designs, sensory_delay)
+    names = designs_for(designs, sensory_delay)
     targets = center_out_targets(n_targets, radius)
     results = []
     for delay in delays:
