@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 import delayed_ilqr as di
 from delayed_ilqr import cli
+from delayed_ilqr.experiments import engine
 from delayed_ilqr.experiments.designs import design
 from delayed_ilqr.models import REGISTRY, arm2, point_mass
 
@@ -58,13 +59,13 @@ def test_solve_writes_json_npz_and_figures_consistent_with_the_api(tmp_path):
 
 
 def test_solve_that_does_not_converge_exits_with_1(monkeypatch):
-    real = cli.engine.timed_solve
+    real = engine.timed_solve
 
     def stopped_early(*args, **kwargs):            # the solution as if the iteration limit had been hit
         sol, solve_time, first = real(*args, **kwargs)
         return sol._replace(status=np.int32(di.Status.MAX_ITERATIONS)), solve_time, first
 
-    monkeypatch.setattr(cli.engine, "timed_solve", stopped_early)
+    monkeypatch.setattr(engine, "timed_solve", stopped_early)
     result = CliRunner().invoke(cli.main, ["solve", "point_mass", "--delay", "0.03", "--noise"])
     assert result.exit_code == 1
     assert "did not converge" in result.output and "MAX_ITERATIONS" in result.output

@@ -8,6 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from delayed_ilqr import cli
+from delayed_ilqr.experiments import engine, report
 
 
 def invoke(*args):
@@ -39,7 +40,7 @@ def test_an_error_while_computing_leaves_the_old_folder_and_no_staging(tmp_path,
     def broken(*args, **kwargs):
         raise RuntimeError("disk on fire\nsecond line")
 
-    monkeypatch.setattr(cli.report, "write_runs", broken)
+    monkeypatch.setattr(report, "write_runs", broken)
     result = invoke("simulate", "point_mass", "--delay", "0.03", "--trials", 4, "--out", out, "--overwrite")
     assert result.exit_code == cli.ERROR_EXIT == 3
     assert result.output.strip().splitlines()[-1] == \
@@ -53,7 +54,7 @@ def test_an_error_while_computing_leaves_the_old_folder_and_no_staging(tmp_path,
 def test_an_out_that_cannot_be_created_is_a_usage_error_before_computing(tmp_path, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    monkeypatch.setattr(cli.engine, "timed_solve", lambda *a, **k: pytest.fail("computed before checking --out"))
+    monkeypatch.setattr(engine, "timed_solve", lambda *a, **k: pytest.fail("computed before checking --out"))
     for out in (blocker, blocker / "sub"):
         result = invoke("solve", "point_mass", "--out", out)
         assert result.exit_code == 2 and "--out" in result.output, result.output
