@@ -130,6 +130,11 @@ def model_options(f):
                              "(repeatable), e.g. --param sigma_u=0.01.")(f)
 
 
+#: --substeps of the commands that run Monte Carlo trials
+substeps_option = click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
+                               help="Euler-Maruyama sub-steps per control step.")
+
+
 def factory_kwargs(params, dt) -> dict:
     kwargs = {}
     for key, value in params:

@@ -10,7 +10,7 @@ from .. import Options, Status
 from ..experiments import delay_study, engine, report, tables
 from ..models import REGISTRY
 from ..models.metadata import default_u_init
-from .arguments import SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options
+from .arguments import SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options, substeps_option
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 
@@ -74,8 +74,7 @@ def solve_command(model, delay, noise, method, params, dt, out, overwrite):
 @click.option("--controller", type=click.Choice(sorted(delay_study.CONTROLLERS)), default="aware", show_default=True,
               help="aware: designed with the delay; ignorant: designed for no delay and run on the delayed "
                    "plant; augmented: delay-aware by state augmentation.")
-@click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Euler-Maruyama sub-steps per control step.")
+@substeps_option
 @model_options
 @out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains), "
                                 "solution.npz (for delayed_ilqr.load) and figures.")

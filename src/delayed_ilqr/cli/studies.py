@@ -16,7 +16,7 @@ from ..experiments import center_out, delay_study, perturbation, report, tables
 from ..models import REGISTRY, arm2_muscle6
 from ..models.arm2 import SIGMA_U_HUMAN
 from .arguments import (SEED, DelayFrame, DelayList, Model, ModelType, build_problem, check_trials, factory_kwargs,
-                        model_options)
+                        model_options, substeps_option)
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 DEMO_DELAYS = (0.0, 0.05, 0.1, 0.15)
@@ -54,8 +54,7 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Design for and simulate the stochastic plant, or the deterministic one.")
 @click.option("--augmented/--no-augmented", default=False, show_default=True,
               help="Also evaluate the state-augmentation solution (delay-aware reference).")
-@click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
-              help="Euler-Maruyama sub-steps per control step.")
+@substeps_option
 @click.option("--delay-frame", type=DelayFrame(), default="none", show_default=True,
               help="auto: the delays share one compiled solver and Monte Carlo (the delay as data, in a frame "
                    "of the longest delay; results equal to round-off, first-call times at the first delay "
