@@ -160,7 +160,7 @@ def test_solve_alternates_on_the_noisy_arm_with_both_delays():
     from delayed_ilqr.models import arm2
     from delayed_ilqr.observation import linearized_observation
 
-    problem = arm2(delay=0.03, noise=True, sensory_delay=0.05, horizon=40)
+    problem = arm2(delay=0.03, noise="benchmark", sensory_delay=0.05, horizon=40)
     sol = di.solve(problem)
     full = di.solve(problem.replace(observation=None))
     assert sol.status == full.status and sol.converged

@@ -108,7 +108,7 @@ def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
     rows = data["results"]
     assert [(r["delay"], r["controller"]) for r in rows] == [(0.05, "aware"), (0.05, "ignorant"),
                                                              (0.1, "aware"), (0.1, "ignorant")]
-    problem = arm2(delay=0.1, noise=True)
+    problem = arm2(delay=0.1, noise="benchmark")
     sol = di.solve(problem, options=DESIGN)
     summary = di.simulate(problem, sol.policy, 300, seed=0).summary()
     aware = rows[2]

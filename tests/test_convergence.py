@@ -120,7 +120,7 @@ def test_the_false_stops_are_not_converged(options):
 def test_a_converged_noisy_solve_satisfies_the_first_order_conditions_of_its_merit(options, limited):
     """P2-noisy (signal-dependent noise): converged means a first-order point of the merit with
     S frozen at the returned nominal, measured here by autodiff (independent of the LQG)."""
-    problem = arm2(delay=0.03, noise=True)
+    problem = arm2(delay=0.03, noise="benchmark")
     if limited:
         problem = problem.replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
     sol = di.solve(problem, options=options)
@@ -138,7 +138,7 @@ def test_a_converged_noisy_solve_satisfies_the_first_order_conditions_of_its_mer
 def test_a_noisy_solve_that_stops_early_returns_its_best_iterate():
     """With noise the merit of successive nominals (each under its own S) need not fall: a stop
     without convergence returns the nominal of lowest merit seen, with the policy of that nominal."""
-    problem = arm2(delay=0.03, noise=True).replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
+    problem = arm2(delay=0.03, noise="benchmark").replace(u_min=-np.full(2, 4.0), u_max=np.full(2, 4.0))
 
     def own_merit(x, u):
         return float(_value(_own_merit, problem, x, u, _value_hessians(problem, x, u)))

@@ -125,7 +125,7 @@ def test_solve_under_vmap_over_delays():
     """Problems of different delays in one frame stack into one batch: ``vmap(solve)`` gives each
     the unframed solve's result, with the policy over the whole frame (zeros on the commands that
     have acted); ``simulate`` runs a framed problem's trials as the unframed one's, to round-off."""
-    problems = [arm2(delay=ms / 1000, noise=True).replace(delay_frame=ARM_FRAME) for ms in (0, 30, 150)]
+    problems = [arm2(delay=ms / 1000, noise="benchmark").replace(delay_frame=ARM_FRAME) for ms in (0, 30, 150)]
     batch = jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *problems)
     sols = jax.vmap(solve)(batch)
     for i, problem in enumerate(problems):
@@ -185,7 +185,7 @@ def test_implicit_derivative_preconditioner_in_a_frame():
 
 
 def test_a_traced_frame_refuses_what_needs_a_static_delay():
-    problem = arm2(delay=0.05, noise=True).replace(delay_frame=ARM_FRAME)
+    problem = arm2(delay=0.05, noise="benchmark").replace(delay_frame=ARM_FRAME)
     with pytest.raises(ValueError, match="closed_loop_prediction needs a static delay"):
         jax.vmap(lambda p: p.without_frame("closed_loop_prediction").x0)(
             jax.tree_util.tree_map(lambda leaf: jnp.stack([leaf, leaf]), problem))

@@ -13,7 +13,7 @@ from delayed_ilqr.models import arm2, arm2_muscle6, hand_position, pendulum, poi
 
 
 def test_designs_transform_the_plant_and_force_the_method():
-    plant = arm2(delay=0.05, noise=True)
+    plant = arm2(delay=0.05, noise="benchmark")
     aware, options = designs.design(plant, "aware")
     assert aware is plant and options == di.Options()
     ignorant, _ = designs.design(plant, "ignorant")

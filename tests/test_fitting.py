@@ -32,7 +32,7 @@ TARGETS = jnp.array([[np.pi / 2, np.pi / 3, 0.0, 0.0], [1.2, 1.4, 0.0, 0.0]])
 
 def arm_problem(params, x_target, delay=DELAY):
     """P2-noisy with effort weight r (Q = r I), final velocity weight w_v, noise scale sigma_u."""
-    base = arm2(delay=delay, noise=True)
+    base = arm2(delay=delay, noise="benchmark")
     w = jnp.stack([W_P, W_P, params["w_v"], params["w_v"]])
     cost = base.cost._replace(Q=params["r"] * jnp.eye(2), P_final=jnp.diag(w), x_target=x_target)
     return base.replace(cost=cost, noise=dataclasses.replace(base.noise, sigma_u=params["sigma_u"]))
@@ -41,7 +41,7 @@ def arm_problem(params, x_target, delay=DELAY):
 def test_closed_loop_moments_match_monte_carlo():
     """lqg.closed_loop_moments (exact) against 20000 trials of the same linear closed loop
     (lqg.simulate_lqg): the endpoint covariance within 4 % (its sampling error is about 1 %)."""
-    problem = arm2(delay=DELAY, noise=True)
+    problem = arm2(delay=DELAY, noise="benchmark")
     sol = solve(problem)
     model = linearize(problem, sol.x, sol.u)
     gains = lqg.Gains(jnp.zeros_like(sol.policy.feedforward), sol.policy.state_feedback, sol.policy.delay_feedback)
@@ -109,7 +109,7 @@ def test_a_profile_frames_only_what_differs_only_in_the_delay():
     assert fitting._common_frame(arm_problem, (0.0, 0.04, DELAY), TARGETS, params) == (DELAY, [0, 4, 5])
     longer = lambda p, target, delay: arm_problem(p, target, delay).replace(horizon=50 + round(100 * delay))
     assert fitting._common_frame(longer, (0.04, DELAY), TARGETS, params) is None
-    sensed = lambda p, target, delay: arm2(delay=delay, noise=True, sensory_delay=0.02)
+    sensed = lambda p, target, delay: arm2(delay=delay, noise="benchmark", sensory_delay=0.02)
     assert fitting._common_frame(sensed, (0.04, DELAY), TARGETS, params) is None
 
 

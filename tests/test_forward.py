@@ -36,7 +36,7 @@ def _slope_ratios(problem, us, alphas, noise_at_candidate=False):
 def test_predicted_change_is_the_first_order_merit_change_with_state_dependent_noise(delay):
     # P2-noisy: F = M(q)^-1 sigma diag(u) depends on the state, which the LQG (3) leaves out.
     # Nominal: the deterministic optimum, where the noise-aware feedforward is far from zero.
-    noisy = arm2(delay=delay, noise=True)
+    noisy = arm2(delay=delay, noise="benchmark")
     us = di.solve(arm2(delay=delay)).u
     alphas = [1e-2, 1e-3, 1e-4]
     ratios = _slope_ratios(noisy, us, alphas)
@@ -52,7 +52,7 @@ def test_predicted_change_is_the_first_order_merit_change_with_state_dependent_n
 def test_noise_aware_arm_converges_to_one_point_from_either_lambda(delay):
     # Before the merit froze F's state dependence, reg_init = 0 at l = 0 ran into the iteration
     # limit and the two starts stopped 0.3 % apart in cost
-    problem = arm2(delay=delay, noise=True)
+    problem = arm2(delay=delay, noise="benchmark")
     sols = [di.solve(problem, options=di.Options(reg_init=reg)) for reg in (0.0, 1.0)]
     for sol in sols:
         assert sol.converged, sol.message

@@ -102,7 +102,7 @@ def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
 def test_arm_noisy_delayed_matches_finite_differences():
     """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
     not symmetric, so reverse mode solves the transposed system (right-preconditioned)."""
-    check_against_fd("arm noisy 50 ms", arm2(delay=0.05, noise=True), None, h=6e-4, rtol=1e-5)
+    check_against_fd("arm noisy 50 ms", arm2(delay=0.05, noise="benchmark"), None, h=6e-4, rtol=1e-5)
 
 
 @pytest.mark.slow
@@ -123,7 +123,7 @@ def test_arm_no_delay_noisy_limits_matches_finite_differences():
     """Delay 0 (the structured pass with no pending commands) with noise and limits at half the
     noise-aware optimum's largest commands: the held commands follow the limit, the free ones the
     noise-aware fixed point."""
-    free = arm2(delay=0.0, noise=True)
+    free = arm2(delay=0.0, noise="benchmark")
     top = 0.5 * np.max(np.abs(np.asarray(solve(free, None, TIGHT).u)), axis=0)
     problem = free.replace(u_min=-top, u_max=top)
     fixed, _ = implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)

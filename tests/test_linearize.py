@@ -24,7 +24,7 @@ def _central(fun, z, h=1e-6):
 
 
 def test_dynamics_and_noise_jacobians_match_finite_differences():
-    problem = arm2(delay=0.03, noise=True)
+    problem = arm2(delay=0.03, noise="benchmark")
     rng = np.random.default_rng(0)
     us = jnp.asarray(rng.normal(size=(problem.horizon, 2)))
     xs = rollout(problem, us)

@@ -338,7 +338,7 @@ def test_p1_noisy_diffusion_matches_hand_built_matrix(rng):
 
 
 def test_p2_noisy_diffusion_matches_reference(rng):
-    problem = models.arm2(noise=True)
+    problem = models.arm2(noise="benchmark")
     assert problem.n_noise == 2
     for _ in range(3):
         x, u, ud = rng.normal(size=4), rng.normal(size=2), rng.normal(size=2)
@@ -398,7 +398,7 @@ def test_delayed_acrobot_is_the_undelayed_one_driven_by_the_shifted_commands(rng
 # --------------------------------------------------------------------------------------------
 # Derivatives
 # --------------------------------------------------------------------------------------------
-ALL_PROBLEMS = [models.point_mass(noise=True), models.arm2(noise=True), models.pendulum(noise=True),
+ALL_PROBLEMS = [models.point_mass(noise=True), models.arm2(noise="benchmark"), models.pendulum(noise=True),
                 models.cart_pole(noise=True), models.acrobot(noise=True)]
 
 

@@ -43,11 +43,11 @@ def test_entering_a_per_step_sigma_unconverted_is_sqrt_dt_times_too_large():
 
 
 def test_default_noise_levels():
-    """P2-noisy keeps its benchmark sigma_u = 0.2; the human-calibrated levels are 0.01, whose
-    activation (or torque filtered at the activation time constant) has a 2.8-3.2 % coefficient of
-    variation (docs/models.md §4.5)."""
-    assert SIGMA_U == 0.2 and arm2(noise=True).noise.sigma_u == 0.2
-    assert arm2(noise=True, sigma_u=SIGMA_U_HUMAN).noise.sigma_u == 0.01
+    """P2-noisy (noise="benchmark") keeps its benchmark sigma_u = 0.2; noise=True is the
+    human-calibrated level 0.01, whose activation (or torque filtered at the activation time
+    constant) has a 2.8-3.2 % coefficient of variation (docs/models.md §4.5)."""
+    assert SIGMA_U == 0.2 and arm2(noise="benchmark").noise.sigma_u == 0.2
+    assert arm2(noise=True).noise.sigma_u == SIGMA_U_HUMAN == 0.01
     assert arm2_muscle6(noise=True).noise.sigma_u == 0.01
     for t in (0.05, 0.066):
         cv = SIGMA_U_HUMAN / math.sqrt(2 * t)

@@ -48,7 +48,7 @@ def nominal(problem):
 
 def fake_result(tau, controller, spread, diverged=0):
     """A ControllerResult built from synthetic runs of the arm (what compare_delays returns)."""
-    problem = arm2(delay=tau, noise=True)
+    problem = arm2(delay=tau, noise="benchmark")
     x, u = nominal(problem)
     runs = synthetic_runs(problem, x, u, spread, seed=int(1000 * tau) + len(controller))
     cost = np.asarray(runs.cost).copy()
@@ -80,7 +80,7 @@ def check_png(fig, path):
 
 @pytest.mark.parametrize("n_show", [0, 3])
 def test_trajectories_have_one_axis_per_state_and_command(tmp_path, n_show):
-    problem = arm2(delay=0.05, noise=True)
+    problem = arm2(delay=0.05, noise="benchmark")
     x, u = nominal(problem)
     runs = synthetic_runs(problem, x, u, 0.05, seed=0)
     policy = di.Policy(x, u, np.zeros_like(u), np.zeros((problem.horizon, 2, 4)), np.zeros((problem.horizon, 5, 2, 2)))

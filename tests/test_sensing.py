@@ -167,7 +167,7 @@ def test_simulate_on_the_nonlinear_arm_equals_a_numpy_loop():
     # nonlinear outputs and state-dependent sensory noise (velocity noise growing with speed)
     obs = di.Observation(lambda x: jnp.concatenate([x[:2], 0.5 * x[2:] ** 2 + x[2:]]),
                          lambda x: 0.01 * jnp.diag(jnp.concatenate([jnp.ones(2), 1 + x[2:4] ** 2])), delay_steps=3)
-    problem = arm2(delay=0.02, noise=True, dt=0.01, horizon=25).replace(observation=obs)
+    problem = arm2(delay=0.02, noise="benchmark", dt=0.01, horizon=25).replace(observation=obs)
     sol = di.solve(problem)
     W = np.zeros((25, 4))
     W[8, 2:] = [0.3, -0.2]

@@ -229,7 +229,7 @@ def test_delay_aware_beats_delay_ignorant_on_the_noisy_delayed_arm(arm_study):
 
 def test_study_results_are_the_direct_api_results(arm_study):
     aware, ignorant = arm_study[0:2]
-    problem = arm2(delay=0.05, noise=True)
+    problem = arm2(delay=0.05, noise="benchmark")
     design, options = design_problem(problem, "aware")              # the options the study designs with
     sol = di.solve(design, options=options)
     runs = di.simulate(problem, sol.policy, 300, seed=0)

@@ -318,7 +318,7 @@ def test_a_tolerance_below_round_off_leaves_the_stop_to_the_gradient_test(tol_co
     below tol_grad, instead of REGULARIZATION_LIMIT (1e-300) or CONVERGED_COST at a gradient
     measure of 3e-9 (1e-15); its fixed point is the default solve's to that solve's accuracy."""
     from delayed_ilqr.ilqg.solver import ROUNDOFF
-    problem = arm2(delay=0.05, noise=True)
+    problem = arm2(delay=0.05, noise="benchmark")
     options = di.Options(tol_cost=tol_cost, tol_grad=1e-13, max_iterations=60)
     sol = di.solve(problem, options=options)
     n = int(sol.iterations)

@@ -67,7 +67,7 @@ def test_linear_plant_returns_the_solvers_gains(delay):
 def test_zero_spread_gives_linearize_jacobians():
     """On the torque arm (nonlinear, l = 2, arbitrary gains), SL1 at z_k = 0 with zero covariance
     is ``linearize``'s A, B0, B1 at the nominal, for every rule."""
-    problem = arm2(delay=0.02, noise=True, horizon=20)
+    problem = arm2(delay=0.02, noise="benchmark", horizon=20)
     K, l = problem.horizon, problem.delay_steps
     us = 0.5 * jnp.cos(jnp.arange(2 * K, dtype=jnp.float64)).reshape(K, 2)
     xs = rollout(problem, us)
@@ -126,7 +126,7 @@ def test_latch_recovery_reproduces_the_bounded_solvers_feedback():
 def test_nonlinear_arm_result_is_consistent():
     """Torque arm with delay (nonlinear): the gains move, the changes are finite, and
     predicted_cost is closed_loop_prediction's of the returned policy (same rule)."""
-    problem = arm2(delay=0.03, noise=True, horizon=25)
+    problem = arm2(delay=0.03, noise="benchmark", horizon=25)
     policy = solve(problem).policy
     result = statistical_feedback(problem, policy, rule="cubature", iterations=3, relax=0.5)
     assert np.all(np.isfinite(np.asarray(result.changes))) and float(result.changes[0]) > 1e-8

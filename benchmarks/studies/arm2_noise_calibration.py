@@ -15,7 +15,7 @@ delays = [float(d) for d in sys.argv[2].split(",")]
 n = int(sys.argv[3]); horizon_extra = int(sys.argv[4]) if len(sys.argv) > 4 else 0
 for s in sig:
   for tau in delays:
-    p = arm2(delay=tau, noise=True)
+    p = arm2(delay=tau, noise="benchmark")
     p = p.replace(noise=Arm2Noise(ARM2_PARAMS, s))
     if horizon_extra: p = p.replace(horizon=p.horizon + p.delay_steps)
     for name, des in (("noise-aware", p), ("deterministic", p.replace(noise=None))):

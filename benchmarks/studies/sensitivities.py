@@ -30,7 +30,7 @@ def main():
     print(f"{'delay':>6} {'status':>16} {'cost':>10} {'expected':>10} {'dE/dsigma':>10} {'dJ/dsigma':>10} "
           f"{'endpoint RMS':>13}")
     for delay in DELAYS:
-        problem = arm2(delay=delay, noise=True)
+        problem = arm2(delay=delay, noise="benchmark")
 
         def costs(p):
             sol = di.solve(p)

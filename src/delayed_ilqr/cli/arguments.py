@@ -130,6 +130,36 @@ def model_options(f):
                              "(repeatable), e.g. --param sigma_u=0.01.")(f)
 
 
+#: the values of --noise: "on" (the model's default noise, True to its factory: the human preset
+#: of the human models), "off", or a preset by name (the factory's ``noise=NAME``)
+NOISE_CHOICES = ("on", "off", "human", "benchmark")
+
+
+def noise_option(f):
+    """--noise [on|off|human|benchmark] and --no-noise: one default (on) for every command that
+    builds a model's problem; :func:`noise_value` turns them into the factory's ``noise``."""
+    f = click.option("--no-noise", is_flag=True, help="The deterministic plant (the same as --noise off).")(f)
+    return click.option("--noise", type=click.Choice(NOISE_CHOICES), is_flag=False, flag_value="on", default="on",
+                        show_default=True,
+                        help="The plant's motor noise: on, the model's default (for the arm models the human "
+                             "preset, signal-dependent noise calibrated to human force variability, "
+                             "docs/models.md); off; or a preset by name: human, or benchmark for the benchmark "
+                             "problems' stress level (P1-noisy, P2-noisy).")(f)
+
+
+def noise_value(noise: str, no_noise: bool):
+    """The factory's ``noise`` argument of --noise / --no-noise: True, False or a preset's name."""
+    if no_noise:
+        if noise not in ("on", "off"):
+            raise click.BadParameter(f"--no-noise contradicts --noise {noise}", param_hint="'--no-noise'")
+        return False
+    return {"on": True, "off": False}.get(noise, noise)
+
+
+#: --progress of the commands that run for longer than a few seconds (as sweep's)
+progress_option = click.option("--progress/--no-progress", default=True, show_default=True,
+                               help="A progress bar on stderr (shown only when stderr is a terminal).")
+
 #: --substeps of the commands that run Monte Carlo trials
 substeps_option = click.option("--substeps", type=click.IntRange(min=1), default=1, show_default=True,
                                help="Euler-Maruyama sub-steps per control step.")
@@ -150,16 +180,20 @@ def factory_kwargs(params, dt) -> dict:
     return kwargs
 
 
-def build_problem(model: Model, delay: float, noise: bool, kwargs: Optional[dict] = None, hint: str = "--delay"):
-    """The model's problem; the factory's refusal of a delay or a parameter becomes a usage error
-    (exit code 2), naming the option."""
+def build_problem(model: Model, delay: float, noise, kwargs: Optional[dict] = None, hint: str = "--delay"):
+    """The model's problem (``noise``: True, False or a preset's name, :func:`noise_value`); the
+    factory's refusal of a delay, a noise preset or a parameter becomes a usage error (exit code
+    2), naming the option."""
     from ..problem import Problem
     kwargs = kwargs or {}
     try:
         problem = model.factory(delay=delay, noise=noise, **kwargs)
-    except TypeError as exc:
-        raise click.BadParameter(f"{model.name}: {exc}", param_hint="'--param'") from exc
-    except ValueError as exc:       # the factory says which argument; the hint names the options that set them
+    except (TypeError, ValueError) as exc:
+        if str(exc).startswith("noise"):            # a preset the model does not have
+            raise click.BadParameter(f"{model.name}: {exc}", param_hint="'--noise'") from exc
+        if isinstance(exc, TypeError):
+            raise click.BadParameter(f"{model.name}: {exc}", param_hint="'--param'") from exc
+        # the factory says which argument; the hint names the options that set them
         options = [hint] + (["--dt"] if "dt" in kwargs else []) + (["--param"] if set(kwargs) - {"dt"} else [])
         raise click.BadParameter(f"{model.name}: {exc}", param_hint=" / ".join(f"'{o}'" for o in options)) from exc
     if not isinstance(problem, Problem):

@@ -10,7 +10,9 @@ from .. import Options, Status
 from ..experiments import delay_study, engine, report, tables
 from ..models import REGISTRY
 from ..models.metadata import default_u_init
-from .arguments import SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options, substeps_option
+from ..experiments.records import problem_record
+from .arguments import (SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options, noise_option,
+                        noise_value, substeps_option)
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 
@@ -26,34 +28,35 @@ def models_command():
 @click.argument("model", type=ModelType(), metavar="MODEL")
 @click.option("--delay", type=float, default=0.0, show_default=True,
               help="Input delay tau in seconds (a whole number of the model's time steps).")
-@click.option("--noise/--no-noise", default=False, show_default=True,
-              help="Solve the stochastic problem (signal-dependent noise) or the deterministic one.")
+@noise_option
 @click.option("--method", type=click.Choice(["structured", "augmented"]), default="structured", show_default=True,
               help="Backward pass: Theorem 1's structured recursion, or the state-augmentation reference.")
 @model_options
 @out_option(default=None, help="Folder for solution.json, solution.npz (the Solution, for delayed_ilqr.load) "
                                 "and figures.")
-def solve_command(model, delay, noise, method, params, dt, out, overwrite):
+def solve_command(model, delay, noise, no_noise, method, params, dt, out, overwrite):
     """Solve MODEL with iLQG and report the nominal solution and its convergence.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
     package.module:factory (called as factory(delay=..., noise=..., **params)).
     """
     kwargs = factory_kwargs(params, dt)
+    noise = noise_value(noise, no_noise)
     problem = build_problem(model, delay, noise, kwargs)
     with Output(out, overwrite) as output:
         timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
         sol = timed[0]
         label, unit = engine.endpoint_description(problem)
         endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
-        click.echo(tables.pairs(tables.solve_summary(problem, model.description, noise, method, timed, endpoint)))
+        click.echo(tables.pairs(tables.solve_summary(problem, model.description, problem.noise is not None, method,
+                                                     timed, endpoint)))
         if out is not None:
             from .. import plot
             report.write_solution(output.staging, model.name, problem, method, timed, endpoint)
             report.save_figures({"trajectories.png": plot.plot_trajectories(problem, sol),
                                  "convergence.png": plot.plot_convergence({model.name: sol})}, output.staging)
-            written = output.commit(dict(model=model.name, delay=delay, noise=noise, method=method,
-                                         **kwargs_settings(kwargs)))
+            written = output.commit(dict(model=model.name, delay=delay, noise=problem.noise is not None,
+                                         method=method, **kwargs_settings(kwargs), problem=problem_record(problem)))
             click.echo(f"wrote {', '.join(written)} to {out}")
     status = Status(int(sol.status))
     if not status.converged:
@@ -69,8 +72,7 @@ def solve_command(model, delay, noise, method, params, dt, out, overwrite):
               help="Number of Monte Carlo trials (a positive integer).")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise (the same seed gives the same trials).")
-@click.option("--noise/--no-noise", default=True, show_default=True,
-              help="Simulate (and design for) the stochastic plant, or the deterministic one.")
+@noise_option
 @click.option("--controller", type=click.Choice(sorted(delay_study.CONTROLLERS)), default="aware", show_default=True,
               help="aware: designed with the delay; ignorant: designed for no delay and run on the delayed "
                    "plant; augmented: delay-aware by state augmentation.")
@@ -78,22 +80,23 @@ def solve_command(model, delay, noise, method, params, dt, out, overwrite):
 @model_options
 @out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains), "
                                 "solution.npz (for delayed_ilqr.load) and figures.")
-def simulate_command(model, delay, trials, seed, noise, controller, substeps, params, dt, out, overwrite):
+def simulate_command(model, delay, trials, seed, noise, no_noise, controller, substeps, params, dt, out, overwrite):
     """Solve MODEL and run its feedback policy on the (noisy, delayed) plant --trials times.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
     package.module:factory (called as factory(delay=..., noise=..., **params)).
     """
     kwargs = factory_kwargs(params, dt)
-    problem = build_problem(model, delay, noise, kwargs)
+    problem = build_problem(model, delay, noise_value(noise, no_noise), kwargs)
     check_trials(problem, trials, substeps)
     with Output(out, overwrite) as output:
         r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
         click.echo(tables.pairs(tables.simulate_summary(r, model.description)))
         if out is not None:
             from .. import plot
-            settings = dict(study_settings(model.name, noise, trials, seed, substeps), delay=problem.delay,
-                            controller=controller, **kwargs_settings(kwargs))
+            settings = dict(study_settings(model.name, problem.noise is not None, trials, seed, substeps),
+                            delay=problem.delay, controller=controller, **kwargs_settings(kwargs),
+                            problem=problem_record(problem))
             report.write_runs(output.staging, r, settings)
             figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}
             if plot.draws_paths(problem):

@@ -14,24 +14,27 @@ import numpy as np
 
 from ..experiments import center_out, delay_study, perturbation, report, tables
 from ..models import REGISTRY, arm2_muscle6
-from ..models.arm2 import SIGMA_U_HUMAN
+from ..experiments.records import problem_record
 from .arguments import (SEED, DelayFrame, DelayList, Model, ModelType, build_problem, check_trials, factory_kwargs,
-                        model_options, substeps_option)
+                        model_options, noise_option, noise_value, progress_option, substeps_option)
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 DEMO_DELAYS = (0.0, 0.05, 0.1, 0.15)
 
 
-def _check_study(model, delays, trials, noise, controllers, substeps, kwargs=None):
-    """Every delay and the memory of all the trials, checked before anything is solved."""
+def _check_study(model, delays, trials, noise, controllers, substeps, kwargs=None) -> list:
+    """Every delay and the memory of all the trials, checked before anything is solved; returns
+    the problems."""
     problems = [build_problem(model, tau, noise, kwargs, hint="--delays") for tau in delays]
     check_trials(problems[-1], trials, substeps, runs=len(delays) * len(controllers))
+    return problems
 
 
-def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None, delay_frame="none"):
+def _run_study(model, delays, trials, seed, noise, controllers, substeps, model_kwargs=None, delay_frame="none",
+               progress=True):
     model = model.factory if isinstance(model, Model) else model
     return delay_study.compare_delays(model, delays, trials, seed, noise=noise, controllers=controllers,
-                                      substeps=substeps, model_kwargs=model_kwargs, progress=True,
+                                      substeps=substeps, model_kwargs=model_kwargs, progress=progress,
                                       delay_frame=None if delay_frame == "none" else delay_frame)
 
 
@@ -50,8 +53,7 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
               help="Monte Carlo trials per controller and delay (a positive integer).")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise; all controllers see the same noise samples.")
-@click.option("--noise/--no-noise", default=True, show_default=True,
-              help="Design for and simulate the stochastic plant, or the deterministic one.")
+@noise_option
 @click.option("--augmented/--no-augmented", default=False, show_default=True,
               help="Also evaluate the state-augmentation solution (delay-aware reference).")
 @substeps_option
@@ -60,9 +62,10 @@ def _study_outputs(results, out: pathlib.Path, settings: dict, stem: str) -> lis
                    "of the longest delay; results equal to round-off, first-call times at the first delay "
                    "only); none: each delay compiles its own; N: a frame of N steps.")
 @model_options
+@progress_option
 @out_option(default=None, help="Folder for compare.json, compare.md, compare_runs.npz and figures.")
-def compare_command(model, delays, trials, seed, noise, augmented, substeps, delay_frame, params, dt, out,
-                    overwrite):
+def compare_command(model, delays, trials, seed, noise, no_noise, augmented, substeps, delay_frame, params, dt,
+                    progress, out, overwrite):
     """Delay-aware vs delay-ignorant control of MODEL at several delays, by Monte Carlo.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
@@ -72,17 +75,20 @@ def compare_command(model, delays, trials, seed, noise, augmented, substeps, del
     """
     controllers = ["aware", "ignorant"] + (["augmented"] if augmented else [])
     kwargs = factory_kwargs(params, dt)
-    _check_study(model, delays, trials, noise, controllers, substeps, kwargs)
+    noise = noise_value(noise, no_noise)
+    problems = _check_study(model, delays, trials, noise, controllers, substeps, kwargs)
     with Output(out, overwrite) as output:
         try:
-            results = _run_study(model, delays, trials, seed, noise, controllers, substeps, kwargs, delay_frame)
+            results = _run_study(model, delays, trials, seed, noise, controllers, substeps, kwargs, delay_frame,
+                                 progress)
         except ValueError as exc:       # a frame shorter than a delay
             raise click.UsageError(str(exc)) from None
         table = tables.delay_study_rows(results)
         click.echo(tables.text_table(table))
         if out is not None:
-            settings = dict(study_settings(model.name, noise, trials, seed, substeps), delays=list(delays),
-                            controllers=controllers, delay_frame=delay_frame, **kwargs_settings(kwargs))
+            settings = dict(study_settings(model.name, noise is not False, trials, seed, substeps),
+                            delays=list(delays), controllers=controllers, delay_frame=delay_frame,
+                            **kwargs_settings(kwargs), problems=[problem_record(p) for p in problems])
             _study_outputs(results, output.staging, settings, "compare")
             (output.staging / "compare.md").write_text(tables.markdown_table(table) + "\n")
             written = output.commit(settings)
@@ -98,23 +104,26 @@ def compare_command(model, delays, trials, seed, noise, augmented, substeps, del
               help="Monte Carlo trials per controller and delay (a positive integer).")
 @click.option("--seed", type=SEED, default=0, show_default=True,
               help="Seed of the Monte Carlo noise.")
-def demo_command(out, overwrite, trials, seed):
+@progress_option
+def demo_command(out, overwrite, trials, seed, progress):
     """The arm reaching study: delay-aware vs delay-ignorant iLQG on the noisy two-link arm.
 
-    The P2 reach with signal-dependent torque noise at the human level (models.arm2(noise=True,
-    sigma_u=SIGMA_U_HUMAN), calibrated to human force variability, docs/models.md §4.5; P2-noisy's
-    0.2 is a numerical stress test), input delays 0, 50, 100 and 150 ms, --trials noisy trials per
+    The P2 reach with signal-dependent torque noise at the human level (models.arm2(noise=True),
+    the "human" preset calibrated to human force variability, docs/models.md §4.5; P2-noisy's
+    sigma_u = 0.2, noise="benchmark", is a numerical stress test), input delays 0, 50, 100 and 150 ms, --trials noisy trials per
     controller and delay. Prints the table and writes a markdown report with figures.
     """
-    _check_study(ModelType().convert("arm2", None, None), list(DEMO_DELAYS), trials, True, ["aware", "ignorant"], 1)
+    problems = _check_study(ModelType().convert("arm2", None, None), list(DEMO_DELAYS), trials, True,
+                            ["aware", "ignorant"], 1)
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         results = _run_study("arm2", list(DEMO_DELAYS), trials, seed, True, ["aware", "ignorant"], 1,
-                             dict(sigma_u=SIGMA_U_HUMAN))
+                             progress=progress)
         elapsed = time.perf_counter() - start
         click.echo(tables.text_table(tables.delay_study_rows(results)))
-        settings = dict(study_settings("arm2", True, trials, seed, 1), sigma_u=SIGMA_U_HUMAN, delays=list(DEMO_DELAYS),
-                        controllers=["aware", "ignorant"], elapsed_seconds=elapsed)
+        settings = dict(study_settings("arm2", True, trials, seed, 1), delays=list(DEMO_DELAYS),
+                        controllers=["aware", "ignorant"], elapsed_seconds=elapsed,
+                        problems=[problem_record(p) for p in problems])
         _study_outputs(results, output.staging, settings, "report")
         report.write_demo_report(output.staging, results, REGISTRY["arm2"].description, DEMO_DELAYS, trials, seed,
                                  elapsed)
@@ -150,9 +159,10 @@ def demo_command(out, overwrite, trials, seed):
                    "number of 10 ms steps, 0 allowed.  [default: the state is seen]")
 @click.option("--allow-unconverged", is_flag=True,
               help="Exit 0 even when some reaches did not converge (they are flagged in the table and on stderr).")
+@progress_option
 @out_option(default=None, help="Folder for center_out.md/.json and the figures.")
 def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs, max_iterations, sensory_delay,
-                       allow_unconverged, out, overwrite):
+                       allow_unconverged, progress, out, overwrite):
     """Center-out reaching with the six-muscle arm (arm2_muscle6) at several input delays.
 
     Per delay and design: one vectorised solve of the reaches to all targets (excitations limited
@@ -179,16 +189,20 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
         start = time.perf_counter()
         options = dataclasses.replace(center_out.DEFAULT_OPTIONS, max_iterations=max_iterations)
         results = center_out.center_out(delays, n_targets, radius, trials, seed, options=options, sigma_u=sigma_u,
-                                        designs=designs, sensory_delay=sensory_delay)
+                                        designs=designs, sensory_delay=sensory_delay, progress=progress)
         elapsed = time.perf_counter() - start
-        table = tables.markdown_table(tables.center_out_rows(results))
-        click.echo(table)
+        rows = tables.center_out_rows(results)
+        table = tables.markdown_table(rows)         # for center_out.md; the terminal gets aligned columns
+        click.echo(tables.text_table(rows))
         if out is not None:
             from .. import plot
             figures = report.save_figures(plot.center_out_figures(results), output.staging)
+            # the problem of the first delay and target; the others differ in the delay and the target
             settings = dict(delays=list(delays), targets=n_targets, radius=radius, trials=trials, seed=seed,
                             sigma_u=sigma_u, designs=list(designs), max_iterations=max_iterations,
-                            sensory_delay=sensory_delay, elapsed_seconds=elapsed)
+                            sensory_delay=sensory_delay, elapsed_seconds=elapsed,
+                            problem=problem_record(results[0].plants[0]),
+                            target_positions=[[float(v) for v in t.target] for t in results[0].targets])
             report.write_center_out_report(output.staging, results, settings, table, figures)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
@@ -246,24 +260,25 @@ def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows)
 @click.option("--trials", type=click.IntRange(min=1), default=200, show_default=True,
               help="Monte Carlo trials per sensory delay (each run twice: without and with the kick).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the motor and sensory noise.")
-@click.option("--noise/--no-noise", default=True, show_default=True,
-              help="Motor noise in the plant (the sensors are always noisy).")
+@noise_option
+@progress_option
 @out_option(default=None, help="Folder for perturb.json, perturb.md, perturb_means.npz and perturbation.png.")
-def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed, noise, out, overwrite):
+def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed, noise, no_noise, progress, out,
+                    overwrite):
     """Perturbation experiments: kick the hand of MODEL mid-reach and measure the correction
     against the sensory delay.
 
-    MODEL is point_mass, arm2 (torque noise at the human level, SIGMA_U_HUMAN) or arm2_muscle6,
-    with their default sensors (docs/models.md). Per sensory delay the controller and the
+    MODEL is point_mass, arm2 or arm2_muscle6, with their default sensors (docs/models.md); the
+    motor noise is --noise (the sensors are always noisy). Per sensory delay the controller and the
     delayed filter are designed, and --trials trials run without and with the kick on the same
     noise; the first command that differs is (1 + l_s) steps after the kick.
     """
-    kwargs = dict(sigma_u=SIGMA_U_HUMAN) if model == "arm2" else {}
+    noise = noise_value(noise, no_noise)
     try:
-        problems = [REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls, **kwargs)
-                    for ls in sensory_delays]
+        problems = [REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls) for ls in sensory_delays]
     except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="'--delay' / '--sensory-delays'") from exc
+        hint = "'--noise'" if str(exc).startswith("noise") else "'--delay' / '--sensory-delays'"
+        raise click.BadParameter(str(exc), param_hint=hint) from exc
     final = problems[0].horizon * problems[0].dt
     if pulse_time >= final:
         raise click.BadParameter(f"must be within the movement, below {final:g} s; got {pulse_time:g}",
@@ -271,12 +286,13 @@ def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed
     check_trials(problems[-1], trials, 1, runs=2 * len(sensory_delays))
     with Output(out, overwrite) as output:
         results = perturbation.perturbation_study(model, sensory_delays, delay, pulse_time, kick, trials, seed,
-                                                  noise=noise, model_kwargs=kwargs)
+                                                  noise=noise, progress=progress)
         rows = _perturb_rows(results)
         click.echo(tables.text_table(tables.records_table(rows)))
         if out is not None:
             settings = dict(model=model, delay=delay, sensory_delays=list(sensory_delays), pulse_time=pulse_time,
-                            kick=kick, trials=trials, seed=seed, noise=noise, **kwargs)
+                            kick=kick, trials=trials, seed=seed, noise=noise is not False,
+                            problems=[problem_record(p) for p in problems])
             _perturb_outputs(results, output.staging, settings, rows)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out}")

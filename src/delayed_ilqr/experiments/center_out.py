@@ -44,6 +44,7 @@ from ..models.metadata import task_position, task_target
 from . import designs
 from ..statistical import statistical_feedback
 from .engine import Timed, monte_carlo, stack, take, timed_batched_solve
+from .progress import progress_bar
 
 __all__ = ["TargetResult", "DelayResult", "ReachShape", "center_out", "reach_shape", "DEFAULT_OPTIONS", "DESIGNS",
            "SENSING_DESIGNS", "designs_for",
@@ -223,7 +224,8 @@ def designs_for(names: Optional[Sequence[str]], sensory_delay: Optional[float]) 
 def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, radius: float = 0.1,
                n_trials: int = 200, seed: int = 0, options: Optional[Options] = None,
                geometry: str = "angle_dependent", sigma_u: float = SIGMA_U,
-               designs: Optional[Sequence[str]] = None, sensory_delay: Optional[float] = None) -> list[DelayResult]:
+               designs: Optional[Sequence[str]] = None, sensory_delay: Optional[float] = None,
+               progress: bool = False) -> list[DelayResult]:
     """Runs the center-out study; one :class:`DelayResult` per delay and design (delay-major).
 
     Args:
@@ -244,6 +246,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
             (``arm2_muscle6``'s ``sensory_delay``; each design gets the delayed Kalman filter of
             its own problem, the noise-aware one with Todorov's alternation), the sensorimotor
             loop whose noise and delay make human endpoint scatter (``docs/results/noise_calibration.md``).
+        progress: a progress bar on stderr over the solves and the Monte Carlo runs (when stderr is
+            a terminal, :mod:`.progress`).
 
     Raises:
         ValueError: an unknown design, or ``"statistical"`` with a ``sensory_delay``.
@@ -254,12 +258,15 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
     names = designs_for(designs, sensory_delay)
     targets = center_out_targets(n_targets, radius)
     results = []
-    for delay in delays:
-        plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u,
-                               sensory_delay=sensory_delay) for t in targets]
-        solved = {}                 # design solved -> Timed, shared by the designs built on it
-        for name in names:
-            results.append(_reaches(float(delay), name, plants, options, n_trials, seed, solved))
+    # per delay and design: its solve (or re-design), then one Monte Carlo run per target
+    with progress_bar(len(delays) * len(names) * (1 + len(targets)), "center-out", "step", progress) as bar:
+        for delay in delays:
+            plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u,
+                                   sensory_delay=sensory_delay) for t in targets]
+            solved = {}                 # design solved -> Timed, shared by the designs built on it
+            for name in names:
+                bar.set_postfix_str(f"{1e3 * delay:g} ms, {name}")
+                results.append(_reaches(float(delay), name, plants, options, n_trials, seed, solved, bar))
     return results
 
 
@@ -302,10 +309,10 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
 
 
 def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n_trials: int,
-             seed: int, solved: dict) -> DelayResult:
+             seed: int, solved: dict, bar) -> DelayResult:
     """One delay and design: the batched solve of all targets (taken from ``solved`` when another
     design of this delay made it, stored there otherwise), for the statistical design its batched
-    SL re-design, then the Monte Carlo of each policy."""
+    SL re-design, then the Monte Carlo of each policy; ``bar`` counts the solve and each run."""
     base = _SOLVED_AS.get(name, name)
     if base not in solved:
         solved[base] = _solve(base, plants, options)
@@ -313,6 +320,7 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
     sl_change = None
     if name == "statistical":
         sols, sl_change, solve_time, first = _statistical(plants, solved[base], options)
+    bar.update()
     per_target, runs = [], []
     for j, plant in enumerate(plants):
         trials = monte_carlo(plant, take(sols.policy, j), n_trials, seed + j)
@@ -328,6 +336,7 @@ def _reaches(delay: float, name: str, plants: list[Problem], options: Options, n
             diverged=diverged_trials(mc_cost, divergence_bound(plant)),
             sl_change=None if sl_change is None else float(sl_change[j])))
         runs.append(trials.runs)
+        bar.update()
     return DelayResult(delay=delay, delay_steps=plants[0].delay_steps, dt=plants[0].dt, design=name,
                        solve_time=solve_time, first_call=first, targets=per_target, solutions=sols, runs=runs,
                        plants=plants)

@@ -36,6 +36,7 @@ from ..problem import shared_delay_frame
 from ..statistics import SampleStats, Summary, divergence_bound, diverged_trials, sample_stats, summarize
 from . import designs
 from .engine import endpoint_description, monte_carlo, timed_solve
+from .progress import progress_bar
 
 __all__ = ["CONTROLLERS", "ControllerResult", "evaluate", "compare_delays"]
 
@@ -210,7 +211,7 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
         u_init: initial commands for every solve, or a callable ``u_init(problem)`` (default: the
             model's, see :func:`evaluate`).
         model_kwargs: further keyword arguments of the factory (e.g. ``dt``).
-        progress: show a ``tqdm`` progress bar on stderr.
+        progress: show a ``tqdm`` progress bar on stderr (when it is a terminal, :mod:`.progress`).
         delay_frame: None (each delay compiles its solvers and its Monte Carlo), an int L, or
             "auto" (L = the longest delay in steps, when the delays differ): every problem gets
             ``delay_frame=L``, so the delays share one compilation of each (docs/derivation.md §17). Results equal the
@@ -233,10 +234,8 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
         delay_frame = shared_delay_frame(problems)
     if delay_frame is not None:
         problems = [p.replace(delay_frame=delay_frame) for p in problems]
-    from tqdm.auto import tqdm
     results = []
-    with tqdm(total=len(problems) * len(controllers), disable=not progress, unit="controller",
-              desc="delay study") as bar:
+    with progress_bar(len(problems) * len(controllers), "delay study", "controller", progress) as bar:
         for problem in problems:
             init = u_init(problem) if callable(u_init) else u_init
             for c in controllers:

@@ -23,6 +23,7 @@ import numpy as np
 from .. import Problem, Runs, Solution, simulate, solve
 from ..models import REGISTRY
 from ..models.metadata import default_u_init, task_space
+from .progress import progress_bar
 
 __all__ = ["PerturbationResult", "lateral_kick", "perturbation_study", "first_response", "PERTURB_MODELS"]
 
@@ -82,21 +83,26 @@ def first_response(base: Runs, perturbed: Runs):
 
 
 def perturbation_study(model: str, sensory_delays: Sequence[float], delay: float, pulse_time: float, kick: float,
-                       trials: int, seed: int, noise: bool = True, model_kwargs=None) -> list[PerturbationResult]:
+                       trials: int, seed: int, noise=True, model_kwargs=None,
+                       progress: bool = False) -> list[PerturbationResult]:
     """The study of the module docstring for ``model`` (a registry name) with input delay ``delay``
-    (s), at each sensory delay (s)."""
+    (s), at each sensory delay (s); ``noise`` is the factory's (True, False or a preset's name);
+    ``progress``: a bar on stderr over the sensory delays (when it is a terminal)."""
     results = []
-    for ls in sensory_delays:
-        problem = REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls, **(model_kwargs or {}))
-        sol = solve(problem, u_init=default_u_init(problem))
-        kp = int(round(pulse_time / problem.dt))
-        if not 0 <= kp < problem.horizon:
-            raise ValueError(f"pulse_time must lie within the movement, 0 <= t < {problem.horizon * problem.dt:g} s; "
-                             f"got {pulse_time!r}")
-        W = lateral_kick(problem, np.asarray(sol.x), kp, kick)
-        base = simulate(problem, sol.policy, trials, seed=seed)
-        perturbed = simulate(problem, sol.policy, trials, seed=seed, disturbance=W)
-        results.append(PerturbationResult(problem, float(ls), sol, W, kp, base, perturbed, *first_response(base, perturbed)))
+    with progress_bar(len(sensory_delays), "perturb", "sensory delay", progress) as bar:
+        for ls in sensory_delays:
+            problem = REGISTRY[model].factory(delay=delay, noise=noise, sensory_delay=ls, **(model_kwargs or {}))
+            sol = solve(problem, u_init=default_u_init(problem))
+            kp = int(round(pulse_time / problem.dt))
+            if not 0 <= kp < problem.horizon:
+                raise ValueError(f"pulse_time must lie within the movement, 0 <= t < "
+                                 f"{problem.horizon * problem.dt:g} s; got {pulse_time!r}")
+            W = lateral_kick(problem, np.asarray(sol.x), kp, kick)
+            base = simulate(problem, sol.policy, trials, seed=seed)
+            perturbed = simulate(problem, sol.policy, trials, seed=seed, disturbance=W)
+            results.append(PerturbationResult(problem, float(ls), sol, W, kp, base, perturbed,
+                                              *first_response(base, perturbed)))
+            bar.update()
     return results
 
 

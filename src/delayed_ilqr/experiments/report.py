@@ -16,6 +16,7 @@ import numpy as np
 from .. import Status
 from .delay_study import ControllerResult
 from .designs import REGISTRY
+from .records import problem_record
 from .tables import delay_study_rows, markdown_table
 
 __all__ = ["DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records", "center_out_records",
@@ -85,20 +86,22 @@ def center_out_records(results: Sequence) -> list[dict]:
 
 
 def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, endpoint) -> list[str]:
-    """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing) and
-    solution.npz (the :class:`~delayed_ilqr.Solution`: trajectory, gains, trace, in the format of
-    :mod:`delayed_ilqr.saving`, so that ``delayed_ilqr.load`` reads it); ``timed`` and
-    ``endpoint`` as in :func:`.tables.solve_summary`."""
+    """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing, the
+    problem's record, :func:`.records.problem_record`) and solution.npz (the
+    :class:`~delayed_ilqr.Solution`: trajectory, gains, trace, in the format of
+    :mod:`delayed_ilqr.saving`, so that ``delayed_ilqr.load`` reads it; the record is in its
+    header's ``info``); ``timed`` and ``endpoint`` as in :func:`.tables.solve_summary`."""
     sol, solve_time, first = timed
     status = Status(int(sol.status))
     label, unit, value = endpoint
+    record = problem_record(problem)
     write_json(out / "solution.json", dict(
         model=model, delay=problem.delay, delay_steps=problem.delay_steps, dt=problem.dt,
         noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
         message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
         expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
-        endpoint_unit=unit, solve_time=solve_time, first_solve_time=first))
-    sol.save(out / "solution.npz", problem, info=dict(model=model, method=method))
+        endpoint_unit=unit, solve_time=solve_time, first_solve_time=first, problem=record))
+    sol.save(out / "solution.npz", problem, info=dict(model=model, method=method, problem=record))
     return ["solution.json", "solution.npz"]
 
 
@@ -159,14 +162,14 @@ Monte Carlo mean cost with its bootstrap 95 % interval and each controller's pre
 mean distance of the final hand position from the target; the spread of the final hand positions
 (1-sigma major axis). Compared with: human endpoint scatter of a few millimetres for unseen
 reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This plant has no sensory noise or
-sensory delay, so at no delay its scatter is far smaller (see the note above the figures).
+sensory delay, so at no delay its scatter is far smaller (docs/results/noise_calibration.md).
 
 ![hand paths, hand speed and endpoints](hand_paths.png)
 
 Top: nominal hand paths (thick) and ten noisy trials (thin). Middle: hand speed against time.
 Bottom: endpoints relative to the target (mm) with 2-sigma ellipses. Compared with: human reaches
 run along nearly straight paths with single-peaked, bell-shaped speed profiles (Morasso 1981, Exp
-Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). The P2 task (benchmark_problems.md)
+Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). The P2 task (docs/models.md §2)
 weighs effort and the final state only: its paths curve and its speed profile at no delay is
 flat-topped; with delay the delay-aware reach starts one delay late, with a higher, earlier peak.
 

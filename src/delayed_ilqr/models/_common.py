@@ -93,3 +93,37 @@ def flag(value, name: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise TypeError(f"{name} must be True or False; got {value!r}")
     return bool(value)
+
+
+def noise_setting(noise, sigma_u, presets: dict, default: str, model: str) -> tuple:
+    """(preset, sigma_u) of a factory's ``noise`` and ``sigma_u`` arguments, or (None, None) for no noise.
+
+    Args:
+        noise: False (no noise), True (the model's ``default`` preset) or a preset's name.
+        sigma_u: None (the preset's level) or a non-negative level: with ``noise=True`` it
+            replaces the default preset's (reported as ``"custom"`` unless it equals it); with a
+            preset named it must be that preset's level, which defines it (e.g. ``"benchmark"``).
+            Checked also without noise.
+        presets: preset name -> sigma_u; default: the name ``noise=True`` selects.
+        model: the factory's name, for error messages.
+    """
+    if isinstance(noise, str):
+        if noise not in presets:
+            raise ValueError(f"noise must be True, False or a noise preset of {model} "
+                             f"({', '.join(repr(p) for p in presets)}); got {noise!r}")
+        preset = noise
+    elif flag(noise, "noise"):
+        preset = default
+    else:
+        preset = None
+    if sigma_u is None:
+        return (None, None) if preset is None else (preset, presets[preset])
+    sigma_u = non_negative(sigma_u, "sigma_u")
+    if preset is None:
+        return None, None
+    if isinstance(noise, str):
+        if sigma_u != presets[preset]:
+            raise ValueError(f"sigma_u must be None with noise={preset!r}, whose level is fixed "
+                             f"(sigma_u = {presets[preset]:g}); got sigma_u={sigma_u!r}")
+        return preset, sigma_u
+    return (preset if sigma_u == presets[preset] else "custom"), sigma_u

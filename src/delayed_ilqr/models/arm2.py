@@ -10,22 +10,29 @@ Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``)::
 x = [q1, q2, dq1, dq2] (shoulder, elbow; rad), u = joint torques (N m) acting after the delay:
 f(x, u, ud) = [dq, M(q)^{-1} (ud - C(q, dq) - B dq)]. Cost: P = 0, Q = 1e-4 I_2,
 P_f = diag(1e3, 1e3, 1e1, 1e1); x0 = [pi/4, pi/2, 0, 0], target [pi/2, pi/3, 0, 0]; tf = 0.5 s.
-P2-noisy: F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], p = 2, sigma_u = 0.2.
-P3 is ``arm2(dt=0.002, delay=0.1)`` (K = 250, l = 50).
+P2-noisy (``noise="benchmark"``): F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], p = 2,
+sigma_u = 0.2. P3 is ``arm2(dt=0.002, delay=0.1)`` (K = 250, l = 50).
 
-Noise level. F is a continuous-time diffusion (:mod:`delayed_ilqr.models.noise`): a held torque u
-has a per-step relative noise sigma_u / sqrt(dt), 2.0 for P2-noisy's 0.2 at dt = 10 ms, far above
-human motor noise; P2-noisy stays a fixed numerical benchmark (``docs/models.md`` §2). For studies
-of movement, :data:`SIGMA_U_HUMAN` = 0.01 (``arm2(noise=True, sigma_u=SIGMA_U_HUMAN)``, the demo's
-choice) is calibrated to human force variability (``docs/models.md`` §4.5): low-pass filtered at
-the muscles' activation time constant t = 50-66 ms, the torque of a held command then has a
-coefficient of variation sigma_u / sqrt(2 t) = 2.8-3.2 %, within the few per cent that isometric
-force variability in humans amounts to (signal-dependent noise: force SD proportional to the mean
-force, Jones, Hamilton & Wolpert 2002 [V abstract] for the proportionality, [R] for the per-cent
-size; the coefficient of variation of joint torque falls with muscle strength, Hamilton, Jones &
-Wolpert 2004 [V abstract]; peak elbow torque varies by under 4 % across cyclic trials, BMC Sports
-Sci Med Rehabil 2016 [V abstract]). Any other level: the ``sigma_u`` argument, and
-:func:`~delayed_ilqr.models.noise.per_step_noise_to_diffusion` for a per-step sigma.
+Noise presets (``noise=``). F is a continuous-time diffusion (:mod:`delayed_ilqr.models.noise`):
+the torque acting is ud (1 + sigma_u w) with w white noise, signal-dependent motor noise in the
+sense of Harris & Wolpert 1998 and van Beers, Haggard & Wolpert 2004 (SD proportional to the mean
+torque, a constant coefficient of variation).
+
+- ``noise=True`` or ``"human"``: :data:`SIGMA_U_HUMAN` = 0.01, human force variability
+  (``docs/models.md`` §4.5). White noise has no finite CV; the CV refers to the torque of a held
+  command low-pass filtered at the muscles' activation time constant t (a muscle turns its
+  neural command into force at that bandwidth), whose stationary SD is sigma_u ud / sqrt(2 t):
+  :data:`HUMAN_TORQUE_CV` = 3.2 % at t = 50 ms (2.8 % at 66 ms), equivalently the CV of the mean
+  torque over a window of 2 t = 100 ms. Isometric force and joint torque vary by a few per cent
+  of the mean (Jones, Hamilton & Wolpert 2002; Hamilton, Jones & Wolpert 2004; sources and their
+  tags in ``docs/models.md`` §4.5).
+- ``noise="benchmark"``: :data:`SIGMA_U` = 0.2, P2-noisy exactly (the CV above would be 63 %; the
+  per-step relative noise sigma_u / sqrt(dt) is 2.0 at dt = 10 ms): a numerical stress test, not a
+  human level.
+- ``noise=True, sigma_u=s``: any other level (``"custom"``);
+  :func:`~delayed_ilqr.models.noise.per_step_noise_to_diffusion` converts a per-step sigma.
+
+The preset's name is in ``problem.metadata.noise``.
 
 The functions :func:`mass_matrix`, :func:`mass_matrix_inverse`, :func:`coriolis`,
 :func:`joint_acceleration`, :func:`hand_position`, :func:`hand_jacobian` and :func:`hand_velocity`
@@ -50,11 +57,17 @@ from .sensors import joint_sensors
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
            "mass_matrix", "mass_matrix_inverse", "coriolis", "joint_acceleration", "hand_position",
            "hand_jacobian", "hand_velocity", "HandPosition", "ARM_STATE_LABELS", "FINAL_TIME", "SIGMA_U",
-           "SIGMA_U_HUMAN"]
+           "SIGMA_U_HUMAN", "HUMAN_TORQUE_CV", "NOISE_PRESETS"]
 
 FINAL_TIME = 0.5  # s, tf of P2
 SIGMA_U = 0.2  # P2-noisy signal-dependent torque noise (a benchmark, not a human level)
 SIGMA_U_HUMAN = 0.01  # torque noise calibrated to human force variability (module docstring)
+ACTIVATION_TIME = 0.05  # s, the muscles' activation time constant the CV refers to (docs/models.md §4.2)
+HUMAN_TORQUE_CV = SIGMA_U_HUMAN / math.sqrt(2 * ACTIVATION_TIME)
+"""Coefficient of variation of a held torque under the ``"human"`` preset, 0.032: the torque
+low-pass filtered at :data:`ACTIVATION_TIME` (module docstring)."""
+NOISE_PRESETS = {"human": SIGMA_U_HUMAN, "benchmark": SIGMA_U}
+"""The torque arm's noise presets, name -> sigma_u; ``noise=True`` is ``"human"``."""
 
 
 class Arm2Params(NamedTuple):
@@ -234,19 +247,21 @@ def _check_params(params) -> Arm2Params:
 
 def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi / 2, 0.0, 0.0),
          x_target=(math.pi / 2, math.pi / 3, 0.0, 0.0), params: Arm2Params = ARM2_PARAMS,
-         sigma_u=SIGMA_U, sensory_delay=None) -> Problem:
+         sigma_u=None, sensory_delay=None) -> Problem:
     """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P2).
-        noise: False for P2, True for P2-noisy (F = [0; M(q)^{-1} sigma_u diag(ud)], p = 2).
+        noise: False (P2), True or ``"human"`` (signal-dependent torque noise at the human level,
+            :data:`SIGMA_U_HUMAN`), or ``"benchmark"`` (P2-noisy, sigma_u = 0.2): the presets of
+            the module docstring, F = [0; M(q)^{-1} sigma_u diag(ud)], p = 2.
         dt: time step in seconds (0.01 in P2, 0.002 in P3).
         horizon: K; default ``round(0.5 / dt)`` (50 at dt = 0.01, 250 at dt = 0.002).
         x0: [4] initial state [q1, q2, dq1, dq2].
         x_target: [4] final target state.
         params: arm parameters; P2 uses :data:`ARM2_PARAMS`.
-        sigma_u: the diffusion scale of the torque noise (used when ``noise``): 0.2 for P2-noisy
-            (default), :data:`SIGMA_U_HUMAN` for human-like noise (module docstring).
+        sigma_u: None (the preset's level) or the diffusion scale of the torque noise, with
+            ``noise=True`` (a ``"custom"`` level).
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
             velocities seen that late through additive noise (:func:`.sensors.joint_sensors`).
@@ -256,15 +271,14 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
         position (target: the hand at ``x_target``).
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
-    noise = _common.flag(noise, "noise")
     x0 = _common.vector(x0, "x0", 4)
     cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     params = _check_params(params)
-    sigma_u = _common.non_negative(sigma_u, "sigma_u")
+    preset, sigma_u = _common.noise_setting(noise, sigma_u, NOISE_PRESETS, "human", "arm2")
     return Problem(dynamics=Arm2Dynamics(params), x0=jnp.array(x0), dt=dt, horizon=horizon,
-                   delay_steps=delay_steps, cost=cost, noise=Arm2Noise(params, sigma_u) if noise else None,
+                   delay_steps=delay_steps, cost=cost, noise=None if preset is None else Arm2Noise(params, sigma_u),
                    name="arm2", metadata=ModelMetadata(
                        state_labels=ARM_STATE_LABELS,
                        control_labels=("shoulder torque u1 [N m]", "elbow torque u2 [N m]"),
-                       task=hand_task(params)),
+                       task=hand_task(params), noise=preset),
                    observation=None if sensory_delay is None else joint_sensors(4, sensory_delay, dt))

@@ -84,6 +84,8 @@ single-peaked.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import dataclass
 
@@ -106,6 +108,7 @@ __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", 
 
 FINAL_TIME = 0.5  # s
 SIGMA_U = 0.01  # excitation noise calibrated to human force variability (module docstring)
+NOISE_PRESETS = {"human": SIGMA_U}  # noise=True is "human"; another sigma_u is "custom"
 A_REST = 0.05
 Q0 = (math.pi / 4, math.pi / 2)  # rad, Li 2006 thesis start posture
 TARGET = (0.05, 0.5)  # m, Li 2006 thesis hand target
@@ -231,7 +234,8 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         delay: input delay tau in seconds (a whole number of steps of ``dt``): the excitation sent at
             t reaches the muscles' activation dynamics at t + tau.
         target: [2] hand target in metres (shoulder at the origin); see :func:`center_out_targets`.
-        noise: add signal-dependent excitation noise (F [10, 6], see the module docstring).
+        noise: add signal-dependent excitation noise (F [10, 6], see the module docstring): True
+            or ``"human"`` (its one preset, at ``sigma_u``), or False.
         dt: time step in seconds.
         horizon: K; default ``round(final_time / dt)``.
         final_time: movement time in seconds when ``horizon`` is None.
@@ -259,7 +263,7 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     """
     final_time = _common.positive(final_time, "final_time")
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
-    noise = _common.flag(noise, "noise")
+    preset, sigma_u = _common.noise_setting(noise, sigma_u, NOISE_PRESETS, "human", "arm2_muscle6")
     geometry = _geometry(geometry)
     arm = _check_params(arm)
     x0 = default_x0() if x0 is None else _common.vector(x0, "x0", 10)
@@ -267,13 +271,12 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         raise ValueError(f"x0's activations x0[4:] must lie in [0, 1]; got {x0[4:]}")
     target = _common.vector(target, "target", 2)
     t_act, t_deact = _common.positive(t_act, "t_act"), _common.positive(t_deact, "t_deact")
-    sigma_u = _common.non_negative(sigma_u, "sigma_u")
     params = {"target": jnp.asarray(target), "r": _common.positive(r, "r"), "w_p": _common.non_negative(w_p, "w_p"),
               "w_v": _common.non_negative(w_v, "w_v"), "w_a": _common.non_negative(w_a, "w_a")}
     cost = GeneralCost(ReachRunningCost(), ReachFinalCost(arm), params)
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
-    noise_fn = Arm2Muscle6Noise(sigma_u, t_act, t_deact) if noise else None
+    noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, t_act, t_deact)
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
-                   metadata=METADATA if arm == ARM2_PARAMS else _metadata(arm),
+                   metadata=dataclasses.replace(METADATA if arm == ARM2_PARAMS else _metadata(arm), noise=preset),
                    observation=None if sensory_delay is None else joint_sensors(10, sensory_delay, dt))

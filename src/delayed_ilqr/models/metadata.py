@@ -11,7 +11,7 @@ dataclasses or module-level functions.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Optional
 
 import jax.numpy as jnp
@@ -76,12 +76,18 @@ class ModelMetadata:
             report the final cost instead of a distance over states of mixed units).
         u_init: ``u_init(problem) -> [K, d]``, the recommended initial commands of a solve, or None
             (zeros).
+        noise: the name of the noise preset the factory built (e.g. ``"human"``, ``"benchmark"``;
+            ``"custom"`` for a level given as ``sigma_u``), None without noise or without presets;
+            its level is in ``problem.noise``. Reports and saved files record it.
     """
 
     state_labels: tuple
     control_labels: tuple
     task: Optional[TaskSpace] = None
     u_init: Optional[Callable] = None
+    # a name for reports, not structure: problems that differ only in their noise level (a sweep
+    # over sigma_u that crosses a preset's level) keep equal metadata and share one compiled solver
+    noise: Optional[str] = field(default=None, compare=False)
 
     def __post_init__(self):
         for field in ("state_labels", "control_labels"):
@@ -90,6 +96,8 @@ class ModelMetadata:
                 raise TypeError(f"{field} must be a tuple of strings; got {value!r}")
         if self.task is not None and not isinstance(self.task, TaskSpace):
             raise TypeError(f"task must be None or a TaskSpace; got {type(self.task).__name__}")
+        if self.noise is not None and not isinstance(self.noise, str):
+            raise TypeError(f"noise must be None or a preset's name; got {self.noise!r}")
 
 
 def labels(problem) -> tuple[list[str], list[str]]:

@@ -15,6 +15,7 @@ P4 (scaling sweep) is ``point_mass(dt=0.001, delay=l * 0.001)``: K = 600.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import jax.numpy as jnp
@@ -72,7 +73,8 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
 
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P1).
-        noise: False for P1, True for P1-noisy (the [4, 4] diffusion of the module docstring).
+        noise: False for P1; True or ``"benchmark"`` (its one preset, not a human model) for
+            P1-noisy (the [4, 4] diffusion of the module docstring).
         dt: time step in seconds (0.01 in P1, 0.001 in P4).
         horizon: K; default ``round(0.6 / dt)`` (60 at dt = 0.01, 600 at dt = 0.001).
         x_target: [4] final target [px, py, vx, vy].
@@ -85,10 +87,10 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
         A :class:`~delayed_ilqr.Problem` named ``"point_mass"``.
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
-    noise = _common.flag(noise, "noise")
+    preset, _ = _common.noise_setting(noise, None, {"benchmark": SIGMA_U}, "benchmark", "point_mass")
     x0 = _common.vector(x0, "x0", 4)
     cost = _common.benchmark_cost(_common.vector(x_target, "x_target", 4))
     return Problem(dynamics=PointMassDynamics(), x0=jnp.array(x0), dt=dt, horizon=horizon,
-                   delay_steps=delay_steps, cost=cost, noise=PointMassNoise() if noise else None,
-                   name="point_mass", metadata=METADATA,
+                   delay_steps=delay_steps, cost=cost, noise=None if preset is None else PointMassNoise(),
+                   name="point_mass", metadata=dataclasses.replace(METADATA, noise=preset),
                    observation=None if sensory_delay is None else point_sensors(sensory_delay, dt))
