@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = {
     "P1": ("point_mass", dict(delay=0.1)),
     "P2": ("arm2", dict(delay=0.1)),
-    "P2-noisy": ("arm2", dict(delay=0.1, noise=True)),
+    "P2-noisy": ("arm2", dict(delay=0.1, noise="benchmark")),
     "P3": ("arm2", dict(delay=0.1, dt=0.002)),
     **{f"P4-{l}": ("point_mass", dict(dt=0.001, delay=l * 0.001)) for l in (1, 10, 100, 200)},
     "muscle": ("arm2_muscle6", dict(delay=0.05)),

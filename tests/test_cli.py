@@ -13,6 +13,7 @@ import delayed_ilqr as di
 from delayed_ilqr import cli
 from delayed_ilqr.experiments import engine
 from delayed_ilqr.experiments.designs import design
+from delayed_ilqr.experiments.records import problem_record
 from delayed_ilqr.models import REGISTRY, arm2, point_mass
 
 
@@ -81,7 +82,7 @@ def test_simulate_summary_matches_a_direct_monte_carlo(tmp_path):
     summary = runs.summary()
     data = json.loads((tmp_path / "simulate.json").read_text())
     assert data["settings"] == dict(model="point_mass", noise=True, trials=16, seed=3, substeps=1, delay=0.03,
-                                    controller="aware")
+                                    controller="aware", problem=json.loads(json.dumps(problem_record(problem))))
     res = data["result"]
     np.testing.assert_allclose(res["cost"]["mean"], summary.mean_cost, rtol=1e-12)
     np.testing.assert_allclose(res["cost"]["ci95"], summary.ci95, rtol=1e-12)
@@ -108,7 +109,7 @@ def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
     rows = data["results"]
     assert [(r["delay"], r["controller"]) for r in rows] == [(0.05, "aware"), (0.05, "ignorant"),
                                                              (0.1, "aware"), (0.1, "ignorant")]
-    problem = arm2(delay=0.1, noise="benchmark")
+    problem = arm2(delay=0.1, noise=True)                # compare's default noise: the human preset
     sol = di.solve(problem, options=DESIGN)
     summary = di.simulate(problem, sol.policy, 300, seed=0).summary()
     aware = rows[2]
@@ -136,7 +137,8 @@ def test_demo_writes_the_report(tmp_path):
     assert "| delay [s] |" in report and "![" in report
     data = json.loads((out / "report.json").read_text())
     assert data["settings"]["model"] == "arm2" and data["settings"]["noise"] is True
-    assert data["settings"]["sigma_u"] == 0.01                      # human-level noise, not P2-noisy's 0.2
+    noise = data["settings"]["problems"][0]["noise"]            # human-level noise, not P2-noisy's 0.2
+    assert (noise["preset"], noise["sigma_u"]) == ("human", 0.01)
     assert [r["delay"] for r in data["results"]] == [0.0, 0.0, 0.05, 0.05, 0.1, 0.1, 0.15, 0.15]
     assert all(r["n_trials"] == 300 for r in data["results"])
     for png in ("cost_vs_delay.png", "hand_paths.png", "convergence.png"):
@@ -263,7 +265,7 @@ def user_module(tmp_path, monkeypatch):
 def test_own_model_with_params_solves_like_the_api(user_module, tmp_path):
     out = tmp_path / "out"
     result = run("solve", f"{user_module}:reach", "--param", "target=(0.1, -0.05)", "--param", "stiffness=4.0",
-                 "--delay", "0.02", "--out", out)
+                 "--delay", "0.02", "--no-noise", "--out", out)
     assert result.exit_code == 0, result.output
     assert "A point mass on a spring, reaching to target." in result.output
     module = __import__(user_module)
@@ -288,5 +290,5 @@ def test_dt_makes_delays_between_the_default_steps_possible(tmp_path):
     assert result.exit_code == 0, result.output
     meta = di.load_metadata(tmp_path / "solution.npz")
     assert (meta["dt"], meta["delay_steps"], meta["horizon"]) == (0.005, 5, 120)
-    reference = di.solve(point_mass(delay=0.025, dt=0.005))
+    reference = di.solve(point_mass(delay=0.025, dt=0.005, noise=True))     # solve's default: --noise on
     np.testing.assert_allclose(di.load(tmp_path / "solution.npz").u, reference.u, rtol=1e-12)

@@ -93,7 +93,7 @@ def test_trajectories_have_one_axis_per_state_and_command(tmp_path, n_show):
     assert fig.axes[0].get_ylabel() == "shoulder angle q1 [rad]"
     assert fig.axes[4].get_ylabel() == "shoulder torque u1 [N m]"
     np.testing.assert_allclose(fig.axes[1].get_lines()[-1].get_ydata(), x[:, 1])       # the nominal, on top
-    assert "0.05 s" in fig._suptitle.get_text()
+    assert "50 ms" in fig._suptitle.get_text()                 # delays in ms, as in every figure
     check_png(fig, tmp_path / "trajectories.png")
 
 
@@ -232,7 +232,7 @@ def fake_reaches(tau, design, spread_mm, n_targets=3, n_trials=30):
                                     predicted_cost=1.0, hand_error=1e-4, hand_speed=1e-3, endpoints=ends,
                                     mc_error=np.linalg.norm(ends - target, axis=1), mc_cost=1.0 + rng.random(n_trials),
                                     diverged=np.zeros(n_trials, bool)))
-    solutions = SimpleNamespace(x=np.stack(xs), u=np.zeros((n_targets, plants[0].horizon, 6)))
+    solutions = SimpleNamespace(x=np.stack(xs), u=rng.random((n_targets, plants[0].horizon, 6)))
     return DelayResult(delay=tau, delay_steps=round(tau / 0.01), dt=0.01, design=design, solve_time=0.1, first_call=1.0,
                        targets=targets, solutions=solutions, runs=runs, plants=plants)
 
@@ -292,3 +292,197 @@ def test_center_out_report_captions_every_figure(tmp_path, reaches):
         assert after and not after.startswith("!["), name
     assert "Flash & Hogan 1985" in text and "Gordon, Ghilardi & Ghez 1994" in text
 
+
+
+# --------------------------------------------------------------------------------------------
+# The checklist over every figure the plot module makes
+# --------------------------------------------------------------------------------------------
+def _drawn(artist) -> bool:
+    """Whether a labelled artist puts something on the canvas (a line with points, a collection
+    with offsets or paths, a patch, a container with such parts)."""
+    from matplotlib.collections import Collection, PathCollection
+    from matplotlib.container import Container
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+    if isinstance(artist, Container):
+        return any(_drawn(a) for a in artist.get_children() if a is not None)
+    if not artist.get_visible():
+        return False
+    if isinstance(artist, Line2D):
+        return len(artist.get_xdata()) > 0 and artist.get_linestyle() not in ("None", " ", "") \
+            or len(artist.get_xdata()) > 0 and artist.get_marker() not in ("None", " ", "", None)
+    if isinstance(artist, PathCollection):                     # a scatter: its points
+        return len(artist.get_offsets()) > 0
+    if isinstance(artist, Collection):
+        return len(artist.get_paths()) > 0
+    return isinstance(artist, Patch)
+
+
+def _labelled_artists(fig) -> dict:
+    found = {}
+    for ax in fig.axes:
+        for artist in list(ax.get_children()) + list(ax.containers):
+            label = artist.get_label() if hasattr(artist, "get_label") else None
+            if isinstance(label, str) and label and not label.startswith("_"):
+                found.setdefault(label, []).append(artist)
+    return found
+
+
+def figure_problems(fig) -> list[str]:
+    """What a figure breaks of the checklist: a title present and inside the canvas (axes titles
+    too), every axis labelled with a unit in brackets (an axis sharing a labelled sibling may go
+    without), speeds in cm/s and delays in ms, and every legend entry backed by a drawn artist."""
+    import re
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    problems = []
+    axes = [ax for ax in fig.axes if ax.get_visible()]
+    suptitle = fig._suptitle.get_text() if fig._suptitle is not None else ""
+    if not suptitle and not (len(axes) == 1 and axes[0].get_title()):
+        problems.append("no title")
+    titles = ([fig._suptitle] if suptitle else []) + [ax.title for ax in axes if ax.get_title()]
+    box = fig.bbox
+    for t in titles:
+        e = t.get_window_extent(renderer)
+        if e.x0 < box.x0 - 0.5 or e.x1 > box.x1 + 0.5 or e.y0 < box.y0 - 0.5 or e.y1 > box.y1 + 0.5:
+            problems.append(f"title outside the canvas: {t.get_text()!r}")
+        if re.search(r"\b\d+(\.\d+)? s\b", t.get_text()):
+            problems.append(f"a time in seconds in a title (delays in ms): {t.get_text()!r}")
+    for ax in axes:
+        for which in "xy":
+            label = ax.get_xlabel() if which == "x" else ax.get_ylabel()
+            shared = (ax.get_shared_x_axes() if which == "x" else ax.get_shared_y_axes()).get_siblings(ax)
+            if not label:
+                if not any(o is not ax and (o.get_xlabel() if which == "x" else o.get_ylabel()) for o in shared):
+                    problems.append(f"unlabelled {which} axis in {ax.get_title()!r}")
+                continue
+            if not re.search(r"\[[^\]]+\]$", label):
+                problems.append(f"no unit in brackets: {label!r}")
+            if "speed" in label and not label.endswith("[cm/s]"):
+                problems.append(f"a speed not in cm/s: {label!r}")
+            if "delay" in label and not label.endswith("[ms]"):
+                problems.append(f"a delay not in ms: {label!r}")
+    artists = _labelled_artists(fig)
+    legends = [ax.get_legend() for ax in axes if ax.get_legend() is not None] + list(fig.legends)
+    for legend in legends:
+        for text in legend.get_texts():
+            if not any(_drawn(a) for a in artists.get(text.get_text(), [])):
+                problems.append(f"a legend entry for nothing drawn: {text.get_text()!r}")
+    return problems
+
+
+def _without_titles(fig) -> bytes:
+    """The figure rendered with every title removed (to find figures that differ only there)."""
+    import hashlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    if fig._suptitle is not None:
+        fig._suptitle.set_text("")
+    for ax in fig.axes:
+        ax.set_title("")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return hashlib.sha256(np.asarray(canvas.buffer_rgba()).tobytes()).digest()
+
+
+def fake_perturbation(sensory_delays=(0.0, 0.05)):
+    """PerturbationResult-like records of the arm from synthetic runs (no solve)."""
+    out = []
+    for i, ls in enumerate(sensory_delays):
+        problem = arm2(delay=0.05, noise=True, sensory_delay=ls)
+        x, u = nominal(problem)
+        base = synthetic_runs(problem, x, u, 0.01, seed=i)
+        kicked = base._replace(x=np.asarray(base.x) + 0.02 * np.linspace(0, 1, problem.horizon + 1)[None, :, None],
+                               u=np.asarray(base.u) + 0.5)
+        out.append(SimpleNamespace(problem=problem, sensory_delay=ls, pulse_step=15, latency_steps=16 + 5 * i,
+                                   base=base, perturbed=kicked))
+    return out
+
+
+def fake_sweep():
+    """A sweep Dataset as delayed_ilqr.sweep writes it (the variables plot_sweep reads), synthetic."""
+    import xarray as xr
+    rng = np.random.default_rng(0)
+    shape = (3, 2, 2)
+    cost = 1.0 + rng.random(shape)
+    dims = ("delay", "sigma_u", "seed")
+    return xr.Dataset(
+        {"status": (dims[:2], np.ones(shape[:2], np.int32)),
+         "mc_cost_mean": (dims, cost, dict(long_name="Monte Carlo mean cost", units="1")),
+         "mc_cost_ci_low": (dims, 0.9 * cost, dict(long_name="Monte Carlo mean cost, 95 % CI low", units="1")),
+         "mc_cost_ci_high": (dims, 1.1 * cost, dict(long_name="Monte Carlo mean cost, 95 % CI high", units="1")),
+         "mc_endpoint_error_median": (dims, 1e-3 * cost, dict(long_name="median hand position error", units="m"))},
+        coords={"delay": ("delay", [0.0, 0.05, 0.1], dict(units="s")),
+                "sigma_u": ("sigma_u", [0.01, 0.02], dict(units="s^1/2")), "seed": ("seed", [0, 1])},
+        attrs=dict(model="arm2", trials=20))
+
+
+def every_figure(results, reaches):
+    """Every figure the plot module makes, by a name, from synthetic inputs: {group: {name: Figure}}
+    (a group is what one call or one command writes together)."""
+    from delayed_ilqr.models import arm2_muscle6
+    problem = arm2(delay=0.05, noise=True)
+    x, u = nominal(problem)
+    policy = di.Policy(x, u, np.zeros_like(u), np.zeros((problem.horizon, 2, 4)), np.zeros((problem.horizon, 5, 2, 2)))
+    muscle = arm2_muscle6(delay=0.05)
+    mx = np.tile(np.asarray(muscle.x0), (muscle.horizon + 1, 1))
+    mu = np.full((muscle.horizon, 6), 0.05)
+    muscle_policy = di.Policy(mx, mu, np.zeros_like(mu), np.zeros((muscle.horizon, 6, 10)),
+                              np.zeros((muscle.horizon, 5, 6, 6)))
+
+    def solution(costs, steps):
+        n = len(costs)
+        trace = di.Trace(cost=np.asarray(costs), merit=np.asarray(costs) * 1.1, expected_reduction=np.zeros(n),
+                         step_size=np.asarray(steps), reg=np.zeros(n), grad_norm=np.zeros(n))
+        return di.Solution(x=None, u=None, cost=costs[-1], expected_cost=costs[-1], status=np.int32(1),
+                           iterations=np.int32(n - 1), policy=None, trace=trace)
+
+    statistical = [dataclasses.replace(r, design="statistical") for r in reaches if r.design == "noise-aware"]
+    return {
+        "trajectories": {"arm2": plot.plot_trajectories(problem, policy, synthetic_runs(problem, x, u, 0.05, 0)),
+                         "muscle": plot.plot_trajectories(muscle, muscle_policy)},
+        "convergence, no rejected step": {"c": plot.plot_convergence({"a": solution([3.0, 2.0, 1.0], [np.nan, 1, 1])})},
+        "convergence, rejected steps": {"c": plot.plot_convergence({"a": solution([3.0, 2.0, 1.9], [np.nan, 1, 0])})},
+        # delay_study_figures adds convergence.png of the solutions, drawn above from synthetic traces
+        "delay study": {"cost_vs_delay.png": plot.plot_delay_study(results),
+                        "hand_paths.png": plot.plot_hand_paths(results)},
+        "center-out": plot.center_out_figures(reaches + statistical),
+        "perturbation": plot.perturbation_figures(fake_perturbation()),
+        "sweep": {"sweep.png": plot.plot_sweep(fake_sweep())},
+    }
+
+
+def test_every_figure_passes_the_checklist(results, reaches):
+    """Titles inside the canvas, units on every axis (speeds in cm/s, delays in ms), legends that
+    name only what is drawn, and no figure that repeats another of its group but for the titles
+    (the statistical design's excitations are the noise-aware nominal's: drawn once)."""
+    groups = every_figure(results, reaches)
+    problems = {f"{group}/{name}": figure_problems(fig) for group, figures in groups.items()
+                for name, fig in figures.items()}
+    assert {k: v for k, v in problems.items() if v} == {}
+    assert "center_out_excitations_statistical_0ms.png" not in groups["center-out"]
+    for group, figures in groups.items():
+        prints = [_without_titles(fig) for fig in figures.values()]
+        assert len(set(prints)) == len(prints), group
+
+
+def test_the_checklist_catches_what_it_is_for():
+    """Each rule fails on a figure built to break it (so that the checklist can fail)."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(3, 2))
+    ax = fig.subplots()
+    ax.plot([0, 1], [0, 1], label="drawn")
+    ax.scatter([], [], label="rejected steps")
+    ax.legend()
+    ax.set_xlabel("input delay [s]")
+    ax.set_ylabel("hand speed [m/s]")
+    fig.suptitle("a title far too long for this narrow figure, which runs off both sides of the canvas")
+    found = " | ".join(figure_problems(fig))
+    for rule in ("title outside the canvas", "a delay not in ms", "a speed not in cm/s",
+                 "a legend entry for nothing drawn: 'rejected steps'"):
+        assert rule in found, rule
+    bare = Figure()
+    bare.subplots(1, 2)[0].set_ylabel("cost")
+    found = " | ".join(figure_problems(bare))
+    assert "no title" in found and "no unit in brackets: 'cost'" in found and "unlabelled x axis" in found

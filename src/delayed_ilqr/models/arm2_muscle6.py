@@ -179,8 +179,8 @@ def _metadata(arm: Arm2Params) -> ModelMetadata:
     """Labels (activations and excitations are fractions of the maximum), the hand task with the
     target of ``cost.params``, and the warm start :func:`rest_commands`."""
     return ModelMetadata(
-        state_labels=ARM_STATE_LABELS + tuple(f"activation a{i}" for i in range(1, 7)),
-        control_labels=tuple(f"excitation u{i}" for i in range(1, 7)),
+        state_labels=ARM_STATE_LABELS + tuple(f"activation a{i} [-]" for i in range(1, 7)),
+        control_labels=tuple(f"excitation u{i} [-]" for i in range(1, 7)),
         task=hand_task(arm, target=CostParameter("target")), u_init=rest_commands)
 
 

@@ -61,3 +61,29 @@ def ellipse(ax, points, color, n_sigma=2.0, label=None):
                     angle=angle, fill=False, edgecolor=color, lw=2.0, label=label)
     ax.add_patch(patch)
     return patch
+
+
+# the units every figure uses: a task-space speed in cm/s (lengths in metres), delays in ms
+SPEED_UNITS = {"m": (100.0, "cm/s")}
+
+
+def speed_unit(unit: str) -> tuple[float, str]:
+    """(factor, unit) of a speed in a task space measured in ``unit``: cm/s for metres, else unit/s."""
+    return SPEED_UNITS.get(unit, (1.0, f"{unit}/s"))
+
+
+def suptitle(fig, text: str, fontsize: float = 12.0):
+    """The figure's title, wrapped to the figure's width so that no line runs off the canvas."""
+    import textwrap
+    # an average character of the default font is about 0.55 em wide
+    width = max(20, int(fig.get_size_inches()[0] * 72.0 / (0.6 * fontsize)))
+    return fig.suptitle(textwrap.fill(text, width), fontsize=fontsize)
+
+
+def command_unit(problem) -> str:
+    """The unit of the commands, read from the control labels' brackets ("N m"), when all share
+    one; "-" otherwise (dimensionless or mixed)."""
+    import re
+    from ..models.metadata import labels
+    units = {m.group(1) if m else "-" for m in (re.search(r"\[([^\]]+)\]\s*$", s) for s in labels(problem)[1])}
+    return units.pop() if len(units) == 1 else "-"

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..models.metadata import task_position, task_space
 from ..statistics import sample_stats
-from ._common import ellipse, figure
+from ._common import ellipse, figure, suptitle
 
 __all__ = ["plot_center_out", "plot_speed_profiles", "plot_endpoints", "plot_center_out_vs_delay",
            "plot_excitations", "center_out_figures", "CAPTIONS"]
@@ -33,7 +33,7 @@ CAPTIONS = {
         "force-activation curve (docs/results/reach_shape.md).",
     "center_out_endpoints.png":
         "Endpoints of the noisy trials relative to each target, in mm, with their 2-sigma ellipses (one "
-        "colour per target; each panel has its own scale). Compared with: human endpoints of unseen 10 "
+        "colour per target; all panels on one scale). Compared with: human endpoints of unseen 10 "
         "cm reaches scatter by millimetres, in ellipses elongated along the movement (Gordon, Ghilardi & Ghez "
         "1994, Exp Brain Res 99:97), and execution noise explains that scatter (van Beers, Haggard & "
         "Wolpert 2004, J Neurophysiol 91:1050).",
@@ -83,7 +83,7 @@ def _reaches_panel(ax, r, n_paths: int, colors):
         color = colors[j]
         for path in task_position(plant, r.runs[j].x[:n_paths]):
             ax.plot(path[:, 0], path[:, 1], color=color, lw=0.5, alpha=0.5)
-        ax.plot(nominal[j, :, 0], nominal[j, :, 1], color=color, lw=2.0)
+        ax.plot(nominal[j, :, 0], nominal[j, :, 1], color=color, lw=2.0, label=f"target {j + 1}")
         ax.scatter([t.target[0]], [t.target[1]], marker="*", s=120, color=color, edgecolor="k", zorder=6)
         ellipse(ax, t.endpoints[~t.diverged & np.all(np.isfinite(t.endpoints), axis=1)], color)
     start = nominal[0, 0]
@@ -112,15 +112,18 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
     Returns:
         A Figure: per delay and design, each target's nominal hand path (thick), ``n_paths`` noisy
         trials (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final
-        hand positions; the start hand position is the black dot.
+        hand positions; the start hand position is the black dot. The legend names the targets
+        by number, as the other center-out figures do, beside the panels.
     """
     results = _nonempty(results)
-    fig, _, place = _grid(results, 4.6, 4.8)
+    fig, grid, place = _grid(results, 4.6, 4.8)
     colors = _target_colors(len(results[0].targets))
     for r in results:
         _reaches_panel(place(r), r, n_paths, colors)
-    fig.suptitle(f"six-muscle arm, center-out: hand paths ({n_paths} of N = {results[0].runs[0].x.shape[0]} "
-                 "trials per target) and 2-sigma endpoint ellipses")
+    handles, labels = grid[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside right upper", fontsize=8)
+    suptitle(fig, f"six-muscle arm, center-out: hand paths ({n_paths} of N = {results[0].runs[0].x.shape[0]} "
+                  "trials per target) and 2-sigma endpoint ellipses")
     return fig
 
 
@@ -163,7 +166,7 @@ def plot_speed_profiles(results: Sequence):
     for ax in grid[:, 0]:
         ax.set_ylabel("hand speed [cm/s]")
     grid[0, -1].legend(fontsize=7, loc="upper right", ncol=2)
-    fig.suptitle("six-muscle arm, center-out: hand speed of the nominal reaches")
+    suptitle(fig, "six-muscle arm, center-out: hand speed of the nominal reaches")
     return fig
 
 
@@ -175,15 +178,16 @@ def plot_endpoints(results: Sequence):
 
     Returns:
         A Figure: per target (colour) the endpoints of the trials that did not diverge minus the
-        target (dots), their mean (cross) and 2-sigma ellipse; each panel is scaled to its largest
-        ellipse (the spreads differ by orders of magnitude across delays), equal axes.
+        target (dots), their mean (cross) and 2-sigma ellipse, equal axes; all panels share one
+        scale, that of the largest ellipse, so that panels compare at a glance (a spread orders of
+        magnitude smaller than the largest shows as a point).
     """
     results = _nonempty(results)
-    fig, grid, place = _grid(results, 4.2, 4.2)
+    fig, grid, place = _grid(results, 4.2, 4.2, sharex=True, sharey=True)
     colors = _target_colors(len(results[0].targets))
+    half = 0.5
     for r in results:
         ax = place(r)
-        half = 0.5
         for j, t in enumerate(r.targets):
             kept = ~t.diverged & np.all(np.isfinite(t.endpoints), axis=1)
             rel = 1e3 * (t.endpoints[kept] - t.target)                                    # mm
@@ -196,6 +200,8 @@ def plot_endpoints(results: Sequence):
             half = max(half, float(np.max(np.abs(mean)) + 2.4 * np.sqrt(np.max(np.linalg.eigvalsh(
                 np.cov(rel, rowvar=False))))))
         ax.scatter([0.0], [0.0], marker="+", s=80, color="k", zorder=6)
+    for r in results:
+        ax = place(r)
         ax.set_xlim(-half, half)
         ax.set_ylim(-half, half)
         ax.set_aspect("equal")
@@ -204,8 +210,8 @@ def plot_endpoints(results: Sequence):
         ax.set_title(f"{_label(r.design)}, {1e3 * r.delay:g} ms")
         ax.grid(alpha=0.3)
     grid[0, 0].legend(fontsize=7, loc="upper left", ncol=2)
-    fig.suptitle(f"six-muscle arm, center-out: endpoints relative to the target (N = "
-                 f"{results[0].runs[0].x.shape[0]} per target), 2-sigma ellipses, mean as a cross")
+    suptitle(fig, f"six-muscle arm, center-out: endpoints relative to the target (N = "
+                  f"{results[0].runs[0].x.shape[0]} per target), 2-sigma ellipses, mean as a cross")
     return fig
 
 
@@ -242,7 +248,7 @@ def plot_center_out_vs_delay(results: Sequence):
         mid = spread.mean(axis=1)
         ax_spread.errorbar(tau, mid, yerr=[mid - spread.min(axis=1), spread.max(axis=1) - mid], fmt="o-",
                            color=color, capsize=4, label=f"{_label(design)}: mean over targets [range]")
-    for ax, label, title in ((ax_cost, "cost J (eq. 2)", "expected cost"),
+    for ax, label, title in ((ax_cost, "cost J, eq. 2 [-]", "expected cost"),
                              (ax_spread, "endpoint spread, 1-sigma major axis [mm]", "endpoint spread")):
         ax.set_yscale("log")
         ax.set_xlabel("input delay [ms]")
@@ -251,7 +257,7 @@ def plot_center_out_vs_delay(results: Sequence):
         ax.grid(alpha=0.3, which="both")
         # below the axes: inside, two entries per design cover the low predicted costs
         ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
-    fig.suptitle("six-muscle arm, center-out: what the delay costs")
+    suptitle(fig, "six-muscle arm, center-out: what the delay costs")
     return fig
 
 
@@ -284,22 +290,29 @@ def plot_excitations(result):
     for ax in axes[-cols:]:
         ax.set_xlabel("time sent [s]")
     for ax in axes[::cols]:
-        ax.set_ylabel("excitation")
-    fig.suptitle(f"six-muscle arm: nominal excitations per target, {_label(result.design)} design, "
-                 f"delay {1e3 * result.delay:g} ms")
+        ax.set_ylabel("excitation [-]")
+    suptitle(fig, f"six-muscle arm: nominal excitations per target, {_label(result.design)} design, "
+                  f"delay {1e3 * result.delay:g} ms")
     return fig
 
 
 def center_out_figures(results: Sequence) -> dict:
     """The center-out figures by file name: center_out_hand_paths.png, center_out_speed.png,
     center_out_endpoints.png, center_out_vs_delay.png (with more than one delay) and, per delay and
-    design, center_out_excitations_<design>_<delay>ms.png (captions: :data:`CAPTIONS`)."""
+    design, center_out_excitations_<design>_<delay>ms.png (captions: :data:`CAPTIONS`), except for
+    a design whose nominal excitations are another's at that delay (the statistical design keeps
+    the noise-aware nominal): that figure would repeat the other but for its title."""
     results = _nonempty(results)
     figures = {"center_out_hand_paths.png": plot_center_out(results),
                "center_out_speed.png": plot_speed_profiles(results),
                "center_out_endpoints.png": plot_endpoints(results)}
     if len({r.delay for r in results}) > 1:
         figures["center_out_vs_delay.png"] = plot_center_out_vs_delay(results)
+    drawn = []
     for r in results:
+        u = np.asarray(r.solutions.u)
+        if any(d == r.delay and np.array_equal(u, v) for d, v in drawn):
+            continue
+        drawn.append((r.delay, u))
         figures[f"center_out_excitations_{r.design}_{1e3 * r.delay:g}ms.png"] = plot_excitations(r)
     return figures

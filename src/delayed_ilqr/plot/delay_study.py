@@ -9,7 +9,7 @@ import numpy as np
 from ..experiments.tables import unit_scale
 from ..models.metadata import task_position, task_space, task_target
 from ..statistics import diverged_trials
-from ._common import COLORS, controller_label, ellipse, figure
+from ._common import COLORS, controller_label, ellipse, figure, speed_unit, suptitle
 from .solution import plot_convergence
 
 __all__ = ["plot_hand_paths", "plot_delay_study", "delay_study_figures", "draws_paths"]
@@ -54,18 +54,28 @@ def _paths_panel(ax, group, n_paths: int):
     return zoom, min(n_paths, paths.shape[0])
 
 
-def _endpoints_panel(ax, zoom, unit: str):
-    """Every trial's endpoint relative to the target with the 2-sigma ellipse of the trials that did
-    not diverge; the view is set by the tightest controller and legends count the endpoints outside it."""
-    # wide enough for the tightest controller's endpoints (99th percentile), at least 5 display units
+def _endpoints_half(zoom) -> float:
+    """Half the width of an endpoints view: wide enough for the tightest controller's endpoints
+    (99th percentile), at least 5 display units."""
     spans = [np.percentile(np.abs(e[f]), 99) for _, e, f, _ in zoom if np.any(f)]
-    half = max(5.0, 1.3 * min(spans)) if spans else 5.0
+    return max(5.0, 1.3 * min(spans)) if spans else 5.0
+
+
+def _endpoints_panel(ax, zoom, unit: str, half: float):
+    """Every trial's endpoint relative to the target with the 2-sigma ellipse of the trials that did
+    not diverge, in a view of +-``half``; legends count the endpoints outside it (and name only what
+    is drawn)."""
     for r, ends, finite, color in zoom:
         inside = finite & np.all(np.abs(ends) <= half, axis=1)
         outside = int(ends.shape[0] - np.count_nonzero(inside))
-        label = f"{controller_label(r.controller)} endpoints" + (f" ({outside} outside view)" if outside else "")
-        ax.scatter(ends[inside, 0], ends[inside, 1], s=5, color=color, alpha=0.35, label=label)
-        ellipse(ax, ends[finite], color, label=f"{controller_label(r.controller)} 2-sigma ellipse")
+        name = controller_label(r.controller)
+        if np.any(inside):
+            label = f"{name} endpoints" + (f" ({outside} outside view)" if outside else "")
+            ax.scatter(ends[inside, 0], ends[inside, 1], s=5, color=color, alpha=0.35, label=label)
+        else:                               # nothing to draw: said in words, not as a legend entry
+            ax.text(0.98, 0.02, f"{name}: all {outside} endpoints outside the view", transform=ax.transAxes,
+                    ha="right", va="bottom", fontsize=7, color=color)
+        ellipse(ax, ends[finite], color, label=f"{name} 2-sigma ellipse")
     ax.scatter([0.0], [0.0], marker="*", s=180, color="tab:orange", zorder=6, label="target")
     ax.set_xlim(-half, half)
     ax.set_ylim(-half, half)
@@ -79,6 +89,7 @@ def _speed_panel(ax, group, n_paths: int):
     against time, from the displacement of each step (display units per second: cm/s for metres).
     Returns the nominals' largest speed (the caller scales the row to it; wild trials are clipped)."""
     task = task_space(group[0].problem)
+    factor, unit = speed_unit(task.unit)
     dt = group[0].problem.dt
     top = 0.0
     for r in group:
@@ -86,12 +97,11 @@ def _speed_panel(ax, group, n_paths: int):
         for x, lw, alpha, label in ((r.runs.x[:n_paths], 0.6, 0.45, None),
                                     (r.solution.x[None], 2.2, 1.0, f"{controller_label(r.controller)} nominal")):
             p = task_position(r.problem, x)
-            speed = 100.0 * np.linalg.norm(np.diff(p, axis=-2), axis=-1) / dt
+            speed = factor * np.linalg.norm(np.diff(p, axis=-2), axis=-1) / dt
             t_axis = dt * np.arange(1, speed.shape[-1] + 1)
             for j in range(speed.shape[0]):
                 ax.plot(t_axis, speed[j], color=color, lw=lw, alpha=alpha, label=label if j == 0 else None)
         top = max(top, float(np.nanmax(speed)))                  # the nominal, drawn last
-    unit = "cm/s" if task.unit == "m" else f"{task.unit}/s x 100"
     ax.set_xlabel("time [s]")
     ax.set_ylabel(f"{task.point} speed [{unit}]")
     return top
@@ -113,8 +123,8 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
         target, viewed around the nominal paths (trials that wander off are clipped). Middle: the
         hand speed of the same paths against time (cm/s; y-axis shared across delays). Bottom:
         every trial's endpoint relative to the target (mm) with the 2-sigma covariance ellipse of
-        the trials that did not diverge; the view is set by the tightest controller and legends
-        count the endpoints outside it.
+        the trials that did not diverge, on one scale for all delays, set by the tightest
+        controller's endpoints; legends count the endpoints outside the view.
 
     Raises:
         ValueError: when the results are not of such a model.
@@ -127,11 +137,12 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
     axes = fig.subplots(3, len(delays), squeeze=False)
     for ax in axes[1, 1:]:
         ax.sharey(axes[1, 0])
-    fastest = 0.0
+    fastest, zooms = 0.0, []
     for col, tau in enumerate(delays):
         group = [r for r in results if r.delay == tau]
         top, middle, bottom = axes[:, col]
         zoom, drawn = _paths_panel(top, group, n_paths)
+        zooms.append(zoom)
         task = task_space(group[0].problem)
         top.set_xlabel(f"{task.point} x [{task.unit}]")
         top.set_ylabel(f"{task.point} y [{task.unit}]")
@@ -142,14 +153,17 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
         middle.set_title(f"{1e3 * tau:g} ms: {task.point} speed")
         middle.grid(alpha=0.3)
         middle.legend(loc="upper right", fontsize=7)
-        _endpoints_panel(bottom, zoom, unit_scale(task.unit)[1])
-        bottom.set_title(f"{1e3 * tau:g} ms: endpoints (N = {group[0].runs.x.shape[0]})")
+    half = max(_endpoints_half(zoom) for zoom in zooms)          # one endpoint scale for all delays
+    for col, (tau, zoom) in enumerate(zip(delays, zooms)):
+        bottom = axes[2, col]
+        _endpoints_panel(bottom, zoom, unit_scale(task_space(zoom[0][0].problem).unit)[1], half)
+        bottom.set_title(f"{1e3 * tau:g} ms: endpoints (N = {zoom[0][0].runs.x.shape[0]})")
         bottom.grid(alpha=0.3)
         bottom.legend(loc="upper left", fontsize=7)
     axes[1, 0].set_ylim(0.0, 1.3 * fastest)
     noise = "noisy" if results[0].noise else "deterministic"
-    fig.suptitle(f"{results[0].model}: reaching with delayed commands ({noise} plant; thin lines: "
-                 f"{drawn} Monte Carlo trials per controller)")
+    suptitle(fig, f"{results[0].model}: reaching with delayed commands ({noise} plant; thin lines: "
+                  f"{drawn} Monte Carlo trials per controller)")
     return fig
 
 
@@ -229,15 +243,15 @@ def plot_delay_study(results: Sequence):
         if spread:
             axes[2].plot(tau, [scale * _spread(r) for r in rows], marker="o", ms=7, color=color,
                          label=f"{controller_label(c)}: Monte Carlo")
-    _finish(ax_cost, "cost J (eq. 2)", "expected cost")
+    _finish(ax_cost, "cost J, eq. 2 [-]", "expected cost")
     label = results[0].endpoint_label
-    _finish(ax_err, f"{label}" + (f" [{unit_text}]" if unit_text else ""), label)
+    _finish(ax_err, f"{label} [{unit_text or '-'}]", label)
     if spread:
         point = task_space(results[0].problem).point
         _finish(axes[2], f"1-sigma major axis [{unit_text}]", f"spread of the final {point} positions")
     n = results[0].cost.n
     noise = "noisy" if results[0].noise else "deterministic"
-    fig.suptitle(f"{results[0].model}: delay-aware vs delay-ignorant control, {n} {noise} trials per point")
+    suptitle(fig, f"{results[0].model}: delay-aware vs delay-ignorant control, {n} {noise} trials per point")
     return fig
 
 

@@ -6,7 +6,7 @@ from typing import Sequence
 import numpy as np
 
 from ..models.metadata import task_position, task_space
-from ._common import figure
+from ._common import command_unit, figure, speed_unit, suptitle
 
 __all__ = ["plot_perturbation", "perturbation_figures"]
 
@@ -18,13 +18,14 @@ def _color(i: int, n: int):
 
 def plot_perturbation(results: Sequence):
     """Three panels, one colour per sensory delay: the mean task-space paths (solid: kicked,
-    dashed: unperturbed), the mean task-point speed against time, and the norm of the mean command
-    response |E[u_perturbed - u]| against time, with the kick (grey line) and the first command
-    that can respond, (kp + 1 + l_s) dt (dotted, per colour)."""
+    dashed: unperturbed), the mean task-point speed against time (cm/s for a task in metres), and
+    the norm of the mean command response |E[u_perturbed - u]| against time (in the commands'
+    unit), with the kick (grey line) and the first command that responds (dotted, per colour)."""
     first = results[0]
     fig = figure(figsize=(15, 4.6), layout="constrained")
     ax_path, ax_speed, ax_u = fig.subplots(1, 3)
     task = task_space(first.problem)
+    factor, speed_label = speed_unit(task.unit if task is not None else "")
     for i, r in enumerate(results):
         color = _color(i, len(results))
         problem = r.problem
@@ -37,7 +38,7 @@ def plot_perturbation(results: Sequence):
         if i == 0:
             ax_path.scatter(*calm[r.pulse_step + 1], color="k", marker="x", zorder=5, label="kick")
         t = dt * np.arange(kicked.shape[0])
-        speed = np.linalg.norm(np.diff(kicked, axis=0), axis=1) / dt
+        speed = factor * np.linalg.norm(np.diff(kicked, axis=0), axis=1) / dt
         ax_speed.plot(t[1:], speed, color=color, lw=1.8, label=label)
         response = np.linalg.norm((np.asarray(r.perturbed.u) - np.asarray(r.base.u)).mean(axis=0), axis=1)
         ax_u.plot(t[:-1], response, color=color, lw=1.8, label=label)
@@ -52,11 +53,15 @@ def plot_perturbation(results: Sequence):
     ax_path.set_ylabel(f"{name} y [{unit}]")
     ax_path.set_aspect("equal", adjustable="datalim")
     ax_path.set_title("mean paths (dashed: unperturbed)")
-    ax_speed.set_ylabel(f"{name} speed [{unit}/s]")
+    ax_speed.set_ylabel(f"{name} speed [{speed_label}]")
     ax_speed.set_title("mean speed, kicked trials")
-    ax_u.set_ylabel("|mean command response|")
+    ax_u.set_ylabel(f"|mean command response| [{command_unit(first.problem)}]")
     ax_u.set_title("corrective command (dotted: first response)")
     ax_path.legend(fontsize=8)
+    noise = "noisy" if first.problem.noise is not None else "deterministic"
+    suptitle(fig, f"{first.problem.name}: correction of a kick at {1e3 * (first.pulse_step + 1) * first.problem.dt:g} "
+                  f"ms against the sensory delay (input delay {1e3 * first.problem.delay:g} ms, {noise} plant, "
+                  f"means over {np.shape(first.base.x)[0]} trials)")
     return fig
 
 

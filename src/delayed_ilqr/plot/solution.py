@@ -8,7 +8,7 @@ from typing import Optional
 import numpy as np
 
 from ..models.metadata import labels
-from ._common import figure, robust_limits
+from ._common import figure, robust_limits, suptitle
 
 __all__ = ["plot_trajectories", "plot_convergence", "state_labels"]
 
@@ -87,9 +87,9 @@ def plot_trajectories(problem, policy, runs=None, n_trials: int = 5, title: Opti
                       None if all_u is None else all_u[:, :, k], u_labels[k])
     axes[0].legend(loc="best", fontsize=8)
     if title is None:
-        title = (f"{problem.name}: states and commands sent (acting {problem.delay:g} s later), "
+        title = (f"{problem.name}: states and commands sent (acting {1e3 * problem.delay:g} ms later), "
                  + ("noisy plant" if problem.noise is not None else "deterministic plant"))
-    fig.suptitle(title)
+    suptitle(fig, title)
     return fig
 
 
@@ -99,12 +99,14 @@ def plot_convergence(solutions, title: Optional[str] = None):
     Returns:
         A Figure with one axis: per solution one line of ``trace.cost`` (eq. 2 on the nominal) and,
         when the problem is noisy (the trace's merit differs from its cost), a dashed line of the
-        noise-aware merit the line search minimises. Open markers are rejected iterations.
+        noise-aware merit the line search minimises. Open markers are rejected iterations (with a
+        legend entry only when there are some).
     """
     if not isinstance(solutions, Mapping):
         solutions = {"iLQG": solutions}
     fig = figure(figsize=(7.5, 5.0), layout="constrained")
     ax = fig.subplots()
+    any_rejected = False
     for i, (label, sol) in enumerate(solutions.items()):
         n = int(sol.iterations) + 1
         it = np.arange(n)
@@ -118,15 +120,17 @@ def plot_convergence(solutions, title: Optional[str] = None):
         rejected[1:] = ~(step[1:] > 0)
         if np.any(rejected):
             line.set_markevery(list(np.flatnonzero(~rejected)))
-            ax.scatter(it[rejected], cost[rejected], facecolors="white", edgecolors=color, s=18, zorder=3)
+            ax.scatter(it[rejected], cost[rejected], facecolors="white", edgecolors=color, s=18, zorder=3,
+                       label=None if any_rejected else "rejected step (open marker)")
+            any_rejected = True
         if not np.allclose(merit, cost, rtol=1e-12, equal_nan=True):
             ax.plot(it, merit, color=color, ls="--", label=f"{label}: merit (cost + noise terms)")
     ax.set_yscale("log")
     from matplotlib.ticker import MaxNLocator
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("cost")
+    ax.set_xlabel("iteration [-]")
+    ax.set_ylabel("cost J, eq. 2 [-]")
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
-    ax.set_title(title or "iLQG convergence (open markers: rejected steps)")
+    ax.set_title(title or "iLQG convergence")
     return fig

@@ -7,16 +7,23 @@ from typing import Mapping, Optional
 import numpy as np
 
 from ..experiments.tables import unit_scale
-from ._common import figure
+from ._common import figure, suptitle
 
 __all__ = ["plot_sweep"]
 
 
-def _label(da, unit: Optional[str] = None) -> str:
-    """Axis label from ``da``'s long name and unit (``unit`` overrides its own)."""
-    name = da.attrs.get("long_name", da.name).split(" (")[0]
+def _label(da, unit: Optional[str] = None, extra: str = "") -> str:
+    """Axis label from ``da``'s long name (and ``extra``) and unit (``unit`` overrides its own; "-"
+    when it has none)."""
+    name = da.attrs.get("long_name", da.name).split(" (")[0] + extra
     unit = da.attrs.get("units", "") if unit is None else unit
-    return f"{name} [{unit}]" if unit and unit != "1" else name
+    return f"{name} [{unit if unit and unit != '1' else '-'}]"
+
+
+def _axis_scale(da) -> tuple[float, Optional[str]]:
+    """(factor, unit) of a grid axis on the figure: times in seconds (the delays) as ms, as every
+    figure of the package draws delays; anything else as it is (unit None: its own)."""
+    return (1e3, "ms") if da.attrs.get("units") == "s" else (1.0, None)
 
 
 def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: Optional[Mapping] = None):
@@ -51,7 +58,8 @@ def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: O
     fig = figure(figsize=(10, 4), layout="constrained")
     cost_ax, error_ax = fig.subplots(1, 2)
     hues = [None] if hue is None else list(range(sub.sizes[hue]))
-    xs = np.asarray(sub[x].values)
+    x_factor, x_unit = _axis_scale(ds[x])
+    xs = x_factor * np.asarray(sub[x].values)
     # endpoint errors in mm, as the sweep's table prints them (metres read badly at this scale)
     scale, error_unit = unit_scale(ds.mc_endpoint_error_median.attrs.get("units", ""))
     for j in hues:
@@ -63,17 +71,17 @@ def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: O
         cost_ax.fill_between(xs, low, high, color=drawn.get_color(), alpha=0.2)
         error_ax.plot(xs, scale * line.mc_endpoint_error_median.mean("seed").values, marker="o", label=label)
     cost_ax.set_yscale("log")
-    cost_ax.set_ylabel(_label(ds.mc_cost_mean) + ", 95 % CI")
+    cost_ax.set_ylabel(_label(ds.mc_cost_mean, extra=", 95 % CI"))
     error_ax.set_ylabel(_label(ds.mc_endpoint_error_median, error_unit))
     for ax in (cost_ax, error_ax):
-        ax.set_xlabel(_label(ds[x]))
+        ax.set_xlabel(_label(ds[x], x_unit))
         ax.grid(alpha=0.3)
     if hue is not None:
         cost_ax.legend(fontsize=8)
     trials, seeds = ds.attrs.get("trials", "?"), ds.sizes.get("seed", 1)
     where = ", ".join(f"{d} = {_value(sub, d)}" for d in fixed)
-    fig.suptitle(f"{ds.attrs.get('model', 'sweep')}: {trials} trials x {seeds} seed(s) per cell"
-                 + (f"; {where}" if where else ""), fontsize=10)
+    suptitle(fig, f"{ds.attrs.get('model', 'sweep')}: {trials} trials x {seeds} seed(s) per cell"
+                  + (f"; {where}" if where else ""), fontsize=10)
     return fig
 
 
