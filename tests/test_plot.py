@@ -366,6 +366,10 @@ def figure_problems(fig) -> list[str]:
                 problems.append(f"a delay not in ms: {label!r}")
     artists = _labelled_artists(fig)
     legends = [ax.get_legend() for ax in axes if ax.get_legend() is not None] + list(fig.legends)
+    if suptitle:
+        for legend in fig.legends:
+            if fig._suptitle.get_window_extent(renderer).overlaps(legend.get_window_extent(renderer)):
+                problems.append("the title runs under a legend")
     for legend in legends:
         for text in legend.get_texts():
             if not any(_drawn(a) for a in artists.get(text.get_text(), [])):

@@ -112,8 +112,8 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
     Returns:
         A Figure: per delay and design, each target's nominal hand path (thick), ``n_paths`` noisy
         trials (thin), the target (star) and the 2-sigma covariance ellipse of the trials' final
-        hand positions; the start hand position is the black dot. The legend names the targets
-        by number, as the other center-out figures do, beside the panels.
+        hand positions; the start hand position is the black dot. The legend below the panels
+        names the targets by number, as the other center-out figures do.
     """
     results = _nonempty(results)
     fig, grid, place = _grid(results, 4.6, 4.8)
@@ -121,7 +121,7 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
     for r in results:
         _reaches_panel(place(r), r, n_paths, colors)
     handles, labels = grid[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside right upper", fontsize=8)
+    fig.legend(handles, labels, loc="outside lower center", fontsize=8, ncol=min(len(labels), 9))
     suptitle(fig, f"six-muscle arm, center-out: hand paths ({n_paths} of N = {results[0].runs[0].x.shape[0]} "
                   "trials per target) and 2-sigma endpoint ellipses")
     return fig
@@ -180,7 +180,8 @@ def plot_endpoints(results: Sequence):
         A Figure: per target (colour) the endpoints of the trials that did not diverge minus the
         target (dots), their mean (cross) and 2-sigma ellipse, equal axes; all panels share one
         scale, that of the largest ellipse, so that panels compare at a glance (a spread orders of
-        magnitude smaller than the largest shows as a point).
+        magnitude smaller than the largest shows as a point; each panel writes its spread, the
+        mean over targets of the 1-sigma major axis).
     """
     results = _nonempty(results)
     fig, grid, place = _grid(results, 4.2, 4.2, sharex=True, sharey=True)
@@ -200,6 +201,9 @@ def plot_endpoints(results: Sequence):
             half = max(half, float(np.max(np.abs(mean)) + 2.4 * np.sqrt(np.max(np.linalg.eigvalsh(
                 np.cov(rel, rowvar=False))))))
         ax.scatter([0.0], [0.0], marker="+", s=80, color="k", zorder=6)
+        # on the shared scale a small spread is a dot: its size in words
+        ax.text(0.98, 0.02, f"spread {np.mean([1e3 * t.spread for t in r.targets]):.3g} mm", transform=ax.transAxes,
+                ha="right", va="bottom", fontsize=8)
     for r in results:
         ax = place(r)
         ax.set_xlim(-half, half)

@@ -75,7 +75,8 @@ def _endpoints_panel(ax, zoom, unit: str, half: float):
         else:                               # nothing to draw: said in words, not as a legend entry
             ax.text(0.98, 0.02, f"{name}: all {outside} endpoints outside the view", transform=ax.transAxes,
                     ha="right", va="bottom", fontsize=7, color=color)
-        ellipse(ax, ends[finite], color, label=f"{name} 2-sigma ellipse")
+        centre_in_view = np.any(finite) and bool(np.all(np.abs(ends[finite].mean(axis=0)) <= half))
+        ellipse(ax, ends[finite], color, label=f"{name} 2-sigma ellipse" if centre_in_view else None)
     ax.scatter([0.0], [0.0], marker="*", s=180, color="tab:orange", zorder=6, label="target")
     ax.set_xlim(-half, half)
     ax.set_ylim(-half, half)
