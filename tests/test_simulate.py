@@ -201,7 +201,7 @@ def test_sample_stats_counts_diverged_trials_and_keeps_a_robust_median():
 
 @pytest.fixture(scope="module")
 def arm_study():
-    return study.compare_delays("arm2", [0.05, 0.1], n_trials=300, seed=0, noise=True)
+    return study.compare_delays("arm2", [0.05, 0.1], n_trials=300, seed=0, noise="benchmark")
 
 
 def test_delay_aware_beats_delay_ignorant_on_the_noisy_delayed_arm(arm_study):

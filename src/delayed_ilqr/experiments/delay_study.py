@@ -192,7 +192,7 @@ def _controllers(controllers) -> list[str]:
     return controllers
 
 
-def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: int = 0, *, noise: bool = True,
+def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: int = 0, *, noise=True,
                    controllers: Sequence[str] = ("aware", "ignorant"), options: Optional[Options] = None,
                    substeps: int = 1, u_init=None, model_kwargs: Optional[dict] = None,
                    progress: bool = False, delay_frame=None) -> list[ControllerResult]:
@@ -204,7 +204,8 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
         delays: input delays tau in seconds (each a whole number of the model's steps).
         n_trials: Monte Carlo trials per controller and delay.
         seed: the seed of every Monte Carlo run (common random numbers across controllers).
-        noise: build the stochastic plant (``noise=True``) or the deterministic one.
+        noise: the factory's ``noise``: True (the model's default noise, the human preset of the
+            arms), False (the deterministic plant) or a preset's name (e.g. ``"benchmark"``).
         controllers: names in :data:`CONTROLLERS`, in the order to report them.
         options: solver options (see :func:`evaluate`).
         substeps: Euler-Maruyama sub-steps per control step.
