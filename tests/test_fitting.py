@@ -148,7 +148,10 @@ def test_fit_command_profiles_a_data_file(tmp_path):
     assert record["best_delay"] == DELAY
     fitted = record["fits"][0]["params"]
     assert max(abs(fitted[k] / TRUTH[k] - 1) for k in TRUTH) < 1e-3, fitted
-    assert "| 0.05 |" in result.output
+    assert any(line.split()[:2] == ["0.05", f"{record['fits'][0]['loss']:.4g}"] for line in result.output.splitlines())
+    manifest = json.loads((tmp_path / "fit" / "manifest.json").read_text())["settings"]
+    assert manifest["fitted_problem"]["noise"]["sigma_u"] == pytest.approx(fitted["sigma_u"], rel=1e-12)
+    assert manifest["problem"]["noise"]["sigma_u"] == 0.075 and manifest["fitted_problem"]["delay"] == DELAY
 
 
 def test_fit_command_names_bad_input(tmp_path):

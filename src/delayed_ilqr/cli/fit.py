@@ -9,7 +9,8 @@ import time
 import click
 
 from ..experiments import report, tables
-from .arguments import DelayList, ParamPair, import_callable
+from ..experiments.records import problem_record
+from .arguments import DelayList, ParamPair, import_callable, progress_option
 from .output import Output, out_option
 
 
@@ -26,8 +27,9 @@ from .output import Output, out_option
               help="L-BFGS-B iterations per delay.")
 @click.option("--gtol", type=click.FloatRange(min=0.0, min_open=True), default=1e-8, show_default=True,
               help="L-BFGS-B's tolerance on the projected gradient of the loss in log parameters.")
+@progress_option
 @out_option(default=None, help="Folder for fit.json.")
-def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, out, overwrite):
+def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, progress, out, overwrite):
     """Fit cost weights and noise scales to reach data, and the delay by a profile (docs/fitting.md).
 
     FUNCTION is package.module:name, called as name(params, condition, delay) with params a dict
@@ -63,19 +65,24 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
         start = time.perf_counter()
         best, fits = fitting.profile_delay(make_problem, delays, conditions, reach_data,
                                            {k: float(v) for k, v in params0.items()}, mean_scale=mean_scale,
-                                           max_iterations=max_iterations, gtol=gtol)
+                                           max_iterations=max_iterations, gtol=gtol, progress=progress)
         elapsed = time.perf_counter() - start
         names = sorted(params0)
         header = ["delay [s]", "loss", *names, "converged", "L-BFGS-B iterations", "evaluations"]
         rows = [[f"{d:g}", f"{f.loss:.4g}", *(f"{f.params[k]:.6g}" for k in names), "yes" if f.converged else "no",
                  str(f.iterations), str(f.evaluations)] for d, f in zip(delays, fits)]
-        click.echo(tables.markdown_table((header, rows)))
+        click.echo(tables.text_table((header, rows)))
         chosen = fits[delays.index(best)]
         click.echo(f"delay {best:g} s (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
         if out is not None:
+            # the problem of the first condition at the first delay and the starting values, and
+            # the one fitted (the chosen delay and parameters)
             settings = dict(function=function, data=str(data), start=params0, delays=list(delays),
                             mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
-                            elapsed_seconds=elapsed)
+                            elapsed_seconds=elapsed,
+                            problem=problem_record(make_problem({k: float(v) for k, v in params0.items()},
+                                                                conditions[0], delays[0])),
+                            fitted_problem=problem_record(make_problem(chosen.params, conditions[0], best)))
             records = [dict(delay=d, loss=f.loss, params=f.params, converged=f.converged, message=f.message,
                             iterations=f.iterations, evaluations=f.evaluations) for d, f in zip(delays, fits)]
             report.write_json(output.staging / "fit.json", dict(settings=settings, best_delay=best, fits=records))

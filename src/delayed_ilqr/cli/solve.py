@@ -11,8 +11,9 @@ from ..experiments import delay_study, engine, report, tables
 from ..models import REGISTRY
 from ..models.metadata import default_u_init
 from ..experiments.records import problem_record
+from ..experiments.progress import progress_bar
 from .arguments import (SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options, noise_option,
-                        noise_value, substeps_option)
+                        noise_value, progress_option, substeps_option)
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 
@@ -32,9 +33,10 @@ def models_command():
 @click.option("--method", type=click.Choice(["structured", "augmented"]), default="structured", show_default=True,
               help="Backward pass: Theorem 1's structured recursion, or the state-augmentation reference.")
 @model_options
+@progress_option
 @out_option(default=None, help="Folder for solution.json, solution.npz (the Solution, for delayed_ilqr.load) "
                                 "and figures.")
-def solve_command(model, delay, noise, no_noise, method, params, dt, out, overwrite):
+def solve_command(model, delay, noise, no_noise, method, params, dt, progress, out, overwrite):
     """Solve MODEL with iLQG and report the nominal solution and its convergence.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
@@ -44,7 +46,10 @@ def solve_command(model, delay, noise, no_noise, method, params, dt, out, overwr
     noise = noise_value(noise, no_noise)
     problem = build_problem(model, delay, noise, kwargs)
     with Output(out, overwrite) as output:
-        timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
+        # one step, but the first solve of a process compiles for seconds: the bar shows the time
+        with progress_bar(1, f"solve {model.name}", "solve", progress) as bar:
+            timed = engine.timed_solve(problem, Options(method=method), default_u_init(problem))
+            bar.update()
         sol = timed[0]
         label, unit = engine.endpoint_description(problem)
         endpoint = (label, unit, engine.endpoint_error(problem, np.asarray(sol.x[-1])[None])[0])
@@ -78,9 +83,11 @@ def solve_command(model, delay, noise, no_noise, method, params, dt, out, overwr
                    "plant; augmented: delay-aware by state augmentation.")
 @substeps_option
 @model_options
+@progress_option
 @out_option(default=None, help="Folder for simulate.json (summary), runs.npz (trials, nominal, gains), "
                                 "solution.npz (for delayed_ilqr.load) and figures.")
-def simulate_command(model, delay, trials, seed, noise, no_noise, controller, substeps, params, dt, out, overwrite):
+def simulate_command(model, delay, trials, seed, noise, no_noise, controller, substeps, params, dt, progress, out,
+                     overwrite):
     """Solve MODEL and run its feedback policy on the (noisy, delayed) plant --trials times.
 
     MODEL is one of the names that `delayed-ilqr models` lists, or your own factory as
@@ -90,7 +97,9 @@ def simulate_command(model, delay, trials, seed, noise, no_noise, controller, su
     problem = build_problem(model, delay, noise_value(noise, no_noise), kwargs)
     check_trials(problem, trials, substeps)
     with Output(out, overwrite) as output:
-        r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
+        with progress_bar(1, f"simulate {model.name}", "design and Monte Carlo", progress) as bar:
+            r = delay_study.evaluate(problem, controller, trials, seed, substeps=substeps)
+            bar.update()
         click.echo(tables.pairs(tables.simulate_summary(r, model.description)))
         if out is not None:
             from .. import plot

@@ -35,6 +35,7 @@ import numpy as np
 from .. import Options, Problem, Runs, Status, _validate, solve
 from ..models.metadata import default_u_init, task_space
 from ..prediction import predict, task_prediction
+from .progress import progress_bar
 
 __all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay",
            "save_reach_data", "load_reach_data"]
@@ -141,7 +142,8 @@ class AtDelay:
 
 def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
         u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
-        max_iterations: int = 100, delay_steps: Optional[int] = None) -> Fit:
+        max_iterations: int = 100, delay_steps: Optional[int] = None,
+        on_evaluation: Optional[Callable[[int, float], None]] = None) -> Fit:
     """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
 
     Args:
@@ -160,6 +162,8 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         delay_steps: None, or the delay in steps at which to fit when ``make_problem``'s problems
             have a ``delay_frame``: it replaces their delay and reaches the compiled loss as
             data, so fits at different delays share one compilation (:func:`profile_delay`).
+        on_evaluation: optional ``on_evaluation(count, loss)`` after each evaluation of the loss
+            (a progress display).
 
     Returns:
         A :class:`Fit`. An evaluation where a solve did not converge counts as an infinite loss
@@ -191,7 +195,9 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale, delay,
                                                 make_problem=make_problem, options=options)
         grad = np.array([float(grad[k]) for k in names])
-        last.update(status=np.asarray(status))
+        last.update(status=np.asarray(status), count=last.get("count", 0) + 1)
+        if on_evaluation is not None:
+            on_evaluation(last["count"], float(value))
         if not (np.isfinite(float(value)) and np.all(np.isfinite(grad))):
             return np.inf, np.zeros_like(grad)
         return float(value), grad
@@ -206,7 +212,8 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
 
 
 def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,
-                  data: ReachData, params0: dict, delay_frame: bool = True, **kwargs) -> tuple:
+                  data: ReachData, params0: dict, delay_frame: bool = True, progress: bool = False,
+                  **kwargs) -> tuple:
     """Fits theta at each candidate delay (:func:`fit`; ``make_problem(params, condition, delay)``,
     the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay]).
 
@@ -215,17 +222,25 @@ def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays
     share one compilation of the loss and its gradient instead of one per delay (their results
     equal the unframed fits' to round-off). That needs ``make_problem`` to depend on the delay
     only through ``delay_steps``; where it does not (the problems at two delays differ in more
-    than the delay), or with sensors, each delay compiles its own.
+    than the delay), or with sensors, each delay compiles its own. ``progress``: a bar on stderr
+    over the delays, with the current fit's evaluations and loss (when stderr is a terminal).
     """
     fits = None
-    if delay_frame:
-        frame = _common_frame(make_problem, delays, conditions, params0)
-        if frame is not None:
-            longest, steps = frame
-            at = AtDelay(make_problem, longest, max(steps))
-            fits = [fit(at, conditions, data, params0, delay_steps=l, **kwargs) for l in steps]
-    if fits is None:
-        fits = [fit(AtDelay(make_problem, float(delay)), conditions, data, params0, **kwargs) for delay in delays]
+    with progress_bar(len(delays), "fit", "delay", progress) as bar:
+        def counted(problem_at, **more):
+            shown = lambda n, loss: bar.set_postfix_str(f"evaluation {n}, loss {loss:.4g}")  # noqa: E731
+            result = fit(problem_at, conditions, data, params0, on_evaluation=shown, **more, **kwargs)
+            bar.update()
+            return result
+
+        if delay_frame:
+            frame = _common_frame(make_problem, delays, conditions, params0)
+            if frame is not None:
+                longest, steps = frame
+                at = AtDelay(make_problem, longest, max(steps))
+                fits = [counted(at, delay_steps=l) for l in steps]
+        if fits is None:
+            fits = [counted(AtDelay(make_problem, float(delay))) for delay in delays]
     # the loss, not Fit.converged: L-BFGS-B often ends a fit on a rough loss with an abnormal line
     # search; a fit whose final solves did not converge has an infinite loss
     losses = [f.loss for f in fits]
