@@ -52,17 +52,18 @@ from .._kernels.dense import small_matvec
 from ..problem import Problem
 from . import _common
 from .metadata import ModelMetadata, TaskSpace
+from .muscle import T_ACT
 from .sensors import joint_sensors
 
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
            "mass_matrix", "mass_matrix_inverse", "coriolis", "joint_acceleration", "hand_position",
            "hand_jacobian", "hand_velocity", "HandPosition", "ARM_STATE_LABELS", "FINAL_TIME", "SIGMA_U",
-           "SIGMA_U_HUMAN", "HUMAN_TORQUE_CV", "NOISE_PRESETS"]
+           "SIGMA_U_HUMAN", "HUMAN_TORQUE_CV", "ACTIVATION_TIME", "NOISE_PRESETS"]
 
 FINAL_TIME = 0.5  # s, tf of P2
 SIGMA_U = 0.2  # P2-noisy signal-dependent torque noise (a benchmark, not a human level)
 SIGMA_U_HUMAN = 0.01  # torque noise calibrated to human force variability (module docstring)
-ACTIVATION_TIME = 0.05  # s, the muscles' activation time constant the CV refers to (docs/models.md §4.2)
+ACTIVATION_TIME = T_ACT  # s, the muscles' activation time constant the CV refers to (docs/models.md §4.2)
 HUMAN_TORQUE_CV = SIGMA_U_HUMAN / math.sqrt(2 * ACTIVATION_TIME)
 """Coefficient of variation of a held torque under the ``"human"`` preset, 0.032: the torque
 low-pass filtered at :data:`ACTIVATION_TIME` (module docstring)."""
