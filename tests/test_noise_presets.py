@@ -111,7 +111,8 @@ def factory(delay=0.0, noise=False, **kwargs):
 """
 
 
-@pytest.mark.parametrize("extra, expected", [([], True), (["--no-noise"], False), (["--noise", "benchmark"], "benchmark")])
+@pytest.mark.parametrize("extra, expected", [([], True), (["--no-noise"], False),
+                                             (["--noise", "benchmark"], "benchmark")])
 def test_solve_simulate_compare_and_perturb_share_one_noise_default(tmp_path, monkeypatch, extra, expected):
     """Every command hands the model's factory the same noise: by default True (the model's own
     default preset), --no-noise False, a preset by name."""

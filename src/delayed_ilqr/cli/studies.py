@@ -110,8 +110,9 @@ def demo_command(out, overwrite, trials, seed, progress):
 
     The P2 reach with signal-dependent torque noise at the human level (models.arm2(noise=True),
     the "human" preset calibrated to human force variability, docs/models.md §4.5; P2-noisy's
-    sigma_u = 0.2, noise="benchmark", is a numerical stress test), input delays 0, 50, 100 and 150 ms, --trials noisy trials per
-    controller and delay. Prints the table and writes a markdown report with figures.
+    sigma_u = 0.2, noise="benchmark", is a numerical stress test), input delays 0, 50, 100 and
+    150 ms, --trials noisy trials per controller and delay. Prints the table and writes a markdown
+    report with figures.
     """
     problems = _check_study(ModelType().convert("arm2", None, None), list(DEMO_DELAYS), trials, True,
                             ["aware", "ignorant"], 1)
