@@ -452,6 +452,7 @@ def every_figure(results, reaches):
         "delay study": {"cost_vs_delay.png": plot.plot_delay_study(results),
                         "hand_paths.png": plot.plot_hand_paths(results)},
         "center-out": plot.center_out_figures(reaches + statistical),
+        "center-out, one delay and design (narrow figures)": plot.center_out_figures(reaches[:1]),
         "perturbation": plot.perturbation_figures(fake_perturbation()),
         "sweep": {"sweep.png": plot.plot_sweep(fake_sweep())},
     }
