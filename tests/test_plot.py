@@ -366,6 +366,10 @@ def figure_problems(fig) -> list[str]:
                 problems.append(f"a delay not in ms: {label!r}")
     artists = _labelled_artists(fig)
     legends = [ax.get_legend() for ax in axes if ax.get_legend() is not None] + list(fig.legends)
+    for legend in [ax.get_legend() for ax in axes if ax.get_legend() is not None] + list(fig.legends):
+        e = legend.get_window_extent(renderer)
+        if e.x0 < box.x0 - 0.5 or e.x1 > box.x1 + 0.5 or e.y0 < box.y0 - 0.5 or e.y1 > box.y1 + 0.5:
+            problems.append("a legend outside the canvas")
     if suptitle:
         for legend in fig.legends:
             if fig._suptitle.get_window_extent(renderer).overlaps(legend.get_window_extent(renderer)):
@@ -487,6 +491,10 @@ def test_the_checklist_catches_what_it_is_for():
     for rule in ("title outside the canvas", "a delay not in ms", "a speed not in cm/s",
                  "a legend entry for nothing drawn: 'rejected steps'"):
         assert rule in found, rule
+    wide = Figure(figsize=(2, 2))
+    wide.subplots().plot([0, 1], [0, 1], label="a line")
+    wide.legend(loc="outside lower center", ncol=1, labels=["a legend entry far wider than the figure itself"])
+    assert "a legend outside the canvas" in " | ".join(figure_problems(wide))
     bare = Figure()
     bare.subplots(1, 2)[0].set_ylabel("cost")
     found = " | ".join(figure_problems(bare))

@@ -121,7 +121,9 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
     for r in results:
         _reaches_panel(place(r), r, n_paths, colors)
     handles, labels = grid[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", fontsize=8, ncol=min(len(labels), 9))
+    # as many columns as the figure's width holds (about an inch per entry)
+    columns = max(1, min(len(labels), int(fig.get_size_inches()[0] / 1.05)))
+    fig.legend(handles, labels, loc="outside lower center", fontsize=8, ncol=columns)
     suptitle(fig, f"six-muscle arm, center-out: hand paths ({n_paths} of N = {results[0].runs[0].x.shape[0]} "
                   "trials per target) and 2-sigma endpoint ellipses")
     return fig
