@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml
 # DELAYED_ILQR_NO_CACHE=1 turns that off.
 # The demo's center-out study is the small one: the noise-aware and deterministic designs at 0 and
 # 100 ms. The full study (also the statistical re-design, which is most of its time, and 0, 50, 100,
-# 150 ms) is `delayed-ilqr center-out --allow-unconverged --out out/center_out_full`
+# 150 ms) is `delayed-ilqr center-out --allow-unconverged --out center_out_full`
 # (docs/guide/delay_sweeps.md).
 demo: $(STAMP)
 	$(BIN)/delayed-ilqr demo --overwrite --out out
