@@ -213,6 +213,44 @@ def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp
     assert sorted(keys) == sorted(f"{i},{j}" for i in range(2) for j in range(3))   # each cell once
 
 
+@pytest.mark.parametrize("damage", [b"", b"\x00garbage", "truncated"])
+def test_a_damaged_per_seed_chunk_is_computed_again(reference, tmp_path, monkeypatch, damage):
+    """A chunk of a per-seed variable (mc_*: its cells' values for every seed) emptied, truncated or
+    overwritten: a resume computes that chunk's cells again and rewrites the whole chunk, seed axis
+    included, with the reference's numbers."""
+    path = tmp_path / "store"
+    di.sweep("point_mass", GRID, store=path, **ARGS)
+    chunk = path / "results.zarr" / "mc_cost_mean" / "c" / "1" / "0" / "0"
+    data = chunk.read_bytes()
+    chunk.write_bytes(data[: len(data) // 2] if damage == "truncated" else damage)
+    np.testing.assert_array_equal(di.open_sweep(path).finished.values, [[1, 1, 1], [0, 0, 0]])
+    real, computed = compute.compute_batch, []
+    monkeypatch.setattr(run, "compute_batch", lambda s, b, p=None: (computed.append(b.number), real(s, b, p))[1])
+    repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert computed == [1]
+    xr.testing.assert_identical(repaired, reference)
+    assert int(di.open_sweep(path).finished.sum()) == 6
+
+
+def test_a_damaged_store_file_is_one_error_naming_the_store_and_file(reference, tmp_path):
+    path = tmp_path / "store"
+    di.sweep("point_mass", GRID, store=path, **ARGS)
+    meta = path / "results.zarr" / "zarr.json"
+    meta.write_text("{not json")
+    for call in (lambda: di.sweep("point_mass", GRID, store=path, **ARGS), lambda: di.open_sweep(path)):
+        with pytest.raises(ValueError, match=rf"{meta}: .*not valid JSON.*--overwrite") as info:
+            call()
+        assert "sweep store" in str(info.value)
+    variable = path / "results.zarr" / "cost" / "zarr.json"
+    meta.unlink()
+    with pytest.raises(ValueError, match=rf"{path / 'results.zarr'}.*sweep store"):
+        di.open_sweep(path)
+    (path / "sweep.json").write_text("\xff")
+    with pytest.raises(ValueError, match=rf"{path / 'sweep.json'}"):
+        di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert variable.exists()
+
+
 def test_a_store_of_another_sweep_is_refused_unless_overwrite(reference, tmp_path):
     path = tmp_path / "store"
     first = {"delay": [0.0], "x_target": TARGETS}            # shapes compiled for the reference
