@@ -11,6 +11,7 @@ import time
 import click
 import jax
 
+from .._files import save_figure, write_text
 from ..experiments import designs, report, tables
 from ..models import REGISTRY
 from .arguments import DelayFrame, GridAxis, IntList, ModelType, Setting
@@ -96,17 +97,13 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
     elapsed = time.perf_counter() - start
     click.echo(tables.text_table(tables.sweep_rows(ds)))
     figure = plot.plot_sweep(ds)
-    tmp = out / f".{SWEEP_FIGURE}.tmp-{os.getpid()}.png"
-    figure.savefig(tmp, dpi=report.DPI)
-    os.replace(tmp, out / SWEEP_FIGURE)
+    save_figure(figure, out / SWEEP_FIGURE, dpi=report.DPI)
     files = sorted(str(f.relative_to(out)) for f in out.rglob("*") if f.is_file() and f.name != "manifest.json")
     settings = dict(model=model.name, grid={k: [list(v) if isinstance(v, tuple) else v for v in vs]
                                             for k, vs in grid.items()},
                     fixed=fixed, seeds=seeds, trials=trials, design=design, batch_size=batch_size,
                     elapsed_seconds=elapsed)
-    tmp = out / f".manifest.json.tmp-{os.getpid()}"
-    tmp.write_text(json.dumps(manifest(settings, len(files)), indent=2, default=repr) + "\n")
-    os.replace(tmp, out / "manifest.json")
+    write_text(out / "manifest.json", json.dumps(manifest(settings, len(files)), indent=2, default=repr) + "\n")
     n_failed = int((ds.converged.values != 1).sum())
     click.echo(f"wrote {SWEEP_STORE}/, {SWEEP_FIGURE}, manifest.json to {out} ({elapsed:.1f} s)")
     if n_failed:
