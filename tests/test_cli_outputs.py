@@ -2,6 +2,7 @@
 manifest, --out checked before computing, one-line errors with their own exit code."""
 import json
 import os
+import pathlib
 
 import numpy as np
 import pytest
@@ -83,3 +84,40 @@ def test_simulate_refuses_more_trials_than_memory_holds():
         di.simulate(problem, policy, 50_000_000_000)
     p = problem.n_noise
     assert memory_estimate(problem, 10, 3) == 8 * 10 * (61 * 4 + 60 * 2 + 1 + 60 * 3 * p)
+
+
+# -- interrupts: Ctrl-C (SIGINT) and SIGTERM in a real process ---------------------------------------
+
+def _interrupt_when_computing(tmp_path, signum, *args):
+    """Runs ``python -m delayed_ilqr.cli ARGS --out tmp_path/out`` in a process of its own, sends
+    ``signum`` as soon as its staging folder exists (it is computing), and returns (exit code,
+    stderr)."""
+    import subprocess
+    import sys
+    import time
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(pathlib.Path(cli.__file__).parents[2]),
+                                                                     os.environ.get("PYTHONPATH")) if p))
+    process = subprocess.Popen([sys.executable, "-m", "delayed_ilqr.cli", "--no-cache", *map(str, args),
+                                "--out", str(tmp_path / "out")],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any(p.name.startswith(".out.partial") for p in tmp_path.iterdir()):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=120)
+    return process.returncode, err
+
+
+@pytest.mark.parametrize("signum, code", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_an_interrupt_exits_cleanly_with_its_code_and_writes_nothing(tmp_path, signum, code):
+    """Ctrl-C or SIGTERM while computing: no crash (no segfault at teardown, no traceback, no
+    "Aborted!" with the exit code of a solve that did not converge), the documented exit code
+    128 + signal, a message that nothing was written, and no staging folder or --out left."""
+    import signal
+    rc, err = _interrupt_when_computing(tmp_path, getattr(signal, signum), "compare", "point_mass", "--delays",
+                                        "0,0.03", "--trials", "8")
+    assert rc == code, err
+    assert f"interrupted by {signum}" in err and "nothing was written" in err, err
+    assert "Traceback" not in err and "Aborted" not in err and "results are still written" not in err
+    assert list(tmp_path.iterdir()) == []

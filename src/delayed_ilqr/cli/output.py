@@ -14,6 +14,7 @@ from typing import Optional
 import click
 
 from .._files import write_text
+from . import interrupts
 
 OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
 
@@ -58,11 +59,12 @@ class Output:
         sizes = {f: (self.staging / f).stat().st_size for f in files}
         write_text(self.staging / "manifest.json", json.dumps(manifest(settings, sizes), indent=2) + "\n")
         old = None
-        if self.out.exists():
-            old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
-            self.out.rename(old)
-        self.staging.rename(self.out)
-        self.staging = None
+        with interrupts.deferred(str(self.out)):        # the renames are not cut by Ctrl-C or SIGTERM
+            if self.out.exists():
+                old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
+                self.out.rename(old)
+            self.staging.rename(self.out)
+            self.staging = None
         if old is not None:
             shutil.rmtree(old)
         return files + ["manifest.json"]

@@ -12,6 +12,7 @@ import time
 import click
 import numpy as np
 
+from .._files import savez, write_text
 from ..experiments import center_out, delay_study, perturbation, report, tables
 from ..models import REGISTRY, arm2_muscle6
 from ..models.arm2 import SIGMA_U_HUMAN

@@ -3,7 +3,6 @@ arguments, into a resumable store (:mod:`delayed_ilqr.sweeps`)."""
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 import time
