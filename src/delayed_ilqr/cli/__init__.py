@@ -78,7 +78,7 @@ class _Main(click.Group):
             ctx.exit(ERROR_EXIT)
 
 
-@click.group(cls=_Main, context_settings=dict(help_option_names=["-h", "--help"]))
+@click.group(cls=_Main, invoke_without_command=True, context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
 @click.option("--debug", is_flag=True, help="Show the traceback of an unexpected error.")
 @click.option("--no-cache", is_flag=True, envvar=NO_CACHE_ENV, show_envvar=True,
@@ -87,7 +87,8 @@ class _Main(click.Group):
               show_envvar=True, default=None,
               help="Folder of the persistent compilation cache [default: jax in the user cache folder, "
                    "e.g. ~/.cache/delayed-ilqr/jax].")
-def main(debug, no_cache, cache_dir):
+@click.pass_context
+def main(ctx, debug, no_cache, cache_dir):
     """iLQG with control (input) delay: solve, Monte Carlo, delay studies and figures.
 
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
@@ -96,8 +97,11 @@ def main(debug, no_cache, cache_dir):
     other error, 130 (Ctrl-C) or 143 (SIGTERM) when interrupted (--out is left as it was).
 
     Compiled solvers are kept in a persistent cache folder (--cache-dir), so that the next process
-    does not compile them again; --no-cache turns that off.
+    does not compile them again; --no-cache turns that off. Without a command, prints this help.
     """
+    if ctx.invoked_subcommand is None:      # a question, not an error: the help, exit code 0
+        click.echo(ctx.get_help())
+        ctx.exit(0)
     # the process is the command's own: float64 and XLA's small-loop flags, before any computation
     jax.config.update("jax_enable_x64", True)
     configure_cpu()

@@ -77,6 +77,9 @@ def import_callable(value: str, what: str, param, ctx) -> Callable:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise click.BadParameter(f"cannot import module {module_name!r} of {value!r}: {exc}", ctx, param) from None
+    except Exception as exc:          # the user's module: a syntax error, or an error while it runs
+        raise click.BadParameter(f"cannot import module {module_name!r} of {value!r}: {type(exc).__name__}: "
+                                 f"{exc}", ctx, param) from None
     function = getattr(module, attr, None) if attr else None
     if not callable(function):
         raise click.BadParameter(f"{module_name!r} has no callable {attr!r}; {what} must name one as "

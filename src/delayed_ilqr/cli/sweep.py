@@ -2,6 +2,7 @@
 arguments, into a resumable store (:mod:`delayed_ilqr.sweeps`)."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
 import sys
@@ -17,6 +18,23 @@ from .arguments import DelayFrame, GridAxis, IntList, ModelType, Setting
 from .output import manifest, out_option
 
 SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
+
+
+class MissingExtra(click.ClickException):
+    """A package of the ``sweep`` extra is not installed (exit code 3: not a usage error)."""
+
+    exit_code = 3
+
+    def format_message(self) -> str:
+        return self.message
+
+
+def _require_extra(modules: list[str]) -> None:
+    """The sweep extra's packages importable, else :class:`MissingExtra` with the install command."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise MissingExtra(f"delayed-ilqr sweep needs the sweep extra (xarray, zarr, dask[distributed]); not installed: "
+                           f"{', '.join(missing)}. Install it with: pip install 'delayed-ilqr[sweep]'")
 
 
 @click.command("sweep")
@@ -59,6 +77,7 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
     computed twice. Prints a summary table and draws --out/sweep.png against the first --grid
     dimension. Exits 1 when some cell did not converge.
     """
+    _require_extra(["xarray", "zarr"] + (["distributed"] if workers or scheduler else []))
     from .. import plot
     from ..sweeps import sweep
     grid = dict(axes)
