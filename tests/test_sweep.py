@@ -284,6 +284,22 @@ def test_bad_arguments_name_the_argument(kwargs, error, match):
         di.sweep("point_mass", grid, **args)
 
 
+def test_the_sweep_command_with_sensors_runs_with_the_default_delay_frame(cache_dir, tmp_path):
+    """--delay-frame auto (the default) frames delays only where a frame is available: with delayed
+    sensors every delay keeps its own solver, and the results are the unframed sweep's."""
+    from click.testing import CliRunner
+    from delayed_ilqr import cli
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli.main, [
+        "sweep", "point_mass", "--grid", "delay=0,0.03", "--set", "sensory_delay=0.02", "--set", f"horizon={K}",
+        "--trials", "4", "--no-progress", "--out", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    unframed = di.sweep("point_mass", {"delay": [0.0, 0.03]}, [0], 4, progress=False, delay_frame=None,
+                        fixed={"sensory_delay": 0.02, "horizon": K, "noise": True})
+    xr.testing.assert_identical(di.open_sweep(out / "store").drop_vars("finished").drop_attrs(),
+                                unframed.drop_attrs())
+
+
 # -- Dask ------------------------------------------------------------------------------------------
 
 def dying_point_mass(flag, **kwargs):

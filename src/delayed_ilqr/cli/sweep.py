@@ -63,7 +63,7 @@ def _require_extra(modules: list[str]) -> None:
 @click.option("--delay-frame", type=DelayFrame(), default="auto", show_default=True,
               help="auto: the delay is data, in a frame of the grid's longest delay, so all delays share one "
                    "compiled solver (results equal to round-off; each solve costs one at the longest delay), "
-                   "when no delay has more than 1000 cells; none: one solver per delay; N: a frame of N steps "
+                   "when no delay has more than 1000 cells and the model has no delayed sensors; none: one solver per delay; N: a frame of N steps "
                    "(docs/sweeps.md).")
 @out_option(required=True, help="Folder of the sweep: store/ (results.zarr and completion markers; a second "
                                  "run of the same command resumes it), sweep.png, manifest.json.")

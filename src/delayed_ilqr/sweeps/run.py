@@ -69,7 +69,8 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         units: units of further grid arguments, added to :data:`UNITS`.
         delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
             ``delay_frame=L``), or "auto": L = the longest delay of the grid in steps, when the
-            cells' delays differ and no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells.
+            cells' delays differ, no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells and the
+            problems have no delayed sensors (no frame is available with an observation).
             Each solve then costs what one at delay L costs (docs/performance.md), and the
             results equal the unframed ones to round-off.
 
