@@ -121,3 +121,18 @@ def test_an_interrupt_exits_cleanly_with_its_code_and_writes_nothing(tmp_path, s
     assert f"interrupted by {signum}" in err and "nothing was written" in err, err
     assert "Traceback" not in err and "Aborted" not in err and "results are still written" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_memory_refusal_names_the_trials_given_and_says_when_not_even_one_fits(monkeypatch):
+    import importlib
+    from delayed_ilqr.models import point_mass
+    simulate_module = importlib.import_module("delayed_ilqr.simulate")
+    result = invoke("perturb", "point_mass", "--trials", 10 ** 12)       # 3 sensory delays x 2 runs each
+    assert result.exit_code == 2, result.output
+    assert "--trials=1000000000000 trials in each of 6 runs" in result.output and "6000000000000" not in result.output
+    assert "at most" in result.output and "per run" in result.output
+    per_trial = simulate_module.memory_estimate(point_mass(noise=True), 1)
+    monkeypatch.setattr(simulate_module, "_available_memory", lambda: per_trial)     # half a trial fits
+    with pytest.raises(ValueError, match="even one trial would not fit") as info:
+        simulate_module.check_memory(point_mass(noise=True), 5)
+    assert "at most 1 trials" not in str(info.value)

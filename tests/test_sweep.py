@@ -300,6 +300,19 @@ def test_the_sweep_command_with_sensors_runs_with_the_default_delay_frame(cache_
                                 unframed.drop_attrs())
 
 
+def test_repeated_cells_and_trials_that_cannot_fit_are_refused_before_solving(monkeypatch):
+    """delay=[0, 0.0] or two delays of one step count are one cell twice; trials beyond memory are
+    refused with the count given, before any batch is computed."""
+    monkeypatch.setattr(run, "compute_batch", lambda *a, **k: pytest.fail("computed before refusing"))
+    args = dict(seeds=[0], trials=5, progress=False, fixed={"horizon": K})
+    with pytest.raises(ValueError, match=r"grid\['delay'\] must not repeat a value; got 0 and 0.0"):
+        di.sweep("point_mass", {"delay": [0, 0.0]}, **args)
+    with pytest.raises(ValueError, match=r"grid\['delay'\]: 0.03 and 0.030000000001 are the same delay, 3 steps"):
+        di.sweep("point_mass", {"delay": [0.03, 0.030000000001]}, **args)
+    with pytest.raises(ValueError, match=r"trials=1000000000000 trials in each of 2 runs"):
+        di.sweep("point_mass", {"delay": [0.0, 0.03]}, **dict(args, trials=10 ** 12, delay_frame=3))
+
+
 # -- Dask ------------------------------------------------------------------------------------------
 
 def dying_point_mass(flag, **kwargs):

@@ -174,7 +174,7 @@ def build_problem(model: Model, delay: float, noise: bool, kwargs: Optional[dict
 def check_trials(problem, trials: int, substeps: int, runs: int = 1):
     """The Monte Carlo's memory, checked before any solve (``simulate.check_memory``)."""
     try:
-        check_memory(problem, trials * runs, substeps, what="--trials" if runs == 1 else f"{runs} runs x --trials")
+        check_memory(problem, trials, substeps, what="--trials", runs=runs)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--trials'") from None
 
