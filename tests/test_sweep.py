@@ -313,6 +313,16 @@ def test_repeated_cells_and_trials_that_cannot_fit_are_refused_before_solving(mo
         di.sweep("point_mass", {"delay": [0.0, 0.03]}, **dict(args, trials=10 ** 12, delay_frame=3))
 
 
+def test_a_refused_sweep_leaves_no_out_folder(tmp_path):
+    from click.testing import CliRunner
+    from delayed_ilqr import cli
+    for args in (["--grid", "delay=0.025"], ["--grid", "delay=0,0.0"], ["--grid", "delay=0", "--trials", str(10 ** 12)]):
+        out = tmp_path / "new" / "out"
+        result = CliRunner().invoke(cli.main, ["sweep", "point_mass", *args, "--out", str(out)])
+        assert result.exit_code == 2, result.output
+        assert list(tmp_path.iterdir()) == [], result.output
+
+
 # -- Dask ------------------------------------------------------------------------------------------
 
 def dying_point_mass(flag, **kwargs):

@@ -29,6 +29,12 @@ class MissingExtra(click.ClickException):
         return self.message
 
 
+def _remove_if_empty(folder) -> None:
+    """Removes ``folder``, made by this command, when no file was written in it."""
+    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _require_extra(modules: list[str]) -> None:
     """The sweep extra's packages importable, else :class:`MissingExtra` with the install command."""
     missing = [m for m in modules if importlib.util.find_spec(m) is None]
@@ -96,6 +102,7 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
                                  param_hint="'--out'")
     if overwrite and out.is_dir() and not (store / "sweep.json").is_file():
         shutil.rmtree(out)
+    created = next((p for p in reversed([out, *out.parents]) if not p.exists()), None)   # the top folder made here
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -111,7 +118,11 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
                    cache=jax.config.jax_compilation_cache_dir is not None,
                    delay_frame=None if delay_frame == "none" else delay_frame)
     except (ValueError, TypeError) as exc:
+        _remove_if_empty(created)             # a refused sweep leaves no folder it made
         raise click.UsageError(str(exc)) from None
+    except BaseException:
+        _remove_if_empty(created)
+        raise
     elapsed = time.perf_counter() - start
     click.echo(tables.text_table(tables.sweep_rows(ds)))
     figure = plot.plot_sweep(ds)
