@@ -58,3 +58,13 @@ def test_an_interrupted_write_keeps_the_old_file_and_leaves_no_temporary(tmp_pat
         assert npz["x"].tolist() == [0, 1, 2]
     with pytest.raises(_files.FileFormatError, match=r"a.json: is not an NPZ archive .*expected a test archive"):
         _files.open_npz(target, "a test archive")
+
+
+def test_the_fit_data_file_is_read_through_the_same_checks(tmp_path):
+    from delayed_ilqr.experiments import fitting
+    (tmp_path / "data.npz").write_bytes(b"x,y\n1,2\n")
+    with pytest.raises(_files.FileFormatError, match=r"data.npz: is not an NPZ archive .*save_reach_data"):
+        fitting.load_reach_data(tmp_path / "data.npz")
+    np.save(tmp_path / "one.npy", np.zeros(3))
+    with pytest.raises(_files.FileFormatError, match=r"one.npy: is a single NumPy array"):
+        fitting.load_reach_data(tmp_path / "one.npy")
