@@ -136,3 +136,30 @@ def test_a_memory_refusal_names_the_trials_given_and_says_when_not_even_one_fits
     with pytest.raises(ValueError, match="even one trial would not fit") as info:
         simulate_module.check_memory(point_mass(noise=True), 5)
     assert "at most 1 trials" not in str(info.value)
+
+
+def test_an_interrupt_that_lands_in_a_gc_callback_is_not_lost():
+    """Python drops an exception raised in a gc callback ("Exception ignored in ..."), and JAX
+    has one: a Ctrl-C whose handler runs there is raised again just after, in the command."""
+    import gc
+    import signal
+    import time
+    from delayed_ilqr.cli import interrupts
+
+    def collecting(phase, info):
+        if phase == "start" and not fired:
+            fired.append(1)
+            signal.raise_signal(signal.SIGINT)
+
+    fired = []
+    gc.callbacks.append(collecting)
+    try:
+        with pytest.raises(interrupts.Interrupted):
+            with interrupts.handled():
+                gc.collect()
+                deadline = time.monotonic() + 5
+                while time.monotonic() < deadline:
+                    time.sleep(0.01)
+    finally:
+        gc.callbacks.remove(collecting)
+    assert fired
