@@ -156,9 +156,7 @@ def load(path, problem=None):
         header = _header(npz, path)
         arrays = {k: _files.read_entry(npz, k, path, _WHAT) for k in npz.files if k != _METADATA}
     _check_arrays(header, arrays, path)
-    types = header["types"]
-    arrays = dict(arrays)
-    obj = _build(types, "", arrays, path)
+    obj = _build(header["types"], "", arrays, path)         # takes the entries it uses out of arrays
     if arrays:
         raise _files.FileFormatError(path, f"entries {sorted(arrays)} are not fields of {header['kind']}")
     _check_sizes(header, obj, path)
