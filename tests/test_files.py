@@ -68,3 +68,9 @@ def test_the_fit_data_file_is_read_through_the_same_checks(tmp_path):
     np.save(tmp_path / "one.npy", np.zeros(3))
     with pytest.raises(_files.FileFormatError, match=r"one.npy: is a single NumPy array"):
         fitting.load_reach_data(tmp_path / "one.npy")
+
+
+def test_an_atomic_write_gives_the_permissions_of_an_ordinary_new_file(tmp_path):
+    _files.write_text(tmp_path / "atomic.txt", "a")
+    (tmp_path / "plain.txt").write_text("a")
+    assert (tmp_path / "atomic.txt").stat().st_mode == (tmp_path / "plain.txt").stat().st_mode

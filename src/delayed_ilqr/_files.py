@@ -16,7 +16,7 @@ import contextlib
 import json
 import os
 import pathlib
-import tempfile
+import secrets
 import zipfile
 from typing import Iterator
 
@@ -40,7 +40,9 @@ def atomic_file(path, mode: str = "wb") -> Iterator:
     the content replaces ``path`` whole, else (an exception, KeyboardInterrupt included) the
     temporary file is removed and ``path`` is untouched."""
     path = pathlib.Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    tmp = path.parent / f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp"
+    # 0o666 less the umask, as open() gives a new file (tempfile.mkstemp would make it private)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)
     try:
         with os.fdopen(fd, mode) as f:
             yield f
