@@ -138,28 +138,37 @@ def test_a_memory_refusal_names_the_trials_given_and_says_when_not_even_one_fits
     assert "at most 1 trials" not in str(info.value)
 
 
-def test_an_interrupt_that_lands_in_a_gc_callback_is_not_lost():
-    """Python drops an exception raised in a gc callback ("Exception ignored in ..."), and JAX
-    has one: a Ctrl-C whose handler runs there is raised again just after, in the command."""
+@pytest.mark.parametrize("where", ["gc callback", "__del__"])
+def test_an_interrupt_that_lands_where_python_drops_exceptions_is_not_lost(where):
+    """Python drops an exception raised in a gc callback (JAX has one), a weakref callback or a
+    __del__ ("Exception ignored in ..."): a Ctrl-C whose handler runs there is raised again just
+    after, in the command."""
     import gc
     import signal
     import time
     from delayed_ilqr.cli import interrupts
 
-    def collecting(phase, info):
-        if phase == "start" and not fired:
+    fired = []
+
+    def interrupt(*args):
+        if not fired:
             fired.append(1)
             signal.raise_signal(signal.SIGINT)
 
-    fired = []
-    gc.callbacks.append(collecting)
+    class Finalised:
+        def __del__(self):
+            interrupt()
+
+    if where == "gc callback":
+        gc.callbacks.append(interrupt)
     try:
         with pytest.raises(interrupts.Interrupted):
             with interrupts.handled():
-                gc.collect()
+                gc.collect() if where == "gc callback" else Finalised()
                 deadline = time.monotonic() + 5
                 while time.monotonic() < deadline:
                     time.sleep(0.01)
     finally:
-        gc.callbacks.remove(collecting)
+        if interrupt in gc.callbacks:
+            gc.callbacks.remove(interrupt)
     assert fired

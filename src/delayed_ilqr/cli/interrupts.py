@@ -4,8 +4,9 @@ While a command runs, both signals raise :class:`Interrupted` (a ``KeyboardInter
 main thread, so that the command unwinds as for any error: the ``--out`` staging folder is removed
 and ``--out`` stays as it was (a sweep's store keeps the cells it finished). The signal is also
 recorded, so that an interrupt whose exception a library swallowed still stops the command before
-it writes its results (:func:`check`); one that lands in a garbage-collector callback (JAX has
-one, and Python drops exceptions raised there) is raised again just after it. The process then exits with 128 + the signal's number (130
+it writes its results (:func:`check`); one that lands where Python drops exceptions (a
+garbage-collector callback, which JAX registers, a weakref callback or a ``__del__``: Python
+reports it to ``sys.unraisablehook``) is raised again just after, in the main thread. The process then exits with 128 + the signal's number (130
 for Ctrl-C, 143 for SIGTERM), as a shell reports a process killed by it.
 
 The real process exits with ``os._exit`` after flushing its output (:func:`exit_now`): an
@@ -17,7 +18,6 @@ from __future__ import annotations
 
 import _thread
 import contextlib
-import gc
 import os
 import signal
 import sys
@@ -50,22 +50,19 @@ def exit_code(signum: int) -> int:
 
 def _handler(signum, frame):
     _State.received = signum
-    if _State.deferring:
-        return
-    if _in_gc_callback(frame):     # Python drops an exception raised there: raise it just after, in the command
-        threading.Timer(0.01, _thread.interrupt_main, (signum,)).start()
-        return
-    raise Interrupted(signum)
+    if not _State.deferring:
+        raise Interrupted(signum)
 
 
-def _in_gc_callback(frame) -> bool:
-    """Whether ``frame`` runs inside one of ``gc.callbacks`` (JAX registers one)."""
-    codes = {getattr(callback, "__code__", None) for callback in gc.callbacks} - {None}
-    while frame is not None:
-        if frame.f_code in codes:
-            return True
-        frame = frame.f_back
-    return False
+def _unraisable(previous):
+    """A ``sys.unraisablehook`` that raises an :class:`Interrupted` that Python dropped (raised in
+    a garbage-collector or weakref callback or a ``__del__``) again just after, in the main thread."""
+    def hook(unraisable):
+        if isinstance(unraisable.exc_value, Interrupted):
+            threading.Timer(0.01, _thread.interrupt_main, (unraisable.exc_value.signum,)).start()
+        else:
+            previous(unraisable)
+    return hook
 
 
 @contextlib.contextmanager
@@ -77,10 +74,12 @@ def handled() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {s: signal.signal(s, _handler) for s in SIGNALS}
+    previous, hook = {s: signal.signal(s, _handler) for s in SIGNALS}, sys.unraisablehook
+    sys.unraisablehook = _unraisable(hook)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for s, h in previous.items():
             signal.signal(s, h)
 
