@@ -41,6 +41,7 @@ class _State:
     received: Optional[int] = None      # the signal that came while a command ran
     deferring: bool = False             # in a block that must not be cut (the final renames)
     written: Optional[str] = None       # what the command had written when it was stopped
+    installed: bool = False             # this module's handlers are the process's
 
 
 def exit_code(signum: int) -> int:
@@ -59,10 +60,15 @@ def _unraisable(previous):
     a garbage-collector or weakref callback or a ``__del__``) again just after, in the main thread."""
     def hook(unraisable):
         if isinstance(unraisable.exc_value, Interrupted):
-            threading.Timer(0.01, _thread.interrupt_main, (unraisable.exc_value.signum,)).start()
+            threading.Timer(0.01, _raise_again, (unraisable.exc_value.signum,)).start()
         else:
             previous(unraisable)
     return hook
+
+
+def _raise_again(signum: int) -> None:
+    if _State.installed:               # the command still runs (else check() has stopped it)
+        _thread.interrupt_main(signum)
 
 
 @contextlib.contextmanager
@@ -75,11 +81,11 @@ def handled() -> Iterator[None]:
         yield
         return
     previous, hook = {s: signal.signal(s, _handler) for s in SIGNALS}, sys.unraisablehook
-    sys.unraisablehook = _unraisable(hook)
+    sys.unraisablehook, _State.installed = _unraisable(hook), True
     try:
         yield
     finally:
-        sys.unraisablehook = hook
+        sys.unraisablehook, _State.installed = hook, False
         for s, h in previous.items():
             signal.signal(s, h)
 
