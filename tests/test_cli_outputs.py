@@ -172,3 +172,25 @@ def test_an_interrupt_that_lands_where_python_drops_exceptions_is_not_lost(where
         if interrupt in gc.callbacks:
             gc.callbacks.remove(interrupt)
     assert fired
+
+
+def test_an_interrupt_during_the_final_renames_does_not_cut_them(tmp_path, monkeypatch):
+    """Ctrl-C between moving the old --out aside and moving the new one in would leave neither:
+    the renames finish, and the command then stops with 130, saying the results were written."""
+    import signal
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    real = pathlib.Path.rename
+
+    def interrupted_rename(self, target):
+        if self == out:                                   # the old folder moved aside: Ctrl-C now
+            signal.raise_signal(signal.SIGINT)
+        return real(self, target)
+
+    monkeypatch.setattr(pathlib.Path, "rename", interrupted_rename)
+    result = invoke("solve", "point_mass", "--delay", "0.03", "--out", out, "--overwrite")
+    assert result.exit_code == 130, result.output
+    assert f"interrupted by SIGINT after the results were written to {out}" in result.output
+    assert (out / "solution.npz").exists() and not (out / "old.txt").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]

@@ -59,14 +59,14 @@ class Output:
         sizes = {f: (self.staging / f).stat().st_size for f in files}
         write_text(self.staging / "manifest.json", json.dumps(manifest(settings, sizes), indent=2) + "\n")
         old = None
-        with interrupts.deferred(str(self.out)):        # the renames are not cut by Ctrl-C or SIGTERM
+        with interrupts.deferred(str(self.out)):        # not cut by Ctrl-C or SIGTERM: raised after it
             if self.out.exists():
                 old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
                 self.out.rename(old)
             self.staging.rename(self.out)
             self.staging = None
-        if old is not None:
-            shutil.rmtree(old)
+            if old is not None:
+                shutil.rmtree(old)
         return files + ["manifest.json"]
 
     def __enter__(self) -> "Output":
