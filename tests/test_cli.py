@@ -292,3 +292,35 @@ def test_dt_makes_delays_between_the_default_steps_possible(tmp_path):
     assert (meta["dt"], meta["delay_steps"], meta["horizon"]) == (0.005, 5, 120)
     reference = di.solve(point_mass(delay=0.025, dt=0.005, noise=True))     # solve's default: --noise on
     np.testing.assert_allclose(di.load(tmp_path / "solution.npz").u, reference.u, rtol=1e-12)
+
+
+def test_a_user_module_that_fails_to_import_is_a_usage_error(tmp_path, monkeypatch):
+    """A syntax error, or an exception raised while the module runs, names the module and the
+    error (exit code 2, no traceback)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr("sys.path", list(__import__("sys").path))
+    name = f"broken_{tmp_path.name.replace('-', '_')}"
+    (tmp_path / f"{name}.py").write_text("def reach(delay=0.0, noise=False:\n    pass\n")
+    (tmp_path / f"{name}_raises.py").write_text("raise RuntimeError('needs a licence file')\n")
+    for module, what in ((name, "SyntaxError"), (f"{name}_raises", "RuntimeError: needs a licence file")):
+        result = CliRunner().invoke(cli.main, ["solve", f"{module}:reach"])
+        assert result.exit_code == 2, result.output
+        assert f"cannot import module {module!r}" in result.output and what in result.output, result.output
+        assert "Traceback" not in result.output
+
+
+def test_no_command_prints_the_help_and_exits_0():
+    result = CliRunner().invoke(cli.main, [])
+    assert result.exit_code == 0, result.output
+    assert "Usage:" in result.output and "Commands:" in result.output and "sweep" in result.output
+
+
+def test_sweep_without_its_extra_says_how_to_install_it(tmp_path, monkeypatch):
+    for module in ("xarray", "zarr"):
+        monkeypatch.setitem(__import__("sys").modules, module, None)      # as if not installed
+        result = CliRunner().invoke(cli.main, ["sweep", "point_mass", "--grid", "delay=0,0.03",
+                                               "--out", tmp_path / "out"])
+        assert result.exit_code == cli.ERROR_EXIT, result.output
+        assert "pip install 'delayed-ilqr[sweep]'" in result.output and module in result.output, result.output
+        assert "Traceback" not in result.output and not (tmp_path / "out").exists()
+        monkeypatch.undo()

@@ -2,6 +2,7 @@
 manifest, --out checked before computing, one-line errors with their own exit code."""
 import json
 import os
+import pathlib
 
 import numpy as np
 import pytest
@@ -83,3 +84,113 @@ def test_simulate_refuses_more_trials_than_memory_holds():
         di.simulate(problem, policy, 50_000_000_000)
     p = problem.n_noise
     assert memory_estimate(problem, 10, 3) == 8 * 10 * (61 * 4 + 60 * 2 + 1 + 60 * 3 * p)
+
+
+# -- interrupts: Ctrl-C (SIGINT) and SIGTERM in a real process ---------------------------------------
+
+def _interrupt_when_computing(tmp_path, signum, *args):
+    """Runs ``python -m delayed_ilqr.cli ARGS --out tmp_path/out`` in a process of its own, sends
+    ``signum`` as soon as its staging folder exists (it is computing), and returns (exit code,
+    stderr)."""
+    import subprocess
+    import sys
+    import time
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(pathlib.Path(cli.__file__).parents[2]),
+                                                                     os.environ.get("PYTHONPATH")) if p))
+    process = subprocess.Popen([sys.executable, "-m", "delayed_ilqr.cli", "--no-cache", *map(str, args),
+                                "--out", str(tmp_path / "out")],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any(p.name.startswith(".out.partial") for p in tmp_path.iterdir()):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=120)
+    return process.returncode, err
+
+
+@pytest.mark.parametrize("signum, code", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_an_interrupt_exits_cleanly_with_its_code_and_writes_nothing(tmp_path, signum, code):
+    """Ctrl-C or SIGTERM while computing: no crash (no segfault at teardown, no traceback, no
+    "Aborted!" with the exit code of a solve that did not converge), the documented exit code
+    128 + signal, a message that nothing was written, and no staging folder or --out left."""
+    import signal
+    rc, err = _interrupt_when_computing(tmp_path, getattr(signal, signum), "compare", "point_mass", "--delays",
+                                        "0,0.03", "--trials", "8")
+    assert rc == code, err
+    assert f"interrupted by {signum}" in err and "nothing was written" in err, err
+    assert "Traceback" not in err and "Aborted" not in err and "results are still written" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_memory_refusal_names_the_trials_given_and_says_when_not_even_one_fits(monkeypatch):
+    import importlib
+    from delayed_ilqr.models import point_mass
+    simulate_module = importlib.import_module("delayed_ilqr.simulate")
+    result = invoke("perturb", "point_mass", "--trials", 10 ** 12)       # 3 sensory delays x 2 runs each
+    assert result.exit_code == 2, result.output
+    assert "--trials=1000000000000 trials in each of 6 runs" in result.output and "6000000000000" not in result.output
+    assert "at most" in result.output and "per run" in result.output
+    per_trial = simulate_module.memory_estimate(point_mass(noise=True), 1)
+    monkeypatch.setattr(simulate_module, "_available_memory", lambda: per_trial)     # half a trial fits
+    with pytest.raises(ValueError, match="even one trial would not fit") as info:
+        simulate_module.check_memory(point_mass(noise=True), 5)
+    assert "at most 1 trials" not in str(info.value)
+
+
+@pytest.mark.parametrize("where", ["gc callback", "__del__"])
+def test_an_interrupt_that_lands_where_python_drops_exceptions_is_not_lost(where):
+    """Python drops an exception raised in a gc callback (JAX has one), a weakref callback or a
+    __del__ ("Exception ignored in ..."): a Ctrl-C whose handler runs there is raised again just
+    after, in the command."""
+    import gc
+    import signal
+    import time
+    from delayed_ilqr.cli import interrupts
+
+    fired = []
+
+    def interrupt(*args):
+        if not fired:
+            fired.append(1)
+            signal.raise_signal(signal.SIGINT)
+
+    class Finalised:
+        def __del__(self):
+            interrupt()
+
+    if where == "gc callback":
+        gc.callbacks.append(interrupt)
+    try:
+        with pytest.raises(interrupts.Interrupted):
+            with interrupts.handled():
+                gc.collect() if where == "gc callback" else Finalised()
+                deadline = time.monotonic() + 5
+                while time.monotonic() < deadline:
+                    time.sleep(0.01)
+    finally:
+        if interrupt in gc.callbacks:
+            gc.callbacks.remove(interrupt)
+    assert fired
+
+
+def test_an_interrupt_during_the_final_renames_does_not_cut_them(tmp_path, monkeypatch):
+    """Ctrl-C between moving the old --out aside and moving the new one in would leave neither:
+    the renames finish, and the command then stops with 130, saying the results were written."""
+    import signal
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "old.txt").write_text("old")
+    real = pathlib.Path.rename
+
+    def interrupted_rename(self, target):
+        if self == out:                                   # the old folder moved aside: Ctrl-C now
+            signal.raise_signal(signal.SIGINT)
+        return real(self, target)
+
+    monkeypatch.setattr(pathlib.Path, "rename", interrupted_rename)
+    result = invoke("solve", "point_mass", "--delay", "0.03", "--out", out, "--overwrite")
+    assert result.exit_code == 130, result.output
+    assert f"interrupted by SIGINT after the results were written to {out}" in result.output
+    assert (out / "solution.npz").exists() and not (out / "old.txt").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]

@@ -213,6 +213,44 @@ def test_a_damaged_store_is_detected_and_its_cells_computed_again(reference, tmp
     assert sorted(keys) == sorted(f"{i},{j}" for i in range(2) for j in range(3))   # each cell once
 
 
+@pytest.mark.parametrize("damage", [b"", b"\x00garbage", "truncated"])
+def test_a_damaged_per_seed_chunk_is_computed_again(reference, tmp_path, monkeypatch, damage):
+    """A chunk of a per-seed variable (mc_*: its cells' values for every seed) emptied, truncated or
+    overwritten: a resume computes that chunk's cells again and rewrites the whole chunk, seed axis
+    included, with the reference's numbers."""
+    path = tmp_path / "store"
+    di.sweep("point_mass", GRID, store=path, **ARGS)
+    chunk = path / "results.zarr" / "mc_cost_mean" / "c" / "1" / "0" / "0"
+    data = chunk.read_bytes()
+    chunk.write_bytes(data[: len(data) // 2] if damage == "truncated" else damage)
+    np.testing.assert_array_equal(di.open_sweep(path).finished.values, [[1, 1, 1], [0, 0, 0]])
+    real, computed = compute.compute_batch, []
+    monkeypatch.setattr(run, "compute_batch", lambda s, b, p=None: (computed.append(b.number), real(s, b, p))[1])
+    repaired = di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert computed == [1]
+    xr.testing.assert_identical(repaired, reference)
+    assert int(di.open_sweep(path).finished.sum()) == 6
+
+
+def test_a_damaged_store_file_is_one_error_naming_the_store_and_file(reference, tmp_path):
+    path = tmp_path / "store"
+    di.sweep("point_mass", GRID, store=path, **ARGS)
+    meta = path / "results.zarr" / "zarr.json"
+    meta.write_text("{not json")
+    for call in (lambda: di.sweep("point_mass", GRID, store=path, **ARGS), lambda: di.open_sweep(path)):
+        with pytest.raises(ValueError, match=rf"{meta}: .*not valid JSON.*--overwrite") as info:
+            call()
+        assert "sweep store" in str(info.value)
+    variable = path / "results.zarr" / "cost" / "zarr.json"
+    meta.unlink()
+    with pytest.raises(ValueError, match=rf"{path / 'results.zarr'}.*sweep store"):
+        di.open_sweep(path)
+    (path / "sweep.json").write_text("\xff")
+    with pytest.raises(ValueError, match=rf"{path / 'sweep.json'}"):
+        di.sweep("point_mass", GRID, store=path, **ARGS)
+    assert variable.exists()
+
+
 def test_a_store_of_another_sweep_is_refused_unless_overwrite(reference, tmp_path):
     path = tmp_path / "store"
     first = {"delay": [0.0], "x_target": TARGETS}            # shapes compiled for the reference
@@ -244,6 +282,45 @@ def test_bad_arguments_name_the_argument(kwargs, error, match):
     grid = args.pop("grid")
     with pytest.raises(error, match=match):
         di.sweep("point_mass", grid, **args)
+
+
+def test_the_sweep_command_with_sensors_runs_with_the_default_delay_frame(cache_dir, tmp_path):
+    """--delay-frame auto (the default) frames delays only where a frame is available: with delayed
+    sensors every delay keeps its own solver, and the results are the unframed sweep's."""
+    from click.testing import CliRunner
+    from delayed_ilqr import cli
+    out = tmp_path / "out"
+    result = CliRunner().invoke(cli.main, [
+        "sweep", "point_mass", "--grid", "delay=0,0.03", "--set", "sensory_delay=0.02", "--set", f"horizon={K}",
+        "--trials", "4", "--no-progress", "--out", str(out)], catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    unframed = di.sweep("point_mass", {"delay": [0.0, 0.03]}, [0], 4, progress=False, delay_frame=None,
+                        fixed={"sensory_delay": 0.02, "horizon": K, "noise": True})
+    xr.testing.assert_identical(di.open_sweep(out / "store").drop_vars("finished").drop_attrs(),
+                                unframed.drop_attrs())
+
+
+def test_repeated_cells_and_trials_that_cannot_fit_are_refused_before_solving(monkeypatch):
+    """delay=[0, 0.0] or two delays of one step count are one cell twice; trials beyond memory are
+    refused with the count given, before any batch is computed."""
+    monkeypatch.setattr(run, "compute_batch", lambda *a, **k: pytest.fail("computed before refusing"))
+    args = dict(seeds=[0], trials=5, progress=False, fixed={"horizon": K})
+    with pytest.raises(ValueError, match=r"grid\['delay'\] must not repeat a value; got 0 and 0.0"):
+        di.sweep("point_mass", {"delay": [0, 0.0]}, **args)
+    with pytest.raises(ValueError, match=r"grid\['delay'\]: 0.03 and 0.030000000001 are the same delay, 3 steps"):
+        di.sweep("point_mass", {"delay": [0.03, 0.030000000001]}, **args)
+    with pytest.raises(ValueError, match=r"trials=1000000000000 trials in each of 2 runs"):
+        di.sweep("point_mass", {"delay": [0.0, 0.03]}, **dict(args, trials=10 ** 12, delay_frame=3))
+
+
+def test_a_refused_sweep_leaves_no_out_folder(tmp_path):
+    from click.testing import CliRunner
+    from delayed_ilqr import cli
+    for args in (["--grid", "delay=0.025"], ["--grid", "delay=0,0.0"], ["--grid", "delay=0", "--trials", str(10 ** 12)]):
+        out = tmp_path / "new" / "out"
+        result = CliRunner().invoke(cli.main, ["sweep", "point_mass", *args, "--out", str(out)])
+        assert result.exit_code == 2, result.output
+        assert list(tmp_path.iterdir()) == [], result.output
 
 
 # -- Dask ------------------------------------------------------------------------------------------

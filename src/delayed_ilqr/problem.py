@@ -380,9 +380,13 @@ def _frame(delay_frame, delay_steps: int, observation):
 
 def shared_delay_frame(problems) -> Optional[int]:
     """The frame that gives ``problems`` of different delays one compiled solver: their longest
-    delay in steps; None when they all have the same delay (a frame would only cost)."""
+    delay in steps; None when they all have the same delay (a frame would only cost) or when one
+    has delayed sensors (an ``observation``: its delays must be static, no frame is available)."""
+    problems = list(problems)
     delays = {int(p.delay_steps) for p in problems}
-    return max(delays) if len(delays) > 1 else None
+    if len(delays) < 2 or any(p.observation is not None for p in problems):
+        return None
+    return max(delays)
 
 
 def _check_labels(metadata, nx: int, nd: int) -> None:

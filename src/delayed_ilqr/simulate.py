@@ -268,17 +268,22 @@ def _available_memory() -> int:
     return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
 
 
-def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str = "n_trials") -> None:
-    """Raises ValueError, with the figures, when ``n_trials`` trials would need more than
-    MEMORY_FRACTION of the memory of the machine (or of the accelerator)."""
-    need, have = memory_estimate(problem, n_trials, substeps), _available_memory()
+def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str = "n_trials", runs: int = 1) -> None:
+    """Raises ValueError, with the figures, when ``runs`` Monte Carlos of ``n_trials`` trials each,
+    held together, would need more than MEMORY_FRACTION of the memory of the machine (or of the
+    accelerator); ``what`` names the trial count in the message (e.g. "--trials")."""
+    need, have = memory_estimate(problem, n_trials * runs, substeps), _available_memory()
     if need > MEMORY_FRACTION * have:
         per_trial = memory_estimate(problem, 1, substeps)
-        fit = max(1, int(MEMORY_FRACTION * have // per_trial))
-        raise ValueError(f"{what}={n_trials} trials would hold about {need / 1e9:.3g} GB of trajectories and noise "
-                         f"({per_trial} bytes per trial), more than {MEMORY_FRACTION:g} of the {have / 1e9:.3g} GB "
-                         f"of this machine; run at most {fit} trials per call (several calls with different "
-                         "seeds) and pool their statistics")
+        per_run = " per run" if runs > 1 else ""
+        fit = int(MEMORY_FRACTION * have // (per_trial * runs))
+        advice = (f"run at most {fit} trials{per_run} per call (several calls with different seeds) and pool their "
+                  "statistics" if fit >= 1 else
+                  f"even one trial{per_run} would not fit: shorten the horizon, use fewer substeps"
+                  f"{' or fewer runs' if runs > 1 else ''}, or use a machine with more memory")
+        raise ValueError(f"{what}={n_trials} trials{f' in each of {runs} runs' if runs > 1 else ''} would hold about "
+                         f"{need / 1e9:.3g} GB of trajectories and noise ({per_trial} bytes per trial), more than "
+                         f"{MEMORY_FRACTION:g} of the {have / 1e9:.3g} GB of this machine; {advice}")
 
 
 def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1,

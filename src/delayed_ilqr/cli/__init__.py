@@ -7,7 +7,8 @@ Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``cente
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
-in one line (``--debug`` shows the traceback).
+in one line (``--debug`` shows the traceback); 130 (Ctrl-C) or 143 (SIGTERM) when interrupted,
+with nothing written (:mod:`.interrupts`).
 
 MODEL is a built-in model (``delayed-ilqr models``) or your own factory as
 ``package.module:factory`` (imported with the current folder on the path), called like the
@@ -27,13 +28,14 @@ The package: :mod:`.arguments` (parameter types and the checks made before compu
 from __future__ import annotations
 
 import pathlib
+import signal
 
 import click
 import jax
 
 from .._cache import CACHE_DIR_ENV, NO_CACHE_ENV, enable_compilation_cache
 from .._cpu import configure_cpu
-from . import fit, solve, studies, sweep
+from . import fit, interrupts, solve, studies, sweep
 
 __all__ = ["main", "ERROR_EXIT"]
 
@@ -42,11 +44,29 @@ ERROR_EXIT = 3      # neither a usage error (2) nor a solve that did not converg
 
 class _Main(click.Group):
     """The command group: an error that is not click's becomes one line and exit code 3 (with
-    ``--debug``, the traceback); a staging folder left by it is removed by the command."""
+    ``--debug``, the traceback); a staging folder left by it is removed by the command. Ctrl-C
+    and SIGTERM stop the command cleanly with exit code 130 or 143 (:mod:`.interrupts`)."""
+
+    def main(self, args=None, **kwargs):
+        if args is not None:                  # run from Python (click's test runner): exits as click does
+            return super().main(args, **kwargs)
+        try:
+            return super().main(args, **kwargs)
+        except SystemExit as exc:             # the process's own command line
+            if exc.code in tuple(interrupts.exit_code(s) for s in interrupts.SIGNALS):
+                interrupts.exit_now(exc.code)
+            raise
 
     def invoke(self, ctx):
         try:
-            return super().invoke(ctx)
+            with interrupts.handled():
+                result = super().invoke(ctx)
+                interrupts.check()            # a signal whose exception a library swallowed
+                return result
+        except KeyboardInterrupt as exc:
+            signum = getattr(exc, "signum", signal.SIGINT)
+            click.echo(f"\n{interrupts.message(signum, ctx.invoked_subcommand)}", err=True)
+            ctx.exit(interrupts.exit_code(signum))
         except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except Exception as exc:
@@ -58,7 +78,7 @@ class _Main(click.Group):
             ctx.exit(ERROR_EXIT)
 
 
-@click.group(cls=_Main, context_settings=dict(help_option_names=["-h", "--help"]))
+@click.group(cls=_Main, invoke_without_command=True, context_settings=dict(help_option_names=["-h", "--help"]))
 @click.version_option(package_name="delayed-ilqr")
 @click.option("--debug", is_flag=True, help="Show the traceback of an unexpected error.")
 @click.option("--no-cache", is_flag=True, envvar=NO_CACHE_ENV, show_envvar=True,
@@ -67,17 +87,21 @@ class _Main(click.Group):
               show_envvar=True, default=None,
               help="Folder of the persistent compilation cache [default: jax in the user cache folder, "
                    "e.g. ~/.cache/delayed-ilqr/jax].")
-def main(debug, no_cache, cache_dir):
+@click.pass_context
+def main(ctx, debug, no_cache, cache_dir):
     """iLQG with control (input) delay: solve, Monte Carlo, delay studies and figures.
 
     Delays are given in seconds and must be whole numbers of the model's time step. Exit codes:
     0 success, 1 when a solve did not converge (results are still written), 2 for bad arguments
     (including an --out that cannot be created, or is not empty without --overwrite), 3 for any
-    other error.
+    other error, 130 (Ctrl-C) or 143 (SIGTERM) when interrupted (--out is left as it was).
 
     Compiled solvers are kept in a persistent cache folder (--cache-dir), so that the next process
-    does not compile them again; --no-cache turns that off.
+    does not compile them again; --no-cache turns that off. Without a command, prints this help.
     """
+    if ctx.invoked_subcommand is None:      # a question, not an error: the help, exit code 0
+        click.echo(ctx.get_help())
+        ctx.exit(0)
     # the process is the command's own: float64 and XLA's small-loop flags, before any computation
     jax.config.update("jax_enable_x64", True)
     configure_cpu()

@@ -77,6 +77,9 @@ def import_callable(value: str, what: str, param, ctx) -> Callable:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise click.BadParameter(f"cannot import module {module_name!r} of {value!r}: {exc}", ctx, param) from None
+    except Exception as exc:          # the user's module: a syntax error, or an error while it runs
+        raise click.BadParameter(f"cannot import module {module_name!r} of {value!r}: {type(exc).__name__}: "
+                                 f"{exc}", ctx, param) from None
     function = getattr(module, attr, None) if attr else None
     if not callable(function):
         raise click.BadParameter(f"{module_name!r} has no callable {attr!r}; {what} must name one as "
@@ -205,7 +208,7 @@ def build_problem(model: Model, delay: float, noise, kwargs: Optional[dict] = No
 def check_trials(problem, trials: int, substeps: int, runs: int = 1):
     """The Monte Carlo's memory, checked before any solve (``simulate.check_memory``)."""
     try:
-        check_memory(problem, trials * runs, substeps, what="--trials" if runs == 1 else f"{runs} runs x --trials")
+        check_memory(problem, trials, substeps, what="--trials", runs=runs)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--trials'") from None
 

@@ -13,6 +13,9 @@ from typing import Optional
 
 import click
 
+from .._files import write_text
+from . import interrupts
+
 OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
 
 
@@ -54,15 +57,16 @@ class Output:
         """Writes manifest.json, moves the staging folder to ``out``; returns the file names."""
         files = sorted(str(f.relative_to(self.staging)) for f in self.staging.rglob("*") if f.is_file())
         sizes = {f: (self.staging / f).stat().st_size for f in files}
-        (self.staging / "manifest.json").write_text(json.dumps(manifest(settings, sizes), indent=2) + "\n")
+        write_text(self.staging / "manifest.json", json.dumps(manifest(settings, sizes), indent=2) + "\n")
         old = None
-        if self.out.exists():
-            old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
-            self.out.rename(old)
-        self.staging.rename(self.out)
-        self.staging = None
-        if old is not None:
-            shutil.rmtree(old)
+        with interrupts.deferred(str(self.out)):        # not cut by Ctrl-C or SIGTERM: raised after it
+            if self.out.exists():
+                old = self.out.parent / f".{self.out.name}.old-{os.getpid()}"
+                self.out.rename(old)
+            self.staging.rename(self.out)
+            self.staging = None
+            if old is not None:
+                shutil.rmtree(old)
         return files + ["manifest.json"]
 
     def __enter__(self) -> "Output":

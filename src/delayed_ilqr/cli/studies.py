@@ -12,6 +12,7 @@ import time
 import click
 import numpy as np
 
+from .._files import savez, write_text
 from ..experiments import center_out, delay_study, perturbation, report, tables
 from ..models import REGISTRY, arm2_muscle6
 from ..experiments.records import problem_record
@@ -90,7 +91,7 @@ def compare_command(model, delays, trials, seed, noise, no_noise, augmented, sub
                             delays=list(delays), controllers=controllers, delay_frame=delay_frame,
                             **kwargs_settings(kwargs), problems=[problem_record(p) for p in problems])
             _study_outputs(results, output.staging, settings, "compare")
-            (output.staging / "compare.md").write_text(tables.markdown_table(table) + "\n")
+            write_text(output.staging / "compare.md", tables.markdown_table(table) + "\n")
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out}")
     if warn_not_converged(results):
@@ -234,7 +235,7 @@ def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows)
     records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
                for row in table_rows]
     report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
-    (staging / "perturb.md").write_text(tables.markdown_table(tables.records_table(table_rows)) + "\n")
+    write_text(staging / "perturb.md", tables.markdown_table(tables.records_table(table_rows)) + "\n")
     arrays = {}
     for r in results:
         tag = f"ls{int(round(1000 * r.sensory_delay))}ms"
@@ -243,7 +244,7 @@ def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows)
         arrays[f"{tag}_u_mean"] = np.asarray(r.base.u).mean(axis=0)
         arrays[f"{tag}_u_kicked_mean"] = np.asarray(r.perturbed.u).mean(axis=0)
         arrays[f"{tag}_disturbance"] = r.disturbance
-    np.savez_compressed(staging / "perturb_means.npz", **arrays)
+    savez(staging / "perturb_means.npz", arrays, compressed=True)
     report.save_figures(perturbation_figures(results), staging)
 
 

@@ -2,8 +2,8 @@
 arguments, into a resumable store (:mod:`delayed_ilqr.sweeps`)."""
 from __future__ import annotations
 
+import importlib.util
 import json
-import os
 import shutil
 import sys
 import time
@@ -11,12 +11,36 @@ import time
 import click
 import jax
 
+from .._files import save_figure, write_text
 from ..experiments import designs, report, tables
 from ..models import REGISTRY
 from .arguments import DelayFrame, GridAxis, IntList, ModelType, Setting
 from .output import manifest, out_option
 
 SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
+
+
+class MissingExtra(click.ClickException):
+    """A package of the ``sweep`` extra is not installed (exit code 3: not a usage error)."""
+
+    exit_code = 3
+
+    def format_message(self) -> str:
+        return self.message
+
+
+def _remove_if_empty(folder) -> None:
+    """Removes ``folder``, made by this command, when no file was written in it."""
+    if folder is not None and folder.is_dir() and not any(p.is_file() for p in folder.rglob("*")):
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _require_extra(modules: list[str]) -> None:
+    """The sweep extra's packages importable, else :class:`MissingExtra` with the install command."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise MissingExtra(f"delayed-ilqr sweep needs the sweep extra (xarray, zarr, dask[distributed]); not installed: "
+                           f"{', '.join(missing)}. Install it with: pip install 'delayed-ilqr[sweep]'")
 
 
 @click.command("sweep")
@@ -45,7 +69,7 @@ SWEEP_STORE, SWEEP_FIGURE = "store", "sweep.png"
 @click.option("--delay-frame", type=DelayFrame(), default="auto", show_default=True,
               help="auto: the delay is data, in a frame of the grid's longest delay, so all delays share one "
                    "compiled solver (results equal to round-off; each solve costs one at the longest delay), "
-                   "when no delay has more than 1000 cells; none: one solver per delay; N: a frame of N steps "
+                   "when no delay has more than 1000 cells and the model has no delayed sensors; none: one solver per delay; N: a frame of N steps "
                    "(docs/sweeps.md).")
 @out_option(required=True, help="Folder of the sweep: store/ (results.zarr and completion markers; a second "
                                  "run of the same command resumes it), sweep.png, manifest.json.")
@@ -59,6 +83,7 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
     computed twice. Prints a summary table and draws --out/sweep.png against the first --grid
     dimension. Exits 1 when some cell did not converge.
     """
+    _require_extra(["xarray", "zarr"] + (["distributed"] if workers or scheduler else []))
     from .. import plot
     from ..sweeps import sweep
     grid = dict(axes)
@@ -77,6 +102,7 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
                                  param_hint="'--out'")
     if overwrite and out.is_dir() and not (store / "sweep.json").is_file():
         shutil.rmtree(out)
+    created = next((p for p in reversed([out, *out.parents]) if not p.exists()), None)   # the top folder made here
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -92,21 +118,21 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
                    cache=jax.config.jax_compilation_cache_dir is not None,
                    delay_frame=None if delay_frame == "none" else delay_frame)
     except (ValueError, TypeError) as exc:
+        _remove_if_empty(created)             # a refused sweep leaves no folder it made
         raise click.UsageError(str(exc)) from None
+    except BaseException:
+        _remove_if_empty(created)
+        raise
     elapsed = time.perf_counter() - start
     click.echo(tables.text_table(tables.sweep_rows(ds)))
     figure = plot.plot_sweep(ds)
-    tmp = out / f".{SWEEP_FIGURE}.tmp-{os.getpid()}.png"
-    figure.savefig(tmp, dpi=report.DPI)
-    os.replace(tmp, out / SWEEP_FIGURE)
+    save_figure(figure, out / SWEEP_FIGURE, dpi=report.DPI)
     files = sorted(str(f.relative_to(out)) for f in out.rglob("*") if f.is_file() and f.name != "manifest.json")
     settings = dict(model=model.name, grid={k: [list(v) if isinstance(v, tuple) else v for v in vs]
                                             for k, vs in grid.items()},
                     fixed=fixed, seeds=seeds, trials=trials, design=design, batch_size=batch_size,
                     elapsed_seconds=elapsed)
-    tmp = out / f".manifest.json.tmp-{os.getpid()}"
-    tmp.write_text(json.dumps(manifest(settings, len(files)), indent=2, default=repr) + "\n")
-    os.replace(tmp, out / "manifest.json")
+    write_text(out / "manifest.json", json.dumps(manifest(settings, len(files)), indent=2, default=repr) + "\n")
     n_failed = int((ds.converged.values != 1).sum())
     click.echo(f"wrote {SWEEP_STORE}/, {SWEEP_FIGURE}, manifest.json to {out} ({elapsed:.1f} s)")
     if n_failed:

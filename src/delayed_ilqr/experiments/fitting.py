@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import Options, Problem, Runs, Status, _validate, solve
+from .. import Options, Problem, Runs, Status, _files, _validate, solve
 from ..models.metadata import default_u_init, task_space
 from ..prediction import predict, task_prediction
 from .progress import progress_bar
@@ -272,11 +272,12 @@ DATA_ARRAYS = ("conditions", "mean", "endpoint_cov")
 
 
 def save_reach_data(path, conditions, data: ReachData) -> None:
-    """Writes the data of C conditions as the NPZ file that :func:`load_reach_data` and
-    ``delayed-ilqr fit`` read: ``conditions`` [C, ...] (e.g. the targets), ``mean`` [C, K+1, m]
-    and ``endpoint_cov`` [C, m, m] (e.g. from :func:`observed_reach` of each condition's trials)."""
-    np.savez(path, conditions=np.asarray(conditions), mean=np.asarray(data.mean),
-             endpoint_cov=np.asarray(data.endpoint_cov))
+    """Writes the data of C conditions, atomically, as the NPZ file ``path`` (that name) that
+    :func:`load_reach_data` and ``delayed-ilqr fit`` read: ``conditions`` [C, ...] (e.g. the
+    targets), ``mean`` [C, K+1, m] and ``endpoint_cov`` [C, m, m] (e.g. from
+    :func:`observed_reach` of each condition's trials)."""
+    _files.savez(path, dict(conditions=np.asarray(conditions), mean=np.asarray(data.mean),
+                            endpoint_cov=np.asarray(data.endpoint_cov)))
 
 
 def load_reach_data(path) -> tuple:
@@ -286,17 +287,17 @@ def load_reach_data(path) -> tuple:
         ValueError: naming the file and the array, when an array is missing, the shapes do not
             agree on C and m, or a value is not finite.
     """
-    try:
-        f = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        raise ValueError(f"{path} is not an NPZ file of arrays (save_reach_data writes one): {exc}") from None
-    if not isinstance(f, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path} must be an NPZ file with the arrays {', '.join(DATA_ARRAYS)}; got a single array")
-    with f:
+    what = f"an NPZ file of the arrays {', '.join(DATA_ARRAYS)} (save_reach_data writes one)"
+    with _files.open_npz(path, what) as f:
         missing = [name for name in DATA_ARRAYS if name not in f.files]
         if missing:
-            raise ValueError(f"{path} must hold the arrays {', '.join(DATA_ARRAYS)}; missing {', '.join(missing)}")
-        conditions, mean, cov = (np.asarray(f[name], dtype=np.float64) for name in DATA_ARRAYS)
+            raise _files.FileFormatError(path, f"must hold the arrays {', '.join(DATA_ARRAYS)}; missing "
+                                               f"{', '.join(missing)}")
+        arrays = [_files.read_entry(f, name, path, what) for name in DATA_ARRAYS]
+    if any(a.dtype.kind not in "biuf" for a in arrays):
+        raise _files.FileFormatError(path, f"{', '.join(DATA_ARRAYS)} must be numbers; got dtypes "
+                                           f"{[str(a.dtype) for a in arrays]}")
+    conditions, mean, cov = (np.asarray(a, dtype=np.float64) for a in arrays)
     count = len(conditions) if conditions.ndim else 0
     if count == 0:
         raise ValueError(f"{path}: conditions must have a leading axis C >= 1; got shape {conditions.shape}")

@@ -13,7 +13,7 @@ from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
-from .. import Status
+from .. import Status, _files
 from .delay_study import ControllerResult
 from .designs import REGISTRY
 from .records import problem_record
@@ -26,8 +26,8 @@ DPI = 120  # resolution of every saved figure
 
 
 def write_json(path: pathlib.Path, data) -> None:
-    """Strict JSON (non-finite numbers must already be ``None``), indented."""
-    path.write_text(json.dumps(data, indent=2, allow_nan=False) + "\n")
+    """Strict JSON (non-finite numbers must already be ``None``), indented, written atomically."""
+    _files.write_json(path, data)
 
 
 def _json_float(value) -> Optional[float]:
@@ -40,9 +40,9 @@ def _json_list(values) -> list:
 
 
 def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
-    """Saves ``{file name: Figure}`` into ``out``; returns the file names."""
+    """Saves ``{file name: Figure}`` into ``out`` (each atomically); returns the file names."""
     for name, fig in figures.items():
-        fig.savefig(out / name, dpi=DPI)
+        _files.save_figure(fig, out / name, dpi=DPI)
     return list(figures)
 
 
@@ -110,8 +110,9 @@ def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> l
     (trials, nominal, gains, trace) and solution.npz (the solution whose policy ran, readable by
     ``delayed_ilqr.load``)."""
     write_json(out / "simulate.json", dict(settings=settings, result=result.to_dict()))
-    np.savez_compressed(out / "runs.npz", x=np.asarray(result.runs.x), u=np.asarray(result.runs.u),
-                        cost=np.asarray(result.runs.cost), **policy_arrays(result.solution))
+    _files.savez(out / "runs.npz", dict(x=np.asarray(result.runs.x), u=np.asarray(result.runs.u),
+                                        cost=np.asarray(result.runs.cost), **policy_arrays(result.solution)),
+                 compressed=True)
     result.solution.save(out / "solution.npz", result.problem, info=settings)
     return ["simulate.json", "runs.npz", "solution.npz"]
 
@@ -128,7 +129,7 @@ def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, se
         arrays[f"{key}_cost"] = np.asarray(r.runs.cost)
         for name, value in policy_arrays(r.solution).items():
             arrays[f"{key}_{name}"] = value
-    np.savez_compressed(out / f"{stem}_runs.npz", **arrays)
+    _files.savez(out / f"{stem}_runs.npz", arrays, compressed=True)
     return [f"{stem}.json", f"{stem}_runs.npz"]
 
 
@@ -212,7 +213,7 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
         lines += ["## Solver warnings", ""]
         lines += [f"- {r.controller} at {1e3 * r.delay:g} ms: {r.status}: {r.message}" for r in failed]
         lines += [""]
-    (out / "report.md").write_text("\n".join(lines) + "\n" + _DEMO_FILES)
+    _files.write_text(out / "report.md", "\n".join(lines) + "\n" + _DEMO_FILES)
     return "report.md"
 
 
@@ -252,5 +253,5 @@ def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict
         lines += [_STATISTICAL_NOTE, ""]
     for f in figures:
         lines += [f"![{f}]({f})", "", _caption(f), ""]
-    (out / "center_out.md").write_text("\n".join(lines))
+    _files.write_text(out / "center_out.md", "\n".join(lines))
     return ["center_out.md", "center_out.json"]

@@ -103,7 +103,7 @@ def compute_batch(settings: Settings, batch: Batch, plants=None) -> list[tuple[t
         padded_designs = problems + [problems[-1]] * (batch.size - len(problems))
         solved = jax.tree_util.tree_map(np.asarray, solve_batch(padded_designs, options, u_init))  # one transfer
     stacked_plants = stack(padded)
-    check_memory(plants[0], settings.trials * batch.size, settings.substeps)
+    check_memory(plants[0], settings.trials, settings.substeps, what="trials", runs=batch.size)
     monte_carlo = [_monte_carlo(stacked_plants, solved.policy, settings.trials, settings.substeps,
                                 jax.random.PRNGKey(seed)) for seed in settings.seeds]
     return [(cell.index, _cell_results(plant, take(solved, j), [(c[j], x[j]) for c, x in monte_carlo]))

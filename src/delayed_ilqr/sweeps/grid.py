@@ -51,11 +51,25 @@ def check_grid(grid: Mapping[str, Sequence]) -> dict[str, list]:
         values = [_plain(v) for v in values]
         if not values:
             raise ValueError(f"grid[{name!r}] must hold at least one value; got an empty sequence")
-        keys = [repr(v) for v in values]
-        if len(set(keys)) != len(keys):
-            raise ValueError(f"grid[{name!r}] must not repeat a value; got {values!r}")
+        for i, value in enumerate(values):      # by value: 0 and 0.0 are one cell (True and 1 are not)
+            twin = next((v for v in values[:i] if _same(v, value)), _NONE)
+            if twin is not _NONE:
+                raise ValueError(f"grid[{name!r}] must not repeat a value; got {twin!r} and {value!r} in {values!r}")
         out[name] = values
     return out
+
+
+_NONE = object()
+
+
+def _same(a, b) -> bool:
+    """Two grid values that make the same cell: equal, of the same kind (a bool is not a number)."""
+    if isinstance(a, bool) or isinstance(b, bool):
+        return a is b
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):
+        return False
 
 
 def _plain(value):

@@ -16,6 +16,7 @@ from .. import Options, _precision, _validate
 from ..experiments import designs
 from ..experiments.engine import endpoint_description
 from ..problem import shared_delay_frame
+from ..simulate import check_memory
 from .compute import VARIABLES, Settings, compute_batch
 from .grid import batches, cells, check_grid
 
@@ -69,7 +70,8 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
         units: units of further grid arguments, added to :data:`UNITS`.
         delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
             ``delay_frame=L``), or "auto": L = the longest delay of the grid in steps, when the
-            cells' delays differ and no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells.
+            cells' delays differ, no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells and the
+            problems have no delayed sensors (no frame is available with an observation).
             Each solve then costs what one at delay L costs (docs/performance.md), and the
             results equal the unframed ones to round-off.
 
@@ -109,8 +111,11 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             problems[cell.index] = settings.problem(cell)
         except (ValueError, TypeError) as exc:
             raise type(exc)(f"grid cell {cell.kwargs}: {exc}") from None
+    _check_delays(grid, all_cells, problems)
     settings, problems = _framed(settings, problems, delay_frame)
     plan = batches(all_cells, lambda c: problems[c.index], batch_size)
+    largest = max(plan, key=lambda b: b.size)            # its Monte Carlo holds the most, at once
+    check_memory(problems[largest.cells[0].index], trials, substeps, what="trials", runs=largest.size)
     template = _template(grid, seeds, problems[all_cells[0].index], dict(UNITS, **(units or {})))
     template.attrs.update(_attributes(model_name, fixed, settings))
 
@@ -147,6 +152,20 @@ def _framed(settings: Settings, problems: dict, delay_frame):
     except ValueError as exc:
         raise ValueError(f"delay_frame: {exc}") from None
     return dataclasses.replace(settings, delay_frame=delay_frame), problems
+
+
+def _check_delays(grid: dict, all_cells, problems: dict) -> None:
+    """Two delays of the grid that the factory makes the same number of steps are one cell twice."""
+    if "delay" not in grid:
+        return
+    seen = {}
+    for cell in all_cells:
+        rest = tuple((k, repr(v)) for k, v in cell.kwargs.items() if k != "delay")
+        p = problems[cell.index]
+        first = seen.setdefault((rest, int(p.delay_steps)), cell.kwargs["delay"])
+        if first != cell.kwargs["delay"]:
+            raise ValueError(f"grid['delay']: {first!r} and {cell.kwargs['delay']!r} are the same delay, "
+                             f"{int(p.delay_steps)} steps of dt = {p.dt:g} s; give each delay once")
 
 
 def open_sweep(store):

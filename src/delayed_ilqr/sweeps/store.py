@@ -1,7 +1,7 @@
 """The sweep's store: a folder holding the results as a Zarr store (``results.zarr``, one chunk per
 cell, read as an xarray Dataset) and a completion marker per batch (``cells/batch-N.json``).
 
-A batch's cells are written first, then its marker, atomically (a temporary file renamed): the
+A batch's cells are written first, then its marker, atomically (``delayed_ilqr._files``): the
 marker lists each cell with the SHA-256 of its values as written. A cell counts as finished only
 when a marker names it and the values read back from the store have that checksum, so a write
 that was interrupted (no marker yet), a chunk damaged afterwards (checksum mismatch, or a chunk
@@ -9,10 +9,12 @@ that cannot be decoded: all its cells) or a marker without its data is detected,
 computed again. Only the process that runs the sweep writes (Dask workers return numbers).
 The store itself is created atomically (built beside ``path``, then renamed), with the sweep's
 settings (``sweep.json``): a store of another sweep is refused, so that cells of two different
-sweeps never mix.
+sweeps never mix. A store whose metadata (``sweep.json``, the Zarr ``zarr.json`` files) cannot be
+read is one ``FileFormatError`` naming the file, with the way out (``overwrite``).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -22,6 +24,7 @@ from typing import Iterable, Optional
 
 import numpy as np
 
+from .._files import FileFormatError, read_json, write_text
 from .compute import VARIABLES
 
 __all__ = ["Store", "checksum"]
@@ -32,6 +35,10 @@ RESULTS, MARKERS, SETTINGS = "results.zarr", "cells", "sweep.json"
 # variable costs more to create, write and read than the cells' numbers (docs/performance.md,
 # "sweep throughput"). A damaged chunk makes its cells unfinished; they are computed again.
 CHUNK_CELLS = 256
+
+# what a damaged store file should have been, and the way out
+_WHAT = ("a file of a sweep store (delayed_ilqr.sweep writes them); the store is damaged: pass overwrite=True "
+         "(--overwrite) to compute it again from the start")
 
 
 def checksum(values: dict) -> str:
@@ -54,15 +61,6 @@ def _key(index) -> str:
     return ",".join(str(int(i)) for i in index)
 
 
-def _write_atomically(path: pathlib.Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 class Store:
     """A sweep's store folder (see the module docstring). Open it with :meth:`open`."""
 
@@ -83,7 +81,7 @@ class Store:
                 if not previous.is_file():
                     raise ValueError(f"store {path} exists and is not a sweep store; pass overwrite=True "
                                      "(--overwrite) to replace it")
-                if previous.read_text() != settings_text:
+                if read_json(previous, _WHAT) != json.loads(settings_text):
                     raise ValueError(f"store {path} holds another sweep (its {SETTINGS} differs from these settings); "
                                      "pass overwrite=True (--overwrite) to replace it, or another store")
                 return cls(path)
@@ -94,7 +92,7 @@ class Store:
             encoding = {name: {"chunks": _chunks(var.dims, template.sizes)} for name, var in template.data_vars.items()}
             template.to_zarr(staging / RESULTS, mode="w", encoding=encoding, consolidated=False)
             (staging / MARKERS).mkdir()
-            _write_atomically(staging / SETTINGS, settings_text)
+            write_text(staging / SETTINGS, settings_text)
             if path.exists():
                 old = path.parent / f".{path.name}.old-{os.getpid()}"
                 path.rename(old)
@@ -108,8 +106,33 @@ class Store:
     def group(self):
         if self._group is None:
             import zarr
-            self._group = zarr.open_group(self.path / RESULTS, mode="r+")
+            self.check()
+            with self._reading():
+                self._group = zarr.open_group(self.path / RESULTS, mode="r+")
         return self._group
+
+    def check(self) -> None:
+        """The store's metadata readable: results.zarr a folder whose Zarr metadata (``zarr.json``
+        of the group and of every variable) are JSON objects; else :class:`FileFormatError`
+        naming the file (a damaged chunk is not an error: its cells are computed again)."""
+        results = self.path / RESULTS
+        if not results.is_dir():
+            raise FileFormatError(results, f"is missing or not a folder; expected {_WHAT}")
+        for meta in [results / "zarr.json"] + [results / v.name / "zarr.json" for v in VARIABLES]:
+            if not isinstance(read_json(meta, _WHAT), dict):
+                raise FileFormatError(meta, f"must hold a JSON object; expected {_WHAT}")
+
+    @contextlib.contextmanager
+    def _reading(self):
+        """Zarr's and xarray's errors on opening a damaged store as one error naming it."""
+        try:
+            yield
+        except FileFormatError:
+            raise
+        except Exception as exc:
+            text = str(exc).strip().splitlines()
+            raise FileFormatError(self.path / RESULTS, f"cannot be opened ({type(exc).__name__}: "
+                                                       f"{text[0] if text else ''}); expected {_WHAT}") from None
 
     def markers(self) -> dict[str, str]:
         """{cell key: checksum} of every marker (a marker that cannot be read counts as absent)."""
@@ -167,21 +190,23 @@ class Store:
                     self._rewrite_chunks(array, v, [index for index, _ in results], data)
         cells = dict(previous or {})
         cells.update({_key(index): checksum(values) for index, values in results})
-        _write_atomically(self.path / MARKERS / f"batch-{batch_number}.json",
+        write_text(self.path / MARKERS / f"batch-{batch_number}.json",
                           json.dumps(dict(batch=batch_number, cells=cells), sort_keys=True))
 
     @staticmethod
     def _rewrite_chunks(array, variable, indices, data) -> None:
         """Writes whole chunks: what can still be read of each, with the new cells in it (an
         unreadable chunk's other cells become missing; they were unfinished, so this run
-        computes them too)."""
-        chunks = array.chunks
+        computes them too). A per-seed variable's chunk holds every seed of its cells."""
+        grid_ndim = len(indices[0])
+        chunks = array.chunks[:grid_ndim]
         regions = {}
         for index, row in zip(indices, data):
             start = tuple(i - i % c for i, c in zip(index, chunks))
             regions.setdefault(start, []).append((index, row))
         for start, cells in regions.items():
-            region = tuple(slice(s, min(s + c, n)) for s, c, n in zip(start, chunks, array.shape))
+            region = tuple(slice(s, min(s + c, n)) for s, c, n in zip(start, chunks, array.shape)) \
+                + tuple(slice(0, n) for n in array.shape[grid_ndim:])            # the seed axis, whole
             try:
                 block = np.asarray(array[region])
             except Exception:
@@ -194,7 +219,10 @@ class Store:
     def dataset(self):
         """The results as an xarray Dataset, loaded into memory."""
         import xarray as xr
-        with xr.open_zarr(self.path / RESULTS, consolidated=False, mask_and_scale=False) as lazy:
+        self.check()
+        with self._reading():
+            lazy = xr.open_zarr(self.path / RESULTS, consolidated=False, mask_and_scale=False)
+        with lazy:
             coords = lazy.coords.to_dataset().load().coords
             dims = {v.name: lazy[v.name].dims for v in VARIABLES}
             attrs = {v.name: dict(lazy[v.name].attrs) for v in VARIABLES}
