@@ -95,6 +95,8 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
         raise click.UsageError(str(exc)) from None
     elapsed = time.perf_counter() - start
     click.echo(tables.text_table(tables.sweep_rows(ds)))
+    for line in tables.sweep_warnings(ds):
+        click.echo(line, err=True)
     figure = plot.plot_sweep(ds)
     tmp = out / f".{SWEEP_FIGURE}.tmp-{os.getpid()}.png"
     figure.savefig(tmp, dpi=report.DPI)
