@@ -127,11 +127,12 @@ def test_minimal_intervention_and_fitts_run_end_to_end():
     point, bar = minimal_intervention_experiment("arm2", delay=0.03, sensory_delay=None, trials=30, final_time=0.4)
     assert point.status.startswith("CONVERGED") and bar.status.startswith("CONVERGED")
     assert np.isfinite(point.ratio) and np.isfinite(bar.ratio)
-    (r,) = fitts_experiment("arm2", distances=(0.05, 0.1), widths=(0.002, 0.02), movement_times=(0.2, 0.3, 0.4),
-                            delays=(0.03,), sensory_delay=0.02, hold=0.05, trials=10)
+    (r,) = fitts_experiment("arm2", distances=(0.04, 0.16), widths=(0.002, 0.02), movement_times=(0.2, 0.3, 0.4),
+                            delays=(0.03,), sensory_delay=0.02, hold=0.05, trials=20)
     assert r.sd.shape == (2, 3) and np.all(np.isfinite(r.sd))
-    # for a fixed movement time the longer reach needs more force: more signal-dependent noise
-    assert np.all(r.sd[1] > r.sd[0])
+    # the 4x longer reach needs more force: more signal-dependent noise (about 2x the SD, measured at
+    # 60 trials; 20 trials estimate an SD within about 16 %)
+    assert r.sd[1].mean() > 1.3 * r.sd[0].mean()
     # a wider target is never slower to meet
     met = np.isfinite(r.mt[:, 0])
     assert np.all(r.mt[met, 1] <= r.mt[met, 0])

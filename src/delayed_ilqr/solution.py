@@ -171,8 +171,8 @@ class Solution(NamedTuple):
             expected cost of the controller acting on the delayed filter's estimate, on that
             linearisation (``lqg.output_feedback_cost``). It is exact for the linearised plant
             only; the plant's higher-order terms can make the Monte Carlo cost of
-            :func:`~delayed_ilqr.simulate` many times larger (``docs/results/noise_calibration.md``),
-            so measure by Monte Carlo (:func:`delayed_ilqr.statistics.prediction_warning`).
+            `simulate` many times larger (``docs/results/noise_calibration.md``),
+            so measure by Monte Carlo (`delayed_ilqr.statistics.prediction_warning`).
         status: the :class:`Status` (an IntEnum: prints as its name, compares as its code); an
             int32 array of codes when the solve was traced (``jit``, ``vmap``).
         iterations: number of iterations run.

@@ -22,8 +22,8 @@ Every statistic is then computed as follows (:func:`sample_stats`):
 The Monte Carlo is the measurement. ``Solution.expected_cost`` is the **local (linearised)
 prediction** of E[J]: exact for the LQG approximation at the nominal, blind to the plant's
 higher-order terms (``docs/results/noise_calibration.md``). Every study compares the two
-(:func:`prediction_warning`) and warns when the Monte Carlo mean departs from the prediction by
-more than :data:`PREDICTION_FACTOR` either way: the prediction then does not describe the trials.
+(`prediction_warning`) and warns when the Monte Carlo mean departs from the prediction by
+more than `PREDICTION_FACTOR` either way: the prediction then does not describe the trials.
 """
 from __future__ import annotations
 

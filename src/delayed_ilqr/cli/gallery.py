@@ -1,5 +1,5 @@
 """The gallery's commands: ``kick``, ``target-jump``, ``fitts`` and ``minimal-intervention``, each a
-classic experiment of human motor control run on an arm (:mod:`delayed_ilqr.experiments`), printed
+classic experiment of human motor control run on an arm (`delayed_ilqr.experiments`), printed
 as a table of published against measured numbers and, with ``--out``, written atomically as
 ``<name>.json`` (settings, every number), ``<name>.md`` (the table, warnings, the figure) and
 ``<name>.png`` with its ``manifest.json``."""
@@ -152,7 +152,7 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
               help="Proprioceptive delay (s).")
 @click.option("--distances", type=DelayList(), default="0.04,0.08,0.16", show_default=True,
               help="Comma-separated movement distances (m).")
-@click.option("--widths", type=DelayList(), default="0.005,0.01,0.02", show_default=True,
+@click.option("--widths", type=DelayList(), default="0.008,0.016,0.032", show_default=True,
               help="Comma-separated target widths (m).")
 @click.option("--movement-times", type=DelayList(), default="0.2,0.3,0.4,0.5,0.6,0.7,0.8", show_default=True,
               help="Comma-separated movement times (s, increasing): the grid the model chooses from.")

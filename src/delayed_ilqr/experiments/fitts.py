@@ -8,15 +8,15 @@ usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006 (J Biomech 39:2578),
 paper, explain the law by the feedback delay.
 
 The model (after Harris & Wolpert 1998's account of Fitts' law by signal-dependent noise): a reach
-of distance D (:func:`.reach_tasks.reach`, with the arm's signal-dependent motor noise and,
+of distance D (`reach_tasks.reach`, with the arm's signal-dependent motor noise and,
 by default, delayed noisy proprioception) that must be on the target, at rest, from the movement
-time T on (:func:`.reach_tasks.hold_from`). The reaches to every distance and movement time are
+time T on (`reach_tasks.hold_from`). The reaches to every distance and movement time are
 solved in **one compiled, vmapped call** (T and the target are cost parameters of one horizon), and
 each runs ``trials`` times. A movement time meets the accuracy criterion for width W when the
 endpoints at T lie within the target along the movement: |bias| + 4.133 SD / 2 <= W / 2 (the
 effective width 4.133 SD, MacKenzie 1992). MT(D, W) is the shortest T that meets it
-(:func:`.responses.shortest_meeting`, linear between the grid's times); MT = a + b ID is fitted by
-least squares (:func:`.responses.fitts_fit`).
+(`responses.shortest_meeting`, linear between the grid's times); MT = a + b ID is fitted by
+least squares (`responses.fitts_fit`).
 """
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ class FittsResult(NamedTuple):
         bias [D, T], sd [D, T]: mean and SD (m) of the endpoint along the movement at T.
         status [D, T]: the solves' Status names.
         mt [D, W]: the chosen movement time (s), NaN where no T on the grid meets the criterion.
-        index [D, W]: log2(2D/W) (bits); fit: the :class:`.responses.FittsFit` over finite MT.
+        index [D, W]: log2(2D/W) (bits); fit: the `responses.FittsFit` over finite MT.
     """
 
     delay: float
@@ -74,12 +74,12 @@ def criterion_margin(bias, sd, width) -> np.ndarray:
 
 
 def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = (0.04, 0.08, 0.16),
-                     widths: Sequence[float] = (0.005, 0.01, 0.02),
-                     movement_times: Sequence[float] = tuple(np.round(np.arange(0.2, 0.81, 0.05), 3)),
+                     widths: Sequence[float] = (0.008, 0.016, 0.032),
+                     movement_times: Sequence[float] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8),
                      delays: Sequence[float] = (0.03, 0.09), sensory_delay: Optional[float] = 0.05,
                      hold: float = 0.1, trials: int = 100, seed: int = 0, direction: float = 0.0,
                      options: Optional[Options] = None) -> list[FittsResult]:
-    """Runs the experiment of the module docstring, one :class:`FittsResult` per motor delay.
+    """Runs the experiment of the module docstring, one `FittsResult` per motor delay.
 
     Args:
         arm: "arm2" or "arm2_muscle6"; distances (m), widths (m), movement_times (s, increasing).

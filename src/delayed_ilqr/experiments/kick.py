@@ -9,15 +9,15 @@ Published (what the experiment is compared with):
 * Nashed, Crevecoeur & Scott 2012 (J Neurophysiol 108:999): the corrections bring the hand to the
   target (final errors of perturbed reaches close to those of unperturbed ones).
 
-The model: a reach (:func:`.reach_tasks.reach`) with a motor delay l_m and, optionally,
+The model: a reach (`reach_tasks.reach`) with a motor delay l_m and, optionally,
 proprioception l_s late through the delayed Kalman filter. The same trials run twice on the same
 noise (common random numbers), without and with a change ``kick`` (m/s) of the hand's velocity
-perpendicular to the movement at ``pulse_time`` (:func:`.perturbation.lateral_kick`). The state
+perpendicular to the movement at ``pulse_time`` (`perturbation.lateral_kick`). The state
 after the kick is x_{kp+1}; the first command that can see it is issued at kp + 1 + l_s and acts
 on the muscles (or joints) l_m steps later: **the loop latency (l_s + l_m) dt is a hard causal
 bound** on the first change of the applied command, measured from the kick.
 
-Measured (:func:`analyse`, rules in :mod:`.responses`): the first change of the applied command
+Measured (`analyse`, rules in `responses`): the first change of the applied command
 (any trial, exact with common noise), the onset of the mean command response (10 % of its peak),
 the largest mean lateral displacement of the hand, and the median final hand error kicked against
 unperturbed.
@@ -50,14 +50,14 @@ PUBLISHED = (
 
 
 class KickAnalysis(NamedTuple):
-    """What :func:`analyse` measures (times in seconds after the kick, lengths in metres).
+    """What `analyse` measures (times in seconds after the kick, lengths in metres).
 
     Attributes:
         first_change: the first change of the applied command (any trial); None if none.
         onset: the onset of the mean applied-command response (10 % of its peak); None if none.
         loop_latency: (l_s + l_m) dt, the causal bound on both.
         peak_displacement: the largest mean hand displacement from the unperturbed path.
-        error_base, error_kicked: :class:`~delayed_ilqr.statistics.SampleStats` of the final hand
+        error_base, error_kicked: `SampleStats` of the final hand
             error without and with the kick.
         error_ratio: median kicked error over median unperturbed error.
     """
@@ -73,7 +73,7 @@ class KickAnalysis(NamedTuple):
 
 class KickResult(NamedTuple):
     """The experiment: ``problem`` (the plant), ``solution``, ``disturbance`` W [K, n], ``pulse_step`` kp
-    (W_kp enters x_{kp+1}), ``base`` and ``kicked`` :class:`.engine.Trials` and the :class:`KickAnalysis`."""
+    (W_kp enters x_{kp+1}), ``base`` and ``kicked`` `engine.Trials` and the `KickAnalysis`."""
 
     problem: Problem
     solution: Solution
@@ -86,10 +86,10 @@ class KickResult(NamedTuple):
 
 def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: int, sensory_steps: int,
             base_errors, kicked_errors, hand_base, hand_kicked) -> KickAnalysis:
-    """The :class:`KickAnalysis` of runs on common noise.
+    """The `KickAnalysis` of runs on common noise.
 
     Args:
-        base, kicked: :class:`~delayed_ilqr.Runs` (u [N, K, d] the issued commands).
+        base, kicked: `Runs` (u [N, K, d] the issued commands).
         pulse_step: kp; dt: the step (s); motor_steps, sensory_steps: l_m, l_s.
         base_errors, kicked_errors: [N] final hand errors (m).
         hand_base, hand_kicked: [N, K+1, 2] hand positions.
@@ -111,7 +111,7 @@ def kick_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optio
     """Runs the experiment of the module docstring.
 
     Args:
-        arm: "arm2" or "arm2_muscle6" (:func:`.reach_tasks.reach`).
+        arm: "arm2" or "arm2_muscle6" (`reach_tasks.reach`).
         delay: motor delay l_m dt (s); sensory_delay: proprioceptive delay l_s dt (s), or None (the
             state is seen, l_s = 0).
         kick: the change of the hand's speed (m/s), perpendicular (counter-clockwise) to the movement.

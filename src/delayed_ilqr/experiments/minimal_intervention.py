@@ -6,10 +6,10 @@ along task-irrelevant directions (Todorov & Jordan 2002, Nat Neurosci 5:1226); s
 "almost twice as much" for perturbations along the narrow dimension of a target as along its long
 dimension (Knill et al. 2011, J Neurosci 31:1219).
 
-The model: the same reach (:func:`.reach_tasks.reach`) with a point target and with a bar target
-through the same point, the bar perpendicular to the movement (:func:`.reach_tasks.bar_target`:
+The model: the same reach (`reach_tasks.reach`) with a point target and with a bar target
+through the same point, the bar perpendicular to the movement (`reach_tasks.bar_target`:
 only the error along the movement costs), each designed and run on the same noise. Measured
-(:func:`analyse`): the endpoint SD across the movement (the bar's long, task-irrelevant direction)
+(`analyse`): the endpoint SD across the movement (the bar's long, task-irrelevant direction)
 over the SD along it (task-relevant), for both targets, and the endpoint ellipses.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ PUBLISHED = (
 
 class TargetScatter(NamedTuple):
     """Endpoint scatter of one target (metres): ``irrelevant`` SD along the bar direction (across the
-    movement), ``relevant`` SD along the movement, their ``ratio``, the :class:`.responses.Ellipse`,
+    movement), ``relevant`` SD along the movement, their ``ratio``, the `responses.Ellipse`,
     the endpoints [N, 2], the solver status and the problem."""
 
     name: str
@@ -48,7 +48,7 @@ class TargetScatter(NamedTuple):
 
 
 def analyse(name: str, endpoints, bar_direction, status: str = "", problem=None) -> TargetScatter:
-    """The :class:`TargetScatter` of endpoints [N, 2] with the bar along ``bar_direction`` [2]."""
+    """The `TargetScatter` of endpoints [N, 2] with the bar along ``bar_direction`` [2]."""
     b = np.asarray(bar_direction, dtype=float)
     irrelevant = axis_sd(endpoints, b)
     relevant = axis_sd(endpoints, [-b[1], b[0]])

@@ -1,20 +1,20 @@
 """Reaching problems of the gallery's experiments: a hand target for either arm, a bar target, a
 target held from a chosen movement time on, and the target as part of the state (so that it can jump).
 
-Both arms share one cost in hand space (``arm2_muscle6``'s :class:`~delayed_ilqr.models.arm2_muscle6.ReachFinalCost`,
+Both arms share one cost in hand space (``arm2_muscle6``'s `ReachFinalCost`,
 ``w_p |e(q) - target|^2 + w_v |de/dt|^2 + w_a |a|^2``, and ``r |u|^2`` per unit time): the
-six-muscle arm with its defaults (:func:`~delayed_ilqr.models.arm2_muscle6.arm2_muscle6`), the
-torque-driven arm (P2's rigid body, :func:`~delayed_ilqr.models.arm2`) with torque noise at the
-human level and the hand-space weights :data:`ARM2_WEIGHTS` below, from the same start posture.
+six-muscle arm with its defaults (`arm2_muscle6`), the
+torque-driven arm (P2's rigid body, `arm2`) with torque noise at the
+human level and the hand-space weights `ARM2_WEIGHTS` below, from the same start posture.
 
 The transforms here change what a controller is asked to do, never the plant's dynamics or noise:
 
-* :func:`bar_target`: only the error along ``normal`` counts (a bar along the other direction);
-* :func:`hold_from`: the hand must be on the target, at rest, from the movement time ``T`` (a cost
+* `bar_target`: only the error along ``normal`` counts (a bar along the other direction);
+* `hold_from`: the hand must be on the target, at rest, from the movement time ``T`` (a cost
   parameter) to the horizon, so that problems that differ only in ``T`` share one compiled solver
-  (``jax.vmap`` over T, :mod:`.fitts`);
-* :func:`with_target_state`: the target becomes two more states with zero dynamics, so a target jump
-  is a disturbance of those states that the feedback policy sees (:mod:`.target_jump`).
+  (``jax.vmap`` over T, `fitts`);
+* `with_target_state`: the target becomes two more states with zero dynamics, so a target jump
+  is a disturbance of those states that the feedback policy sees (`target_jump`).
 """
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ def reach(arm: str = "arm2", target=None, delay: float = 0.0, noise: bool = True
 
     Args:
         arm: "arm2_muscle6" (its defaults, ``sigma_u`` 0.01 on the excitations) or "arm2" (P2's body,
-            torque noise ``SIGMA_U_HUMAN``, the weights :data:`ARM2_WEIGHTS`), see :data:`ARMS`.
+            torque noise ``SIGMA_U_HUMAN``, the weights `ARM2_WEIGHTS`), see `ARMS`.
         target: [2] hand target in metres.
         delay: motor (input) delay in seconds; sensory_delay: None (the state is seen) or the
             proprioceptive delay in seconds; both whole numbers of ``dt``.
@@ -63,7 +63,7 @@ def reach(arm: str = "arm2", target=None, delay: float = 0.0, noise: bool = True
         final_time: movement time (s), the horizon K = final_time / dt.
 
     Returns:
-        The :class:`~delayed_ilqr.Problem`; its metadata's task space is the hand, its target the
+        The `Problem`; its metadata's task space is the hand, its target the
         cost parameter ``target``.
     """
     if arm not in ARMS:
@@ -99,7 +99,7 @@ class BarFinalCost:
 
 
 def bar_target(problem: Problem, along) -> Problem:
-    """``problem`` (a :func:`reach`) with a bar target: the bar lies along the direction ``along`` [2]
+    """``problem`` (a `reach`) with a bar target: the bar lies along the direction ``along`` [2]
     through the target, so the final hand error along ``along`` is free (task-irrelevant) and only
     the error perpendicular to it costs."""
     along = np.asarray(along, dtype=float).reshape(2)
@@ -135,7 +135,7 @@ class HoldFinalCost:
 
 
 def hold_from(problem: Problem, movement_time: float, hold: float) -> Problem:
-    """``problem`` (a :func:`reach`) asked to reach its target by ``movement_time`` (s) and hold it
+    """``problem`` (a `reach`) asked to reach its target by ``movement_time`` (s) and hold it
     until the horizon; the horizon must cover ``movement_time + hold`` (hold > 0, seconds)."""
     if not hold > 0:
         raise ValueError(f"hold must be a positive number of seconds; got {hold!r}")
@@ -188,7 +188,7 @@ class _RunningOnBase:
 
 
 def with_target_state(problem: Problem) -> Problem:
-    """``problem`` (a :func:`reach` with full-state feedback) with its target as the last two states
+    """``problem`` (a `reach` with full-state feedback) with its target as the last two states
     (zero dynamics, no noise), which the cost reads instead of the parameter: the policy's feedback
     on them is the optimal response to a target displacement (the target-jump model of Liu &
     Todorov 2007). The state-feedback policy sees a jump at once; the motor delay is the loop latency."""

@@ -3,11 +3,11 @@
 Each takes plain arrays (the experiments' Monte Carlo, or synthetic data in the tests) and returns
 numbers; none runs a solve.
 
-**Detection rule of a response** (:func:`first_change`, :func:`onset`). A perturbed run and an
+**Detection rule of a response** (`first_change`, `onset`). A perturbed run and an
 unperturbed one share their noise samples (the same seed), so their difference is the response
-alone, zero until the perturbation can act. :func:`first_change` is the first sample at which that
+alone, zero until the perturbation can act. `first_change` is the first sample at which that
 difference is non-zero in some trial (beyond round-off: ``tol`` times its largest magnitude);
-:func:`onset` is the first sample at which the magnitude of the *mean* difference reaches
+`onset` is the first sample at which the magnitude of the *mean* difference reaches
 ``threshold`` (default 10 %) of its peak, the rule used for human EMG and kinematic latencies
 (a fixed fraction of the peak response).
 """
@@ -21,7 +21,7 @@ import numpy as np
 __all__ = ["ONSET_THRESHOLD", "first_change", "onset", "Ellipse", "ellipse", "axis_sd", "FittsFit", "fitts_fit",
            "index_of_difficulty", "EFFECTIVE_WIDTH_SD", "shortest_meeting"]
 
-#: The fraction of the peak mean response at which :func:`onset` detects it.
+#: The fraction of the peak mean response at which `onset` detects it.
 ONSET_THRESHOLD = 0.1
 
 #: The effective target width in standard deviations of the endpoints along the movement
@@ -88,7 +88,7 @@ class Ellipse(NamedTuple):
 
 
 def ellipse(cov) -> Ellipse:
-    """The :class:`Ellipse` of a [2, 2] covariance."""
+    """The `Ellipse` of a [2, 2] covariance."""
     c = np.asarray(cov, dtype=np.float64)
     if c.shape != (2, 2) or not np.all(np.isfinite(c)):
         raise ValueError(f"cov must be a finite [2, 2] covariance; got shape {c.shape}")

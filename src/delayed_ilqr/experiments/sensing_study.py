@@ -98,7 +98,7 @@ def sensory_delay_study(sensory_delays: Sequence[float], delay: float = 0.05, mo
 
 def study_rows(results: Sequence[SensingResult]) -> list[dict]:
     """One record per (sensory delay, design): the numbers of the study's table; the Monte Carlo
-    cost as its mean with the bootstrap 95 % interval and its median (:func:`.tables.mc_record`),
+    cost as its mean with the bootstrap 95 % interval and its median (`tables.mc_record`),
     beside the local (linearised) prediction (None for the ignorant design, which has none)."""
     from ..statistics import divergence_bound, diverged_trials, sample_stats
     from .tables import PREDICTED, mc_record
@@ -116,7 +116,7 @@ def study_rows(results: Sequence[SensingResult]) -> list[dict]:
 
 def study_warnings(results: Sequence[SensingResult]) -> list[str]:
     """One line per (sensory delay, design) whose Monte Carlo mean cost departs from its local
-    prediction by more than the factor (:func:`~delayed_ilqr.statistics.prediction_warning`)."""
+    prediction by more than the factor (`prediction_warning`)."""
     from ..statistics import prediction_warning
     from .tables import PREDICTED
     lines = [prediction_warning(f"{row['design']} at sensory delay {row['sensory delay [ms]']:g} ms",

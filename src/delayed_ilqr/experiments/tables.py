@@ -5,10 +5,10 @@ formatted as aligned plain text (:func:`text_table`) or GitHub markdown (:func:`
 the ``solve`` and ``simulate`` commands print two-column summaries (:func:`pairs`).
 
 Every study table reports the Monte Carlo cost as its mean with the bootstrap 95 % interval and its
-median (:mod:`delayed_ilqr.statistics`), beside the local (linearised) prediction
+median (`delayed_ilqr.statistics`), beside the local (linearised) prediction
 ``Solution.expected_cost``; the ``*_warnings`` functions give the one-line warnings of a study
 whose Monte Carlo mean departs from that prediction by more than
-:data:`~delayed_ilqr.statistics.PREDICTION_FACTOR` either way.
+`PREDICTION_FACTOR` either way.
 """
 from __future__ import annotations
 
@@ -59,7 +59,7 @@ def _median_iqr(st, scale: float = 1.0, digits: int = 4) -> str:
 
 
 def mc_record(st, prefix: str = "MC J") -> dict:
-    """A :class:`~delayed_ilqr.statistics.SampleStats` as record columns (JSON-ready, None for
+    """A `SampleStats` as record columns (JSON-ready, None for
     non-finite): ``<prefix> mean``, its bootstrap 95 % interval ``<prefix> mean CI low/high``,
     ``<prefix> median``, and ``diverged``."""
     f = lambda v: None if v is None or not math.isfinite(v) else float(v)          # noqa: E731
@@ -159,7 +159,7 @@ def sweep_rows(ds) -> Table:
 
 
 def _seeds_mean_ci(cell) -> str:
-    """The mean cost of a sweep cell with its 95 % interval (see :func:`sweep_rows`)."""
+    """The mean cost of a sweep cell with its 95 % interval (see `sweep_rows`)."""
     means = np.asarray(cell.mc_cost_mean.values, dtype=np.float64).ravel()
     if means.size == 1:
         lo, hi = float(cell.mc_cost_ci_low.values.ravel()[0]), float(cell.mc_cost_ci_high.values.ravel()[0])
@@ -171,7 +171,7 @@ def _seeds_mean_ci(cell) -> str:
 
 def delay_study_warnings(results: Sequence[ControllerResult]) -> list[str]:
     """One line per controller and delay whose Monte Carlo mean cost departs from its local
-    (linearised) prediction by more than the factor of :func:`~delayed_ilqr.statistics.prediction_warning`."""
+    (linearised) prediction by more than the factor of `prediction_warning`."""
     lines = [prediction_warning(f"{r.model}, {r.controller} at {1e3 * r.delay:g} ms", r.cost.mean, r.predicted_cost)
              for r in results]
     return [w for w in lines if w]

@@ -7,14 +7,14 @@ are stronger near the end of the movement but incomplete (timing-dependent feedb
 optimal feedback control predicts). Visual corrections start 100-150 ms after the jump
 (Pruszynski & Scott 2012; Scott 2016).
 
-The model: the reach's target is part of the state (:func:`.reach_tasks.with_target_state`), so the
+The model: the reach's target is part of the state (`reach_tasks.with_target_state`), so the
 delayed feedback policy's gains on it are the optimal response to a displaced target, and a jump of
 ``jump`` metres perpendicular to the movement at step kp is a disturbance of those states. The
 policy sees the state at once; its commands act ``delay`` seconds later, so the motor delay is the
 loop latency of this experiment (a visual loop: use 0.1-0.15 s). The same trials run with and
 without each jump on the same noise.
 
-Measured per jump time (:func:`analyse`, rules in :mod:`.responses`): the first change of the
+Measured per jump time (`analyse`, rules in `responses`): the first change of the
 applied command and the onset of the mean hand response (10 % of its peak lateral displacement),
 both after the jump; the median final distance to the new target and the fraction of the jump the
 hand made up.
@@ -76,7 +76,7 @@ class JumpResult(NamedTuple):
 
 def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
             motor_steps: int, time_before_end: float) -> JumpAnalysis:
-    """The :class:`JumpAnalysis` of runs on common noise: commands [N, K, d] (issued), hand
+    """The `JumpAnalysis` of runs on common noise: commands [N, K, d] (issued), hand
     positions [N, K+1, 2], the jump vector [2], the new target [2]; the jump enters x_{jump_step+1}."""
     start = jump_step + 1
     first = first_change(np.asarray(jumped_u) - np.asarray(base_u))

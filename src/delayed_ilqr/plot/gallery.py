@@ -1,4 +1,4 @@
-"""Figures of the gallery's experiments (:mod:`delayed_ilqr.experiments`: kick, target_jump, fitts,
+"""Figures of the gallery's experiments (`delayed_ilqr.experiments`: kick, target_jump, fitts,
 minimal_intervention), each with the published numbers it is compared with in its title or legend.
 Lengths in millimetres, times in milliseconds after the perturbation or in seconds of movement."""
 from __future__ import annotations
