@@ -136,3 +136,24 @@ def test_minimal_intervention_and_fitts_run_end_to_end():
     # a wider target is never slower to meet
     met = np.isfinite(r.mt[:, 0])
     assert np.all(r.mt[met, 1] <= r.mt[met, 0])
+
+
+def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from delayed_ilqr import cli
+    out = tmp_path / "jump"
+    result = CliRunner().invoke(cli.main, ["--no-cache", "target-jump", "--delay", "0.05", "--times", "0.04,0.3",
+                                           "--final-time", "0.5", "--trials", "3", "--out", str(out)],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "Liu & Todorov 2007" in result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["files"]) == {"target_jump.json", "target_jump.md", "target_jump.png"}
+    data = json.loads((out / "target_jump.json").read_text())
+    late, early = data["analyses"]
+    assert early["first_change"] == pytest.approx(0.05) and early["error_new"]["median"] < 0.01
+    bad = CliRunner().invoke(cli.main, ["target-jump", "--times", "0.7", "--final-time", "0.6"])
+    assert bad.exit_code == 2 and "--times" in bad.output

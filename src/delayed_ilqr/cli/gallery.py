@@ -33,14 +33,14 @@ def _check(arm, **kwargs):
 
 
 def _json(value):
+    if hasattr(value, "to_dict"):              # SampleStats (a NamedTuple: before the tuples)
+        return _json(value.to_dict())
     if isinstance(value, dict):
         return {k: _json(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_json(v) for v in value]
     if isinstance(value, np.ndarray):
         return _json(value.tolist())
-    if hasattr(value, "to_dict"):
-        return _json(value.to_dict())
     if isinstance(value, (float, np.floating)):
         return float(value) if math.isfinite(value) else None
     if isinstance(value, (np.integer,)):

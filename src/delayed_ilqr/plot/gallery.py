@@ -44,7 +44,8 @@ def plot_kick(result):
     ax_u.set_xlabel("time after the kick [ms] (applied command)"), ax_u.set_ylabel("|mean command response|")
     ax_u.legend(fontsize=7)
     eb, ek = 1e3 * np.asarray(result.base.errors), 1e3 * np.asarray(result.kicked.errors)
-    ax_err.boxplot([eb, ek], labels=["unperturbed", "kicked"])
+    ax_err.boxplot([eb, ek])
+    ax_err.set_xticks([1, 2], ["unperturbed", "kicked"])
     ax_err.set_ylabel("final hand error [mm]")
     ax_err.set_title(f"median ratio {a.error_ratio:.2g} (published: about 1-2)", fontsize=9)
     return fig
