@@ -150,11 +150,12 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
               help="Comma-separated motor delays (s); one fit per delay.")
 @click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
               help="Proprioceptive delay (s).")
-@click.option("--distances", type=DelayList(), default="0.04,0.08,0.16", show_default=True,
+@click.option("--distances", type=DelayList(), default=",".join(f"{d:g}" for d in fitts.DISTANCES), show_default=True,
               help="Comma-separated movement distances (m).")
-@click.option("--widths", type=DelayList(), default="0.008,0.016,0.032", show_default=True,
+@click.option("--widths", type=DelayList(), default=",".join(f"{w:g}" for w in fitts.WIDTHS), show_default=True,
               help="Comma-separated target widths (m).")
-@click.option("--movement-times", type=DelayList(), default="0.2,0.3,0.4,0.5,0.6,0.7,0.8", show_default=True,
+@click.option("--movement-times", type=DelayList(), show_default=True,
+              default=",".join(f"{t:g}" for t in fitts.MOVEMENT_TIMES),
               help="Comma-separated movement times (s, increasing): the grid the model chooses from.")
 @click.option("--trials", type=click.IntRange(min=2), default=100, show_default=True,
               help="Monte Carlo trials per distance and movement time.")
