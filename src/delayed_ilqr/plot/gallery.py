@@ -38,7 +38,7 @@ def plot_kick(result):
     for lo, hi, c, name in ((20, 50, "tab:green", "reflex"), (50, 100, "tab:olive", "long-latency"),
                             (100, 150, "tab:orange", "voluntary")):
         ax_u.axvspan(lo, hi, color=c, alpha=0.15, label=f"{name} {lo}-{hi} ms (published)")
-    ax_u.plot(t_after, resp, color="tab:red", lw=2, label="model")
+    ax_u.plot(t_after, resp, color="tab:red", lw=2, drawstyle="steps-post", label="model (held over each step)")
     ax_u.axvline(1e3 * a.loop_latency, color="k", ls=":", label=f"loop latency {1e3 * a.loop_latency:.0f} ms")
     ax_u.set_xlim(-50, max(300, t_after[-1]))
     ax_u.set_xlabel("time after the kick [ms] (applied command)"), ax_u.set_ylabel("|mean command response|")
