@@ -49,8 +49,13 @@ def _json(value):
 
 
 def _finish(name: str, title: str, rows: list, warned: list, records: dict, figure, out, overwrite_output,
-            settings: dict, elapsed: float):
-    """Prints the table and the warnings; with --out writes the files and commits the folder."""
+            settings: dict, elapsed: float, statuses=()):
+    """Prints the table and the warnings (and one line per solve that did not converge); with --out
+    writes the files and commits the folder."""
+    from .. import Status
+    warned = list(warned) + [f"warning: a solve of the {name} experiment did not converge ({s}); its numbers are "
+                             "those of the returned policy" for s in dict.fromkeys(map(str, statuses))
+                             if not Status[s].converged]
     table = tables.records_table(rows)
     click.echo(tables.text_table(table))
     for line in warned:
@@ -110,7 +115,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
                         trials=trials, seed=seed)
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
-                elapsed)
+                elapsed, [r.solution.status])
 
 
 @click.command("target-jump")
@@ -141,7 +146,7 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
         settings = dict(arm=arm, delay=delay, jump=jump, times=list(times), final_time=final_time, trials=trials,
                         seed=seed)
         _finish("target_jump", "Target jumps", target_jump.comparison(r), [], records, plot_target_jump(r), out,
-                output, settings, elapsed)
+                output, settings, elapsed, [r.solution.status])
 
 
 @click.command("fitts")
@@ -185,7 +190,7 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
         settings = dict(arm=arm, delays=list(delays), sensory_delay=sensory_delay, distances=list(distances),
                         widths=list(widths), movement_times=list(movement_times), trials=trials, seed=seed)
         _finish("fitts", "Fitts' law", fitts.comparison(results), [], records, plot_fitts(results), out, output,
-                settings, elapsed)
+                settings, elapsed, [s for r in results for s in r.status.ravel()])
 
 
 @click.command("minimal-intervention")
@@ -209,7 +214,8 @@ def minimal_intervention_command(arm, delay, sensory_delay, trials, seed, out, o
         from ..plot.gallery import plot_minimal_intervention
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed)
         _finish("minimal_intervention", "Minimal intervention", minimal_intervention.comparison(scatters), [],
-                records, plot_minimal_intervention(scatters), out, output, settings, elapsed)
+                records, plot_minimal_intervention(scatters), out, output, settings, elapsed,
+                [s.status for s in scatters])
 
 
 COMMANDS = (kick_command, target_jump_command, fitts_command, minimal_intervention_command)

@@ -30,7 +30,7 @@ import numpy as np
 from .. import Options, Status
 from ..models.arm2 import hand_position
 from .engine import monte_carlo, solve_batch, take
-from .reach_tasks import hold_from, reach, reach_targets
+from .reach_tasks import hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
 
 __all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin", "fitts_experiment", "comparison"]
@@ -106,7 +106,7 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
         problems = [hold_from(reach(arm, reach_targets(1, ds[i], start_angle=direction)[0], delay=delay,
                                     final_time=final_time, sensory_delay=sensory_delay), ts[j], hold)
                     for i, j in grid]
-        sols = solve_batch(problems, options)
+        sols = solve_batch(problems, solver_options(arm, options))
         bias, sd = np.full((ds.size, ts.size), np.nan), np.full((ds.size, ts.size), np.nan)
         status = np.empty((ds.size, ts.size), dtype=object)
         unit = np.array([np.cos(direction), np.sin(direction)])

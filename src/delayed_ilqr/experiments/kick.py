@@ -34,7 +34,7 @@ from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import Trials, monte_carlo
 from .perturbation import lateral_kick
-from .reach_tasks import reach
+from .reach_tasks import reach, solver_options
 from .responses import first_change, onset
 
 __all__ = ["PUBLISHED", "KickAnalysis", "KickResult", "analyse", "kick_experiment", "comparison"]
@@ -121,7 +121,7 @@ def kick_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optio
         options: solver options.
     """
     problem = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
-    sol = solve(problem, u_init=default_u_init(problem), options=options)
+    sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
     kp = int(round((0.5 * final_time if pulse_time is None else pulse_time) / problem.dt))
     if not 0 <= kp < problem.horizon - 1:
         raise ValueError(f"pulse_time must lie within the movement, 0 <= t < {final_time - problem.dt:g} s; "

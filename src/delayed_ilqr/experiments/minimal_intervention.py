@@ -21,7 +21,7 @@ import numpy as np
 from .. import Options, Problem, solve
 from ..models.metadata import default_u_init
 from .engine import monte_carlo
-from .reach_tasks import bar_target, movement_direction, reach
+from .reach_tasks import bar_target, movement_direction, reach, solver_options
 from .responses import Ellipse, axis_sd, ellipse
 
 __all__ = ["PUBLISHED", "TargetScatter", "analyse", "minimal_intervention_experiment", "comparison"]
@@ -70,7 +70,7 @@ def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sens
     along_bar = np.array([-d[1], d[0]])
     out = []
     for name, problem in (("point", point), ("bar", bar_target(point, along_bar))):
-        sol = solve(problem, u_init=default_u_init(problem), options=options)
+        sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
         trials_ = monte_carlo(problem, sol.policy, trials, seed)
         out.append(analyse(name, trials_.endpoints, along_bar, str(sol.status), problem))
     return out

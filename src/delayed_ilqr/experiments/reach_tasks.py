@@ -24,7 +24,7 @@ from typing import Any, Optional
 import jax.numpy as jnp
 import numpy as np
 
-from .. import Problem
+from .. import Options, Problem
 from ..models.arm2 import arm2 as _arm2_factory
 from ..models.arm2 import ARM2_PARAMS, ARM_STATE_LABELS, SIGMA_U_HUMAN, hand_position, hand_task, hand_velocity
 from ..models.arm2_muscle6 import Q0, ReachFinalCost, ReachRunningCost, arm2_muscle6, center_out_targets
@@ -33,7 +33,7 @@ from ..problem import GeneralCost
 
 __all__ = ["ARMS", "ARM2_WEIGHTS", "reach", "reach_targets", "bar_target", "hold_from", "with_target_state",
            "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics", "TargetStateNoise",
-           "TargetStateCost", "movement_direction"]
+           "TargetStateCost", "movement_direction", "solver_options"]
 
 #: The arms the gallery runs: the six-muscle arm (its defaults) and the torque-driven arm.
 ARMS = ("arm2_muscle6", "arm2")
@@ -42,6 +42,14 @@ ARMS = ("arm2_muscle6", "arm2")
 #: w_p, w_v as P2's final weights 1e3 rad^-2, 1e1 (rad/s)^-2 scaled by the squared hand Jacobian,
 #: about (0.3 m)^2, so that a 1 cm miss costs what P2's 0.03 rad does).
 ARM2_WEIGHTS = dict(r=1e-4, w_p=1e4, w_v=1e2, w_a=0.0)
+
+
+def solver_options(arm: str, options: Optional[Options] = None) -> Options:
+    """``options``, or the arm's default: the six-muscle arm's reaches take up to 300 iterations
+    (the center-out study's ``DEFAULT_OPTIONS``), the torque arm's ``Options()``."""
+    if options is not None:
+        return options
+    return Options(max_iterations=300) if arm == "arm2_muscle6" else Options()
 
 
 def reach_targets(n: int = 8, radius: float = 0.1, start_angle: float = 0.0) -> np.ndarray:

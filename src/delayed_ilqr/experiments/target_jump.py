@@ -30,7 +30,7 @@ from ..models.arm2 import hand_position
 from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import monte_carlo
-from .reach_tasks import movement_direction, reach, with_target_state
+from .reach_tasks import movement_direction, reach, solver_options, with_target_state
 from .responses import first_change, onset
 
 __all__ = ["PUBLISHED", "JumpAnalysis", "JumpResult", "analyse", "target_jump_experiment", "comparison"]
@@ -106,7 +106,7 @@ def target_jump_experiment(arm: str = "arm2", delay: float = 0.1, jump: float = 
     """
     base = reach(arm, target, delay=delay, final_time=final_time)
     problem = with_target_state(base)
-    sol = solve(problem, u_init=default_u_init(problem), options=options)
+    sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
     d = movement_direction(base)
     vec = jump * np.array([-d[1], d[0]])
     new_target = np.asarray(base.cost.params["target"]) + vec
