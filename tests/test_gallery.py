@@ -106,6 +106,11 @@ def test_kick_never_responds_before_the_loop_latency_and_ends_finite():
     # before the kick acts the runs are identical
     kp = r.pulse_step
     np.testing.assert_array_equal(np.asarray(r.kicked.runs.x)[:, :kp + 1], np.asarray(r.base.runs.x)[:, :kp + 1])
+    from delayed_ilqr.plot.gallery import plot_kick
+    fig = plot_kick(r)
+    line = next(l for l in fig.axes[1].lines if l.get_label().startswith("model"))
+    t, resp = line.get_data()
+    assert np.all(resp[t < 1e3 * a.loop_latency - 1e-9] == 0)         # the figure shows the causal bound too
 
 
 def test_target_jump_correction_waits_for_the_delay_and_an_early_jump_reaches_the_new_target():

@@ -31,7 +31,9 @@ def plot_kick(result):
     ax_path.scatter(*(1e3 * calm[result.pulse_step + 1]), marker="x", color="k", zorder=5, label="kick")
     ax_path.scatter(*(1e3 * target), marker="o", facecolor="none", edgecolor="k", s=80, label="target")
     ax_path.set_aspect("equal", adjustable="datalim")
-    ax_path.set_xlabel("hand x [mm]"), ax_path.set_ylabel("hand y [mm]"), ax_path.legend(fontsize=8)
+    ax_path.set_xlabel("hand x [mm]")
+    ax_path.set_ylabel("hand y [mm]")
+    ax_path.legend(fontsize=8)
     dt, lm = p.dt, p.delay_steps
     resp = np.linalg.norm((np.asarray(result.kicked.runs.u) - np.asarray(result.base.runs.u)).mean(0), axis=1)
     t_after = 1e3 * dt * (np.arange(resp.size) + lm - (result.pulse_step + 1))     # applied command
@@ -41,7 +43,8 @@ def plot_kick(result):
     ax_u.plot(t_after, resp, color="tab:red", lw=2, drawstyle="steps-post", label="model (held over each step)")
     ax_u.axvline(1e3 * a.loop_latency, color="k", ls=":", label=f"loop latency {1e3 * a.loop_latency:.0f} ms")
     ax_u.set_xlim(-50, max(300, t_after[-1]))
-    ax_u.set_xlabel("time after the kick [ms] (applied command)"), ax_u.set_ylabel("|mean command response|")
+    ax_u.set_xlabel("time after the kick [ms] (applied command)")
+    ax_u.set_ylabel("|mean command response|")
     ax_u.legend(fontsize=7)
     eb, ek = 1e3 * np.asarray(result.base.errors), 1e3 * np.asarray(result.kicked.errors)
     ax_err.boxplot([eb, ek])
@@ -69,12 +72,15 @@ def plot_target_jump(result):
     ax_path.scatter(*(1e3 * t0), marker="o", facecolor="none", edgecolor="k", s=80, label="first target")
     ax_path.scatter(*(1e3 * (t0 + result.jump)), marker="o", color="k", s=40, label="new target")
     ax_path.set_aspect("equal", adjustable="datalim")
-    ax_path.set_xlabel("hand x [mm]"), ax_path.set_ylabel("hand y [mm]"), ax_path.legend(fontsize=7)
+    ax_path.set_xlabel("hand x [mm]")
+    ax_path.set_ylabel("hand y [mm]")
+    ax_path.legend(fontsize=7)
     tb = [1e3 * a.time_before_end for a in result.analyses]
     ax_err.plot(tb, [1e3 * a.error_new.median for a in result.analyses], "o-", label="model: median")
     ax_err.axhline(10, color="tab:green", ls="--", label="1 cm")
     ax_err.axvline(1e3 * result.analyses[0].loop_latency, color="k", ls=":", label="loop latency")
-    ax_err.set_xlabel("jump time before the end [ms]"), ax_err.set_ylabel("final distance to the new target [mm]")
+    ax_err.set_xlabel("jump time before the end [ms]")
+    ax_err.set_ylabel("final distance to the new target [mm]")
     ax_err.legend(fontsize=8)
     return fig
 
@@ -98,7 +104,8 @@ def plot_fitts(results: Sequence):
         xm, ym = float(np.nanmean(ok[0].index)), float(np.nanmean(ok[0].mt))
         ax.fill_between(x, ym + 0.1 * (x - xm), ym + 0.2 * (x - xm), color="0.8", alpha=0.5,
                         label="published slopes 0.1-0.2 s/bit")
-    ax.set_xlabel("index of difficulty log2(2D/W) [bit]"), ax.set_ylabel("movement time [s]")
+    ax.set_xlabel("index of difficulty log2(2D/W) [bit]")
+    ax.set_ylabel("movement time [s]")
     ax.legend(fontsize=8)
     return fig
 
@@ -114,7 +121,8 @@ def plot_minimal_intervention(scatters: Sequence):
         ax.scatter(e[:, 0], e[:, 1], s=5, color=c, alpha=0.4)
         ellipse(ax, e, c, label=f"{s.name}: irrelevant/relevant SD {s.ratio:.2f}")
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("hand x - target [mm]"), ax.set_ylabel("hand y - target [mm]")
+    ax.set_xlabel("hand x - target [mm]")
+    ax.set_ylabel("hand y - target [mm]")
     ax.set_title("bar across the movement; published ratio about 2", fontsize=9)
     ax.legend(fontsize=8)
     return fig
