@@ -88,12 +88,17 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
     """Runs the experiment of the module docstring, one `FittsResult` per motor delay.
 
     Args:
-        arm: "arm2" or "arm2_muscle6"; distances (m), widths (m), movement_times (s, increasing).
-        delays: motor delays (s); sensory_delay: proprioceptive delay (s) or None.
+        arm: "arm2" or "arm2_muscle6".
+        distances: movement distances (m).
+        widths: target widths (m).
+        movement_times: the grid of movement times (s, increasing) the model chooses from.
+        delays: motor delays (s), one result each.
+        sensory_delay: proprioceptive delay (s) or None (the state is seen).
         hold: how long (s) the hand must stay on the target after T; the horizon is max(T) + hold.
-        trials, seed: Monte Carlo per (distance, movement time); direction: of the movement
-            (radians from +x; 0: to the right of the start).
-        options: solver options.
+        trials: Monte Carlo trials per (distance, movement time).
+        seed: their seed (condition n uses seed + n).
+        direction: of the movement (radians from +x; 0: to the right of the start).
+        options: solver options (default `reach_tasks.solver_options`).
     """
     ts = np.asarray(movement_times, dtype=float)
     if ts.ndim != 1 or ts.size < 2 or np.any(np.diff(ts) <= 0):

@@ -89,10 +89,16 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
     """The `KickAnalysis` of runs on common noise.
 
     Args:
-        base, kicked: `Runs` (u [N, K, d] the issued commands).
-        pulse_step: kp; dt: the step (s); motor_steps, sensory_steps: l_m, l_s.
-        base_errors, kicked_errors: [N] final hand errors (m).
-        hand_base, hand_kicked: [N, K+1, 2] hand positions.
+        base: the unperturbed `Runs` (u [N, K, d] the issued commands).
+        kicked: the kicked `Runs`, on the same noise.
+        pulse_step: kp (W_kp enters x_{kp+1}).
+        dt: the step (s).
+        motor_steps: l_m.
+        sensory_steps: l_s (0 when the state is seen).
+        base_errors: [N] final hand errors (m) without the kick.
+        kicked_errors: [N] final hand errors (m) with it.
+        hand_base: [N, K+1, 2] hand positions without the kick.
+        hand_kicked: [N, K+1, 2] hand positions with it.
     """
     diff = np.asarray(kicked.u) - np.asarray(base.u)
     kick_state = pulse_step + 1                     # the first state the kick moved
@@ -112,12 +118,14 @@ def kick_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optio
 
     Args:
         arm: "arm2" or "arm2_muscle6" (`reach_tasks.reach`).
-        delay: motor delay l_m dt (s); sensory_delay: proprioceptive delay l_s dt (s), or None (the
-            state is seen, l_s = 0).
+        delay: motor delay l_m dt (s).
+        sensory_delay: proprioceptive delay l_s dt (s), or None (the state is seen, l_s = 0).
         kick: the change of the hand's speed (m/s), perpendicular (counter-clockwise) to the movement.
         pulse_time: when (s); default mid-movement.
-        trials, seed: the Monte Carlo (each trial runs without and with the kick on the same noise).
-        target: [2] hand target (default 10 cm straight ahead); final_time: movement time (s).
+        trials: Monte Carlo trials (each runs without and with the kick on the same noise).
+        seed: their seed.
+        target: [2] hand target (default 10 cm straight ahead).
+        final_time: movement time (s).
         options: solver options.
     """
     problem = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)

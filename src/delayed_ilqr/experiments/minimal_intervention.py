@@ -62,8 +62,14 @@ def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sens
     """[point, bar]: the scatter of the two targets (module docstring); same noise for both.
 
     Args:
-        arm: "arm2" or "arm2_muscle6"; delay, sensory_delay: motor and proprioceptive delays (s).
-        trials, seed: the Monte Carlo; target: [2] (default 10 cm ahead); final_time: movement time.
+        arm: "arm2" or "arm2_muscle6".
+        delay: motor delay (s).
+        sensory_delay: proprioceptive delay (s), or None (the state is seen).
+        trials: Monte Carlo trials per target (the same noise for both).
+        seed: their seed.
+        target: [2] the hand target (default 10 cm ahead).
+        final_time: movement time (s).
+        options: solver options (default `reach_tasks.solver_options`).
     """
     point = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
     d = movement_direction(point)

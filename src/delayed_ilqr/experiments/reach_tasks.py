@@ -65,10 +65,12 @@ def reach(arm: str = "arm2", target=None, delay: float = 0.0, noise: bool = True
         arm: "arm2_muscle6" (its defaults, ``sigma_u`` 0.01 on the excitations) or "arm2" (P2's body,
             torque noise ``SIGMA_U_HUMAN``, the weights `ARM2_WEIGHTS`), see `ARMS`.
         target: [2] hand target in metres.
-        delay: motor (input) delay in seconds; sensory_delay: None (the state is seen) or the
-            proprioceptive delay in seconds; both whole numbers of ``dt``.
+        delay: motor (input) delay in seconds, a whole number of ``dt``.
         noise: signal-dependent motor noise in the plant.
         final_time: movement time (s), the horizon K = final_time / dt.
+        dt: the time step (s).
+        sensory_delay: None (the state is seen) or the proprioceptive delay in seconds, a whole
+            number of ``dt``.
 
     Returns:
         The `Problem`; its metadata's task space is the hand, its target the

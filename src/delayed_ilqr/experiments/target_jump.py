@@ -76,8 +76,9 @@ class JumpResult(NamedTuple):
 
 def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
             motor_steps: int, time_before_end: float) -> JumpAnalysis:
-    """The `JumpAnalysis` of runs on common noise: commands [N, K, d] (issued), hand
-    positions [N, K+1, 2], the jump vector [2], the new target [2]; the jump enters x_{jump_step+1}."""
+    """The `JumpAnalysis` of runs on common noise: commands ``base_u``, ``jumped_u`` [N, K, d]
+    (issued), hand positions ``hand_base``, ``hand_jumped`` [N, K+1, 2], the ``jump`` vector [2], the
+    ``new_target`` [2]; the jump enters x_{jump_step+1}; ``motor_steps`` l_m."""
     start = jump_step + 1
     first = first_change(np.asarray(jumped_u) - np.asarray(base_u))
     shift = np.asarray(hand_jumped) - np.asarray(hand_base)                  # [N, K+1, 2]
@@ -98,11 +99,15 @@ def target_jump_experiment(arm: str = "arm2", delay: float = 0.1, jump: float = 
     """Runs the experiment of the module docstring.
 
     Args:
-        arm: "arm2" or "arm2_muscle6"; delay: the motor delay (s), the loop latency here.
+        arm: "arm2" or "arm2_muscle6".
+        delay: the motor delay (s), the loop latency here.
         jump: the target displacement (m), perpendicular (counter-clockwise) to the movement.
         times_before_end: when the target jumps, seconds before the end of the movement.
-        trials, seed: the Monte Carlo; target: [2] the first target (default 10 cm ahead);
-        final_time: the movement time (s); options: solver options.
+        trials: Monte Carlo trials per condition (same noise in each).
+        seed: their seed.
+        target: [2] the first target (default 10 cm ahead).
+        final_time: the movement time (s).
+        options: solver options (default `reach_tasks.solver_options`).
     """
     base = reach(arm, target, delay=delay, final_time=final_time)
     problem = with_target_state(base)
