@@ -13,7 +13,7 @@ import click
 import numpy as np
 
 from ..experiments import fitts, kick, minimal_intervention, reach_tasks, report, tables, target_jump
-from ..statistics import prediction_warning
+from ..statistics import divergence_bound, diverged_trials, prediction_warning, sample_stats
 from .arguments import SEED, DelayList
 from .output import Output, out_option
 
@@ -76,9 +76,13 @@ def _finish(name: str, title: str, rows: list, warned: list, records: dict, figu
     click.echo(f"wrote {', '.join(written)} to {out}")
 
 
-def _cost_warning(label, runs, solution):
-    return prediction_warning(label, float(np.mean(np.asarray(runs.cost)[np.isfinite(np.asarray(runs.cost))])),
-                              float(solution.expected_cost))
+def _cost_warnings(label, cost, predicted, problem) -> list:
+    """The Monte Carlo mean cost (trials that did not diverge, one definition) against the local
+    (linearised) prediction: [one line] when they differ by more than 2x, else []."""
+    cost = np.asarray(cost)
+    mean = sample_stats(cost, diverged_trials(cost, divergence_bound(problem))).mean
+    line = prediction_warning(label, mean, float(predicted))
+    return [line] if line else []
 
 
 @click.command("kick")
@@ -104,7 +108,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
         start = time.perf_counter()
         r = kick.kick_experiment(arm, delay, sensory_delay, size, pulse_time, trials, seed)
         elapsed = time.perf_counter() - start
-        warned = [w for w in [_cost_warning("kick, unperturbed trials", r.base.runs, r.solution)] if w]
+        warned = _cost_warnings("kick, unperturbed trials", r.base.runs.cost, r.solution.expected_cost, r.problem)
         a = r.analysis
         records = dict(comparison=kick.comparison(r), status=str(r.solution.status),
                        analysis=dict(first_change=a.first_change, onset=a.onset, loop_latency=a.loop_latency,
@@ -145,7 +149,8 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
         from ..plot.gallery import plot_target_jump
         settings = dict(arm=arm, delay=delay, jump=jump, times=list(times), final_time=final_time, trials=trials,
                         seed=seed)
-        _finish("target_jump", "Target jumps", target_jump.comparison(r), [], records, plot_target_jump(r), out,
+        warned = _cost_warnings("target jump, trials without a jump", r.base_cost, r.solution.expected_cost, r.problem)
+        _finish("target_jump", "Target jumps", target_jump.comparison(r), warned, records, plot_target_jump(r), out,
                 output, settings, elapsed, [r.solution.status])
 
 
@@ -189,7 +194,15 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
         from ..plot.gallery import plot_fitts
         settings = dict(arm=arm, delays=list(delays), sensory_delay=sensory_delay, distances=list(distances),
                         widths=list(widths), movement_times=list(movement_times), trials=trials, seed=seed)
-        _finish("fitts", "Fitts' law", fitts.comparison(results), [], records, plot_fitts(results), out, output,
+        warned = []
+        for r in results:
+            bad = [prediction_warning("", m, q) for m, q in zip(r.mc_cost.ravel(), r.predicted_cost.ravel())]
+            if any(bad):
+                worst = int(np.nanargmax(np.abs(np.log(r.mc_cost.ravel() / r.predicted_cost.ravel()))))
+                warned.append(prediction_warning(
+                    f"fitts at motor delay {1e3 * r.delay:g} ms, {sum(map(bool, bad))} of {len(bad)} conditions "
+                    "(the worst shown)", r.mc_cost.ravel()[worst], r.predicted_cost.ravel()[worst]))
+        _finish("fitts", "Fitts' law", fitts.comparison(results), warned, records, plot_fitts(results), out, output,
                 settings, elapsed, [s for r in results for s in r.status.ravel()])
 
 
@@ -213,7 +226,9 @@ def minimal_intervention_command(arm, delay, sensory_delay, trials, seed, out, o
                                      ellipse=s.ellipse._asdict(), status=s.status) for s in scatters])
         from ..plot.gallery import plot_minimal_intervention
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed)
-        _finish("minimal_intervention", "Minimal intervention", minimal_intervention.comparison(scatters), [],
+        warned = [w for sc in scatters
+                  for w in _cost_warnings(f"{sc.name} target", sc.mc_cost, sc.predicted_cost, sc.problem)]
+        _finish("minimal_intervention", "Minimal intervention", minimal_intervention.comparison(scatters), warned,
                 records, plot_minimal_intervention(scatters), out, output, settings, elapsed,
                 [s.status for s in scatters])
 

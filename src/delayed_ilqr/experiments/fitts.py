@@ -29,6 +29,7 @@ import numpy as np
 
 from .. import Options, Status
 from ..models.arm2 import hand_position
+from ..statistics import divergence_bound, diverged_trials, sample_stats
 from .engine import monte_carlo, solve_batch, take
 from .reach_tasks import hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
@@ -73,6 +74,8 @@ class FittsResult(NamedTuple):
     mt: np.ndarray
     index: np.ndarray
     fit: Optional[FittsFit]
+    mc_cost: Optional[np.ndarray] = None
+    predicted_cost: Optional[np.ndarray] = None
 
 
 def criterion_margin(bias, sd, width) -> np.ndarray:
@@ -114,6 +117,7 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
         sols = solve_batch(problems, solver_options(arm, options))
         bias, sd = np.full((ds.size, ts.size), np.nan), np.full((ds.size, ts.size), np.nan)
         status = np.empty((ds.size, ts.size), dtype=object)
+        mc_cost = np.full((ds.size, ts.size), np.nan)
         unit = np.array([np.cos(direction), np.sin(direction)])
         for n, (i, j) in enumerate(grid):
             p = problems[n]
@@ -123,6 +127,8 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
             along = (hand - np.asarray(p.cost.params["target"])) @ unit
             bias[i, j], sd[i, j] = float(np.mean(along)), float(np.std(along, ddof=1))
             status[i, j] = Status(int(sols.status[n])).name
+            cost = np.asarray(runs.cost)
+            mc_cost[i, j] = sample_stats(cost, diverged_trials(cost, divergence_bound(p))).mean
         mt = np.array([[shortest_meeting(ts, criterion_margin(bias[i], sd[i], w)) for w in ws]
                        for i in range(ds.size)])
         index = index_of_difficulty(ds[:, None], ws[None, :])
@@ -131,7 +137,9 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
             fit = fitts_fit(index, inside)
         except ValueError:
             fit = None
-        results.append(FittsResult(float(delay), sensory_delay, ds, ws, ts, bias, sd, status, mt, index, fit))
+        predicted = np.asarray(sols.expected_cost, dtype=float).reshape(ds.size, ts.size)
+        results.append(FittsResult(float(delay), sensory_delay, ds, ws, ts, bias, sd, status, mt, index, fit,
+                                   mc_cost, predicted))
     return results
 
 

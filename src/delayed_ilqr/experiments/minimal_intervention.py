@@ -45,15 +45,18 @@ class TargetScatter(NamedTuple):
     endpoints: np.ndarray
     status: str
     problem: Problem
+    mc_cost: Optional[np.ndarray] = None
+    predicted_cost: float = float("nan")
 
 
-def analyse(name: str, endpoints, bar_direction, status: str = "", problem=None) -> TargetScatter:
+def analyse(name: str, endpoints, bar_direction, status: str = "", problem=None, mc_cost=None,
+            predicted_cost: float = float("nan")) -> TargetScatter:
     """The `TargetScatter` of endpoints [N, 2] with the bar along ``bar_direction`` [2]."""
     b = np.asarray(bar_direction, dtype=float)
     irrelevant = axis_sd(endpoints, b)
     relevant = axis_sd(endpoints, [-b[1], b[0]])
     return TargetScatter(name, irrelevant, relevant, irrelevant / relevant, ellipse(np.cov(np.asarray(endpoints).T)),
-                         np.asarray(endpoints), status, problem)
+                         np.asarray(endpoints), status, problem, mc_cost, float(predicted_cost))
 
 
 def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optional[float] = 0.05,
@@ -78,7 +81,8 @@ def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sens
     for name, problem in (("point", point), ("bar", bar_target(point, along_bar))):
         sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
         trials_ = monte_carlo(problem, sol.policy, trials, seed)
-        out.append(analyse(name, trials_.endpoints, along_bar, str(sol.status), problem))
+        out.append(analyse(name, trials_.endpoints, along_bar, str(sol.status), problem,
+                           np.asarray(trials_.runs.cost), float(sol.expected_cost)))
     return out
 
 

@@ -64,7 +64,8 @@ class JumpAnalysis(NamedTuple):
 
 class JumpResult(NamedTuple):
     """The experiment: the plant with its target states, its solution, the jump vector [2], the
-    unjumped trials (x [N, K+1, n]) and per jump time the jumped trials' states and the analysis."""
+    unjumped trials (x [N, K+1, n]) and per jump time the jumped trials' states and the analysis;
+    ``base_cost`` [N] the unjumped trials' costs."""
 
     problem: Problem
     solution: Solution
@@ -72,6 +73,7 @@ class JumpResult(NamedTuple):
     base_x: np.ndarray
     jumped_x: list
     analyses: list
+    base_cost: Optional[np.ndarray] = None
 
 
 def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
@@ -128,7 +130,7 @@ def target_jump_experiment(arm: str = "arm2", delay: float = 0.1, jump: float = 
         jumped_x.append(np.asarray(runs.x))
         analyses.append(analyse(calm.runs.u, runs.u, hand(calm.runs.x), hand(runs.x), vec, new_target, kp,
                                 problem.dt, problem.delay_steps, float(t)))
-    return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses)
+    return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses, np.asarray(calm.runs.cost))
 
 
 def comparison(result: JumpResult) -> list[dict]:
