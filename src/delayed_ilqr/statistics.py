@@ -36,7 +36,8 @@ import numpy as np
 
 from .ilqg.linearize import rollout, trajectory_cost
 
-__all__ = ["PREDICTION_FACTOR", "prediction_ratio", "prediction_warning", "DIVERGENCE_FACTOR", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "divergence_bound", "diverged_trials",
+__all__ = ["PREDICTION_FACTOR", "prediction_ratio", "prediction_warning", "DIVERGENCE_FACTOR", "BOOTSTRAP_RESAMPLES",
+           "BOOTSTRAP_SEED", "divergence_bound", "diverged_trials",
            "SampleStats", "sample_stats", "Summary", "summarize"]
 
 _Z95 = 1.959963984540054  # the 97.5 % quantile of the standard normal

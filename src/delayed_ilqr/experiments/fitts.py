@@ -34,7 +34,8 @@ from .engine import monte_carlo, solve_batch, take
 from .reach_tasks import hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
 
-__all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin", "fitts_experiment", "comparison"]
+__all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin",
+           "fitts_experiment", "comparison"]
 
 PUBLISHED = (
     ("MT linear in log2(2D/W)", "Fitts 1954", "MT = a + b ID, b about 0.1 s/bit (tapping)"),

@@ -89,8 +89,10 @@ def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sens
 def comparison(scatters: list) -> list[dict]:
     """Rows (finding, source, published, measured) of the docs' table."""
     point, bar = scatters
-    text = lambda s: (f"{s.name}: SD across {1e3 * s.irrelevant:.2f} mm / along {1e3 * s.relevant:.2f} mm "  # noqa: E731
-                      f"= {s.ratio:.2f}")
+
+    def text(s):
+        return f"{s.name}: SD across {1e3 * s.irrelevant:.2f} mm / along {1e3 * s.relevant:.2f} mm = {s.ratio:.2f}"
+
     return [dict(finding=PUBLISHED[0][0], source=PUBLISHED[0][1], published=PUBLISHED[0][2],
                  measured=f"{text(bar)}; {text(point)}; bar / point {bar.ratio / point.ratio:.2f}"),
             dict(finding=PUBLISHED[1][0], source=PUBLISHED[1][1], published=PUBLISHED[1][2],

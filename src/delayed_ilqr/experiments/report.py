@@ -18,7 +18,8 @@ from .delay_study import ControllerResult
 from .designs import REGISTRY
 from .tables import delay_study_rows, delay_study_warnings, markdown_table
 
-__all__ = ["DESCRIPTIONS", "DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records", "center_out_records",
+__all__ = ["DESCRIPTIONS", "DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records",
+           "center_out_records",
            "write_solution", "write_runs", "write_delay_study", "write_demo_report", "write_center_out_report"]
 
 DPI = 120  # resolution of every saved figure
@@ -105,7 +106,8 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
     status = Status(int(sol.status))
     label, unit, value = endpoint
     write_json(out / "solution.json", dict(
-        descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=problem.delay, delay_steps=problem.delay_steps, dt=problem.dt,
+        descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=problem.delay,
+        delay_steps=problem.delay_steps, dt=problem.dt,
         noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
         message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
         expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
