@@ -155,7 +155,7 @@ def test_perturb_writes_the_responses_and_the_first_response_is_one_step_plus_th
     assert [r["first response [ms after kick]"] for r in data["results"]] == pytest.approx([10.0, 60.0])
     problem = point_mass(delay=0.03, noise=True, sensory_delay=0.05)
     sol = di.solve(problem)
-    np.testing.assert_allclose(data["results"][1]["expected cost"], float(sol.expected_cost), rtol=1e-12)
+    np.testing.assert_allclose(data["results"][1]["local prediction E[J] (linearised)"], float(sol.expected_cost), rtol=1e-12)
     with np.load(tmp_path / "perturb_means.npz") as npz:
         kicked, calm = npz["ls50ms_x_kicked_mean"], npz["ls50ms_x_mean"]
         assert kicked.shape == (61, 4)

@@ -303,8 +303,8 @@ def test_sensing_study_runs_both_filters_on_the_delayed_sensors():
     assert aware.solution.policy.estimator.sensory_delay == 5 and ignorant.solution.policy.estimator.sensory_delay == 0
     np.testing.assert_array_equal(np.asarray(aware.solution.x), np.asarray(ignorant.solution.x))
     rows = {r["design"]: r for r in study_rows(results)}
-    assert ignorant.expected_cost is None and rows["ignorant"]["expected cost"] is None
-    assert rows["aware"]["expected cost"] == pytest.approx(float(aware.solution.expected_cost))
+    assert ignorant.expected_cost is None and rows["ignorant"]["local prediction E[J] (linearised)"] is None
+    assert rows["aware"]["local prediction E[J] (linearised)"] == pytest.approx(float(aware.solution.expected_cost))
     assert rows["aware"]["first response [ms]"] == pytest.approx(60.0)
     assert rows["ignorant"]["first response [ms]"] == pytest.approx(60.0)
     # the filters differ, so the trials do (same seed: same noise)

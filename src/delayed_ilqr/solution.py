@@ -166,9 +166,13 @@ class Solution(NamedTuple):
     Attributes:
         x: [K+1, n] nominal states; u: [K, d] nominal commands.
         cost: eq. (2) on the nominal, noise-free trajectory.
-        expected_cost: J(0) of the last LQG approximation (noise terms included). With an
-            observation: the exact expected cost of the controller acting on the delayed filter's
-            estimate, on that linearisation (``lqg.output_feedback_cost``).
+        expected_cost: the local (linearised) prediction of E[J]: J(0) of the last LQG
+            approximation at the nominal (noise terms included). With an observation: the exact
+            expected cost of the controller acting on the delayed filter's estimate, on that
+            linearisation (``lqg.output_feedback_cost``). It is exact for the linearised plant
+            only; the plant's higher-order terms can make the Monte Carlo cost of
+            `simulate` many times larger (``docs/results/noise_calibration.md``),
+            so measure by Monte Carlo (`delayed_ilqr.statistics.prediction_warning`).
         status: the :class:`Status` (an IntEnum: prints as its name, compares as its code); an
             int32 array of codes when the solve was traced (``jit``, ``vmap``).
         iterations: number of iterations run.

@@ -18,6 +18,12 @@ Every statistic is then computed as follows (:func:`sample_stats`):
 - the **median** and **inter-quartile range** over all trials, a diverged trial ranking as +inf
   (they stay finite while fewer than half, or a quarter, of the trials diverged), with the
   distribution-free 95 % interval of the median (order statistics).
+
+The Monte Carlo is the measurement. ``Solution.expected_cost`` is the **local (linearised)
+prediction** of E[J]: exact for the LQG approximation at the nominal, blind to the plant's
+higher-order terms (``docs/results/noise_calibration.md``). Every study compares the two
+(`prediction_warning`) and warns when the Monte Carlo mean departs from the prediction by
+more than `PREDICTION_FACTOR` either way: the prediction then does not describe the trials.
 """
 from __future__ import annotations
 
@@ -30,7 +36,8 @@ import numpy as np
 
 from .ilqg.linearize import rollout, trajectory_cost
 
-__all__ = ["DIVERGENCE_FACTOR", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "divergence_bound", "diverged_trials",
+__all__ = ["PREDICTION_FACTOR", "prediction_ratio", "prediction_warning", "DIVERGENCE_FACTOR", "BOOTSTRAP_RESAMPLES",
+           "BOOTSTRAP_SEED", "divergence_bound", "diverged_trials",
            "SampleStats", "sample_stats", "Summary", "summarize"]
 
 _Z95 = 1.959963984540054  # the 97.5 % quantile of the standard normal
@@ -38,9 +45,52 @@ _Z95 = 1.959963984540054  # the 97.5 % quantile of the standard normal
 #: A trial whose cost exceeds this multiple of the cost of not moving (all commands zero) diverged.
 DIVERGENCE_FACTOR = 100.0
 
+#: A study warns when its Monte Carlo mean cost is more than this factor above, or below 1 / this
+#: factor of, the local (linearised) prediction ``Solution.expected_cost``.
+PREDICTION_FACTOR = 2.0
+
 #: Resamples of the bootstrap interval of a mean; its seed (the same data give the same interval).
 BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
+
+
+def prediction_ratio(mc_mean: float, predicted: float) -> float:
+    """The Monte Carlo mean over the local (linearised) prediction; NaN where either is not finite
+    or the prediction is not positive (no ratio is meaningful)."""
+    mc_mean, predicted = float(mc_mean), float(predicted)
+    if not (math.isfinite(mc_mean) and math.isfinite(predicted)) or predicted <= 0:
+        return math.nan
+    return mc_mean / predicted
+
+
+def prediction_warning(label: str, mc_mean: float, predicted: Optional[float],
+                       factor: float = PREDICTION_FACTOR) -> Optional[str]:
+    """One line of warning when the Monte Carlo mean cost departs from the local prediction by
+    more than ``factor`` either way (ratio > factor or < 1 / factor), else None.
+
+    Args:
+        label: what was measured, e.g. ``"aware at 100 ms"``; starts the sentence.
+        mc_mean: the Monte Carlo mean cost (over the trials that did not diverge).
+        predicted: the local (linearised) prediction E[J] (``Solution.expected_cost``); None for a
+            design without one (no warning).
+        factor: the tolerated ratio, > 1.
+
+    Returns:
+        ``"warning: <label>: Monte Carlo mean cost M is R x the local (linearised) prediction P ..."``,
+        or None when the ratio lies within [1 / factor, factor]. A prediction that is not positive
+        and finite against a finite mean warns too (it cannot describe the trials).
+    """
+    if not factor > 1:
+        raise ValueError(f"factor must be greater than 1; got {factor!r}")
+    if predicted is None or not math.isfinite(float(mc_mean)):
+        return None
+    ratio = prediction_ratio(mc_mean, predicted)
+    if math.isfinite(ratio) and 1 / factor <= ratio <= factor:
+        return None
+    how = f"{ratio:.3g}x" if math.isfinite(ratio) else "not comparable with"
+    return (f"warning: {label}: the Monte Carlo mean cost {float(mc_mean):.4g} is {how} the local (linearised) "
+            f"prediction E[J] = {float(predicted):.4g} (more than {factor:g}x either way): the prediction does "
+            "not describe these trials; trust the Monte Carlo")
 
 
 def divergence_bound(problem) -> float:

@@ -18,6 +18,7 @@ from ..models import REGISTRY, arm2_muscle6
 from ..experiments.records import problem_record
 from .arguments import (SEED, DelayFrame, DelayList, Model, ModelType, build_problem, check_trials, factory_kwargs,
                         model_options, noise_option, noise_value, progress_option, substeps_option)
+from ..statistics import divergence_bound, diverged_trials, prediction_warning, sample_stats
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 DEMO_DELAYS = (0.0, 0.05, 0.1, 0.15)
@@ -86,12 +87,13 @@ def compare_command(model, delays, trials, seed, noise, no_noise, augmented, sub
             raise click.UsageError(str(exc)) from None
         table = tables.delay_study_rows(results)
         click.echo(tables.text_table(table))
+        warned = echo_warnings(tables.delay_study_warnings(results))
         if out is not None:
             settings = dict(study_settings(model.name, noise is not False, trials, seed, substeps),
                             delays=list(delays), controllers=controllers, delay_frame=delay_frame,
                             **kwargs_settings(kwargs), problems=[problem_record(p) for p in problems])
             _study_outputs(results, output.staging, settings, "compare")
-            write_text(output.staging / "compare.md", tables.markdown_table(table) + "\n")
+            write_text(output.staging / "compare.md", tables.markdown_table(table) + "\n" + warnings_section(warned))
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out}")
     if warn_not_converged(results):
@@ -123,6 +125,7 @@ def demo_command(out, overwrite, trials, seed, progress):
                              progress=progress)
         elapsed = time.perf_counter() - start
         click.echo(tables.text_table(tables.delay_study_rows(results)))
+        echo_warnings(tables.delay_study_warnings(results))
         settings = dict(study_settings("arm2", True, trials, seed, 1), delays=list(DEMO_DELAYS),
                         controllers=["aware", "ignorant"], elapsed_seconds=elapsed,
                         problems=[problem_record(p) for p in problems])
@@ -196,6 +199,7 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
         rows = tables.center_out_rows(results)
         table = tables.markdown_table(rows)         # for center_out.md; the terminal gets aligned columns
         click.echo(tables.text_table(rows))
+        warned = echo_warnings(tables.center_out_warnings(results))
         if out is not None:
             from .. import plot
             figures = report.save_figures(plot.center_out_figures(results), output.staging)
@@ -205,7 +209,8 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
                             sensory_delay=sensory_delay, elapsed_seconds=elapsed,
                             problem=problem_record(results[0].plants[0]),
                             target_positions=[[float(v) for v in t.target] for t in results[0].targets])
-            report.write_center_out_report(output.staging, results, settings, table, figures)
+            report.write_center_out_report(output.staging, results, settings, table + "\n" + warnings_section(warned),
+                                           figures)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
     failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
@@ -216,26 +221,50 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
 
 
 def _perturb_rows(results) -> list[dict]:
-    """One table row per sensory delay: design, costs, and the latencies after the kick."""
+    """One table row per sensory delay: design, the local prediction and the Monte Carlo cost
+    (mean [95 % CI], median) unperturbed and kicked, and the latencies after the kick."""
     rows = []
     for r in results:
         dt, kp = r.problem.dt, r.pulse_step
         after = lambda k: None if k is None else 1000 * dt * (k - kp)          # noqa: E731
+        bound = divergence_bound(r.problem)
+        stats = [sample_stats(np.asarray(runs.cost), diverged_trials(np.asarray(runs.cost), bound))
+                 for runs in (r.base, r.perturbed)]
         rows.append({"sensory delay [ms]": 1000 * r.sensory_delay, "status": str(r.solution.status),
-                     "expected cost": float(r.solution.expected_cost),
-                     "MC cost": float(r.base.summary().mean_cost),
-                     "MC cost kicked": float(r.perturbed.summary().mean_cost),
+                     tables.PREDICTED: float(r.solution.expected_cost), **tables.mc_record(stats[0]),
+                     **{k.replace("MC J", "MC J kicked"): v for k, v in tables.mc_record(stats[1]).items()
+                        if k != "diverged"},
                      "first response [ms after kick]": after(r.latency_steps),
                      "half-peak response [ms after kick]": after(r.half_steps)})
     return rows
 
 
-def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows) -> None:
+def _perturb_warnings(rows) -> list[str]:
+    lines = [prediction_warning(f"unperturbed trials at sensory delay {row['sensory delay [ms]']:g} ms",
+                                math.nan if row["MC J mean"] is None else row["MC J mean"], row[tables.PREDICTED])
+             for row in rows]
+    return [w for w in lines if w]
+
+
+def echo_warnings(lines) -> list[str]:
+    """Each warning as one line on stderr; returns them (for the report)."""
+    for line in lines:
+        click.echo(line, err=True)
+    return list(lines)
+
+
+def warnings_section(lines) -> str:
+    """The markdown section of a report that lists the warnings ('' without any)."""
+    return "" if not lines else "\n## Warnings\n\n" + "\n".join(f"- {w}" for w in lines) + "\n"
+
+
+def _perturb_outputs(results, staging: pathlib.Path, settings: dict, table_rows, warned=()) -> None:
     from ..plot import perturbation_figures
     records = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in row.items()}
                for row in table_rows]
     report.write_json(staging / "perturb.json", dict(settings=settings, results=records))
-    write_text(staging / "perturb.md", tables.markdown_table(tables.records_table(table_rows)) + "\n")
+    write_text(staging / "perturb.md", tables.markdown_table(tables.records_table(table_rows)) + "\n"
+               + warnings_section(warned))
     arrays = {}
     for r in results:
         tag = f"ls{int(round(1000 * r.sensory_delay))}ms"
@@ -291,11 +320,12 @@ def perturb_command(model, delay, sensory_delays, pulse_time, kick, trials, seed
                                                   noise=noise, progress=progress)
         rows = _perturb_rows(results)
         click.echo(tables.text_table(tables.records_table(rows)))
+        warned = echo_warnings(_perturb_warnings(rows))
         if out is not None:
             settings = dict(model=model, delay=delay, sensory_delays=list(sensory_delays), pulse_time=pulse_time,
                             kick=kick, trials=trials, seed=seed, noise=noise is not False,
                             problems=[problem_record(p) for p in problems])
-            _perturb_outputs(results, output.staging, settings, rows)
+            _perturb_outputs(results, output.staging, settings, rows, warned)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out}")
     failed = [r for r in results if not r.converged]

@@ -125,6 +125,8 @@ def sweep_command(model, axes, settings_, noise, seeds, trials, design, batch_si
         raise
     elapsed = time.perf_counter() - start
     click.echo(tables.text_table(tables.sweep_rows(ds)))
+    for line in tables.sweep_warnings(ds):
+        click.echo(line, err=True)
     figure = plot.plot_sweep(ds)
     save_figure(figure, out / SWEEP_FIGURE, dpi=report.DPI)
     files = sorted(str(f.relative_to(out)) for f in out.rglob("*") if f.is_file() and f.name != "manifest.json")

@@ -102,9 +102,11 @@ def take(tree, j: int):
     return jax.tree_util.tree_map(lambda a: a[j], tree)
 
 
-def monte_carlo(plant: Problem, policy: Policy, n_trials: int, seed: int, substeps: int = 1) -> Trials:
-    """Runs ``policy`` ``n_trials`` times on ``plant`` and judges the final states (:class:`Trials`)."""
-    runs = simulate(plant, policy, n_trials, seed=seed, substeps=substeps)
+def monte_carlo(plant: Problem, policy: Policy, n_trials: int, seed: int, substeps: int = 1,
+                disturbance=None) -> Trials:
+    """Runs ``policy`` ``n_trials`` times on ``plant`` (with the disturbance W [K, n] added to every
+    trial's state update, if given) and judges the final states (:class:`Trials`)."""
+    runs = simulate(plant, policy, n_trials, seed=seed, substeps=substeps, disturbance=disturbance)
     final = np.asarray(runs.x[:, -1], dtype=np.float64)
     return Trials(runs, _positions(plant, final), endpoint_error(plant, final))
 

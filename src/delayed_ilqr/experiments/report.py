@@ -17,12 +17,25 @@ from .. import Status, _files
 from .delay_study import ControllerResult
 from .designs import REGISTRY
 from .records import problem_record
-from .tables import delay_study_rows, markdown_table
+from .tables import delay_study_rows, delay_study_warnings, markdown_table
 
-__all__ = ["DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records", "center_out_records",
+__all__ = ["DESCRIPTIONS", "DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records",
+           "center_out_records",
            "write_solution", "write_runs", "write_delay_study", "write_demo_report", "write_center_out_report"]
 
 DPI = 120  # resolution of every saved figure
+
+#: What the cost keys of the JSON records mean; every study's JSON carries it as ``descriptions``.
+DESCRIPTIONS = {
+    "predicted_cost": "the local (linearised) prediction of E[J]: Solution.expected_cost, J(0) of the LQG "
+                      "approximation at the nominal; exact for the linearised plant only (the Monte Carlo is the "
+                      "measurement)",
+    "expected_cost": "the local (linearised) prediction of E[J] (Solution.expected_cost), as predicted_cost",
+    "cost": "eq. (2) on the noise-free nominal (solution) or SampleStats of the Monte Carlo cost per trial "
+            "(study records): mean over the trials that did not diverge with its bootstrap ci95, median over all",
+    "mc_cost": "SampleStats of the Monte Carlo cost per trial: mean over the trials that did not diverge with its "
+               "bootstrap ci95, median over all trials (diverged as +inf)",
+}
 
 
 def write_json(path: pathlib.Path, data) -> None:
@@ -96,13 +109,18 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
     label, unit, value = endpoint
     record = problem_record(problem)
     write_json(out / "solution.json", dict(
-        model=model, delay=problem.delay, delay_steps=problem.delay_steps, dt=problem.dt,
+        descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=problem.delay,
+        delay_steps=problem.delay_steps, dt=problem.dt,
         noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
         message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
         expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
         endpoint_unit=unit, solve_time=solve_time, first_solve_time=first, problem=record))
     sol.save(out / "solution.npz", problem, info=dict(model=model, method=method, problem=record))
     return ["solution.json", "solution.npz"]
+
+
+def _descriptions(*keys) -> dict:
+    return {k: DESCRIPTIONS[k] for k in keys}
 
 
 def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> list[str]:
@@ -120,7 +138,9 @@ def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> l
 def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, settings: dict, stem: str) -> list[str]:
     """``<stem>.json`` (settings and every number of the table) and ``<stem>_runs.npz`` (per
     controller and delay ``<controller>_<delay>ms_<name>``: trials, nominal, gains, trace)."""
-    write_json(out / f"{stem}.json", dict(settings=settings, results=delay_study_records(results)))
+    write_json(out / f"{stem}.json", dict(settings=settings, descriptions=_descriptions("predicted_cost", "cost"),
+                                          warnings=delay_study_warnings(results),
+                                          results=delay_study_records(results)))
     arrays = {}
     for r in results:
         key = f"{r.controller}_{1e3 * r.delay:g}ms"
@@ -136,9 +156,11 @@ def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, se
 _DEMO_NOTES = """\
 Columns:
 
-- **predicted E[J]**: the controller's own LQG prediction of its expected cost (`Solution.expected_cost`)
-  for the plant it was designed for. The delay-ignorant controller is designed for a plant without delay,
-  so it predicts the same cost at every delay.
+- **local prediction E[J] (linearised)**: the controller's own LQG prediction of its expected cost
+  (`Solution.expected_cost`) for the plant it was designed for, exact only for the linearised plant.
+  The delay-ignorant controller is designed for a plant without delay, so it predicts the same cost
+  at every delay. A study warns (below, and on stderr) where the Monte Carlo mean departs from it by
+  more than 2x either way.
 - **MC mean J [95% CI]**: Monte Carlo mean of the cost (eq. 2) on the delayed noisy plant over the
   trials that did not diverge, with its seeded bootstrap 95 % interval (never below the smallest cost).
 - **MC median J [IQR]**: the median cost over all trials (a diverged trial ranks last) and its
@@ -159,7 +181,7 @@ _DEMO_FILES = """\
 
 ![expected cost, endpoint error and endpoint spread against the delay](cost_vs_delay.png)
 
-Monte Carlo mean cost with its bootstrap 95 % interval and each controller's predicted E[J]; the
+Monte Carlo mean cost with its bootstrap 95 % interval and each controller's local (linearised) prediction E[J]; the
 mean distance of the final hand position from the target; the spread of the final hand positions
 (1-sigma major axis). Compared with: human endpoint scatter of a few millimetres for unseen
 reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This plant has no sensory noise or
@@ -208,6 +230,9 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
         "",
         _DEMO_NOTES,
     ]
+    warned = delay_study_warnings(results)
+    if warned:
+        lines += ["## Warnings", ""] + [f"- {w}" for w in warned] + [""]
     failed = [r for r in results if not r.converged]
     if failed:
         lines += ["## Solver warnings", ""]
@@ -239,7 +264,10 @@ _STATISTICAL_NOTE = (
 def write_center_out_report(out: pathlib.Path, results: Sequence, settings: dict, table: str,
                             figures: Sequence[str]) -> list[str]:
     """center_out.json (settings and every number) and center_out.md (setting, table, figures)."""
-    write_json(out / "center_out.json", dict(settings=settings, results=center_out_records(results)))
+    from .tables import center_out_warnings
+    write_json(out / "center_out.json", dict(settings=settings, descriptions=_descriptions("predicted_cost", "mc_cost"),
+                                             warnings=center_out_warnings(results),
+                                             results=center_out_records(results)))
     s = settings
     lines = ["# Center-out reaching, six-muscle arm, delayed excitations", "",
              f"{s['targets']} targets at {1e3 * s['radius']:g} mm, {s['trials']} noisy trials per target (sigma_u "

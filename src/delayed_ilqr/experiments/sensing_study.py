@@ -19,6 +19,7 @@ clips away shows up later.)
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
@@ -28,7 +29,7 @@ from ..models import REGISTRY
 from ..models.metadata import default_u_init, task_position, task_target
 from .perturbation import first_response, lateral_kick
 
-__all__ = ["SensingResult", "sensory_delay_study", "study_rows", "DESIGNS"]
+__all__ = ["SensingResult", "sensory_delay_study", "study_rows", "study_warnings", "DESIGNS"]
 
 DESIGNS = ("aware", "ignorant")
 
@@ -39,7 +40,8 @@ class SensingResult(NamedTuple):
     Attributes:
         sensory_delay: seconds; design: "aware" or "ignorant"; problem: the plant;
         solution: the design's solve (its policy runs on the plant);
-        expected_cost: the exact expected cost on the linearisation (aware), else None;
+        expected_cost: the local (linearised) prediction of E[J], exact on the linearisation
+            (aware), else None;
         runs, kicked: Monte Carlo without and with the kick (same seed);
         endpoint_sd: RMS distance of the final task positions from their mean (task units);
         endpoint_error: mean distance of the final task positions from the target;
@@ -95,15 +97,29 @@ def sensory_delay_study(sensory_delays: Sequence[float], delay: float = 0.05, mo
 
 
 def study_rows(results: Sequence[SensingResult]) -> list[dict]:
-    """One record per (sensory delay, design): the numbers of the study's table."""
+    """One record per (sensory delay, design): the numbers of the study's table; the Monte Carlo
+    cost as its mean with the bootstrap 95 % interval and its median (`tables.mc_record`),
+    beside the local (linearised) prediction (None for the ignorant design, which has none)."""
+    from ..statistics import divergence_bound, diverged_trials, sample_stats
+    from .tables import PREDICTED, mc_record
     rows = []
     for r in results:
-        s = r.runs.summary()
+        cost = np.asarray(r.runs.cost)
+        st = sample_stats(cost, diverged_trials(cost, divergence_bound(r.problem)))
         rows.append({"sensory delay [ms]": 1000 * r.sensory_delay, "design": r.design,
-                     "status": str(r.solution.status),
-                     "expected cost": r.expected_cost, "MC cost": float(s.mean_cost),
-                     "MC cost SE": float(s.standard_error), "diverged": int(s.n_diverged),
+                     "status": str(r.solution.status), PREDICTED: r.expected_cost, **mc_record(st),
                      "endpoint SD [mm]": 1000 * r.endpoint_sd, "endpoint error [mm]": 1000 * r.endpoint_error,
                      "first response [ms]": None if r.latency_s is None else 1000 * r.latency_s,
                      "half-peak [ms]": None if r.half_s is None else 1000 * r.half_s})
     return rows
+
+
+def study_warnings(results: Sequence[SensingResult]) -> list[str]:
+    """One line per (sensory delay, design) whose Monte Carlo mean cost departs from its local
+    prediction by more than the factor (`prediction_warning`)."""
+    from ..statistics import prediction_warning
+    from .tables import PREDICTED
+    lines = [prediction_warning(f"{row['design']} at sensory delay {row['sensory delay [ms]']:g} ms",
+                                math.nan if row["MC J mean"] is None else row["MC J mean"], row[PREDICTED])
+             for row in study_rows(results)]
+    return [w for w in lines if w]

@@ -3,6 +3,12 @@
 A table is a header and rows of strings (:func:`delay_study_rows`, :func:`center_out_rows`),
 formatted as aligned plain text (:func:`text_table`) or GitHub markdown (:func:`markdown_table`);
 the ``solve`` and ``simulate`` commands print two-column summaries (:func:`pairs`).
+
+Every study table reports the Monte Carlo cost as its mean with the bootstrap 95 % interval and its
+median (`delayed_ilqr.statistics`), beside the local (linearised) prediction
+``Solution.expected_cost``; the ``*_warnings`` functions give the one-line warnings of a study
+whose Monte Carlo mean departs from that prediction by more than
+`PREDICTION_FACTOR` either way.
 """
 from __future__ import annotations
 
@@ -12,11 +18,16 @@ from typing import Sequence
 import numpy as np
 
 from .. import Status
+from ..statistics import prediction_warning, sample_stats
 from .delay_study import ControllerResult
 from .designs import REGISTRY
 
-__all__ = ["num", "unit_scale", "delay_study_rows", "center_out_rows", "records_table", "text_table",
-           "markdown_table", "pairs", "solve_summary", "simulate_summary", "sweep_rows"]
+__all__ = ["num", "unit_scale", "PREDICTED", "mc_record", "delay_study_rows", "center_out_rows", "records_table",
+           "text_table", "markdown_table", "pairs", "solve_summary", "simulate_summary", "sweep_rows",
+           "delay_study_warnings", "center_out_warnings", "sweep_warnings"]
+
+#: The column label of ``Solution.expected_cost`` in every table.
+PREDICTED = "local prediction E[J] (linearised)"
 
 Table = tuple[list[str], list[list[str]]]
 
@@ -47,6 +58,16 @@ def _median_iqr(st, scale: float = 1.0, digits: int = 4) -> str:
     return f"{num(scale * st.median, digits)} [{num(scale * st.iqr[0], digits)}, {num(scale * st.iqr[1], digits)}]"
 
 
+def mc_record(st, prefix: str = "MC J") -> dict:
+    """A `SampleStats` as record columns (JSON-ready, None for
+    non-finite): ``<prefix> mean``, its bootstrap 95 % interval ``<prefix> mean CI low/high``,
+    ``<prefix> median``, and ``diverged``."""
+    f = lambda v: None if v is None or not math.isfinite(v) else float(v)          # noqa: E731
+    return {f"{prefix} mean": f(st.mean), f"{prefix} mean CI low": f(st.ci95[0]),
+            f"{prefix} mean CI high": f(st.ci95[1]), f"{prefix} median": f(st.median),
+            "diverged": int(st.n_diverged)}
+
+
 def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
     """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs
     (mean over the trials that did not diverge with its bootstrap 95 % interval; median and
@@ -55,7 +76,7 @@ def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
     scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
     label = results[0].endpoint_label if results else "endpoint error"
     unit_text = f" [{unit}]" if unit else ""
-    header = ["delay [s]", "controller", "converged", "iter", "solve [ms]", "predicted E[J]",
+    header = ["delay [s]", "controller", "converged", "iter", "solve [ms]", PREDICTED,
               "MC mean J [95% CI]", "MC median J [IQR]", "diverged", f"{label}{unit_text}: mean [95% CI]",
               f"{label}{unit_text}: median [IQR]"]
     rows = []
@@ -68,32 +89,37 @@ def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
 
 
 _CENTER_OUT_HEADER = ["delay", "design", "converged", "iterations median [range]", "solve time per target",
-                      "nominal hand error (max)", "nominal final hand speed (max)", "predicted E[J] (mean)",
-                      "MC mean J (mean)", "diverged", "MC hand error (mean)", "MC hand error (median)",
+                      "nominal hand error (max)", "nominal final hand speed (max)",
+                      f"{PREDICTED} (mean over targets)", "MC mean J [95% CI] (all trials)", "MC median J (all trials)",
+                      "diverged", "MC hand error: mean [95% CI]", "MC hand error: median",
                       "MC endpoint spread (1-sigma major axis, mean [range])"]
+
+
+def _pooled(r, what: str):
+    """SampleStats of the per-trial ``what`` ("mc_cost" or "mc_error") pooled over the targets."""
+    return sample_stats(np.concatenate([getattr(t, what) for t in r.targets]),
+                        np.concatenate([t.diverged for t in r.targets]))
 
 
 def _center_out_row(r) -> list[str]:
     its = [t.iterations for t in r.targets]
     n = len(r.targets)
     spreads = [1e3 * t.spread for t in r.targets]
-    n_div = sum(int(np.count_nonzero(t.diverged)) for t in r.targets)
-    n_all = sum(t.diverged.shape[0] for t in r.targets)
+    cost, error = _pooled(r, "mc_cost"), _pooled(r, "mc_error")
     return [f"{1e3 * r.delay:g} ms", r.design, f"{sum(t.converged for t in r.targets)}/{n}",
             f"{int(np.median(its))} [{min(its)}-{max(its)}]", f"{1e3 * r.solve_time / n:.0f} ms",
             f"{1e3 * max(t.hand_error for t in r.targets):.2f} mm",
             f"{1e2 * max(t.hand_speed for t in r.targets):.2f} cm/s",
-            f"{np.mean([t.predicted_cost for t in r.targets]):.3g}",
-            f"{np.mean([t.cost_stats.mean for t in r.targets]):.3g}", f"{n_div}/{n_all}",
-            f"{1e3 * np.mean([t.error_stats.mean for t in r.targets]):.2f} mm",
-            f"{1e3 * np.mean([t.error_stats.median for t in r.targets]):.2f} mm",
+            f"{np.mean([t.predicted_cost for t in r.targets]):.3g}", _mean_ci(cost, 1.0, 3), num(cost.median, 3),
+            f"{cost.n_diverged}/{cost.n}", _mean_ci(error, 1e3, 3) + " mm", f"{num(1e3 * error.median, 3)} mm",
             f"{np.mean(spreads):.2f} mm [{min(spreads):.2f}-{max(spreads):.2f}]"]
 
 
 def center_out_rows(results: Sequence) -> Table:
     """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`):
-    Monte Carlo means and spreads over the trials that did not diverge, and how many did (per
-    target, then averaged over the targets)."""
+    the local (linearised) prediction averaged over the targets; the Monte Carlo cost and hand
+    error over all trials of all targets (mean over the trials that did not diverge with its
+    bootstrap 95 % interval, median over all); how many diverged; the spread per target."""
     return list(_CENTER_OUT_HEADER), [_center_out_row(r) for r in results]
 
 
@@ -106,11 +132,13 @@ def records_table(records: Sequence[dict]) -> Table:
 
 def sweep_rows(ds) -> Table:
     """One row per cell of a sweep's Dataset (:func:`delayed_ilqr.sweep`): its grid values, the
-    solve (status, iterations, predicted E[J]) and the Monte Carlo pooled over the seeds (mean of
-    the seeds' mean costs, their diverged trials, the median endpoint error)."""
+    solve (status, iterations, the local (linearised) prediction E[J]) and the Monte Carlo over the
+    seeds: the mean cost with its 95 % interval (one seed: its bootstrap interval; several: the
+    mean of the seeds' means +/- 1.96 standard errors across seeds), the median cost and the median
+    endpoint error (means of the seeds' medians), the diverged trials."""
     dims = list(ds["status"].dims)
     scale, unit = unit_scale(ds.mc_endpoint_error_median.attrs.get("units", ""))
-    header = dims + ["status", "iter", "predicted E[J]", "MC mean J", "diverged",
+    header = dims + ["status", "iter", PREDICTED, "MC mean J [95% CI]", "MC median J", "diverged",
                      f"median endpoint error [{unit}]" if unit else "median endpoint error"]
     trials = int(ds.attrs.get("trials", 0)) * ds.sizes.get("seed", 1)
     rows = []
@@ -123,10 +151,63 @@ def sweep_rows(ds) -> Table:
                           (num(float(v)) if np.issubdtype(v.dtype, np.number) else str(v)))
         status = int(cell.status)
         rows.append(values + [Status(status).name if status >= 0 else "missing", str(int(cell.iterations)),
-                              num(float(cell.expected_cost)), num(float(cell.mc_cost_mean.mean("seed"))),
+                              num(float(cell.expected_cost)), _seeds_mean_ci(cell),
+                              num(float(cell.mc_cost_median.mean("seed"))),
                               f"{int(cell.mc_diverged.sum())}/{trials}",
                               num(scale * float(cell.mc_endpoint_error_median.mean("seed")))])
     return header, rows
+
+
+def _seeds_mean_ci(cell) -> str:
+    """The mean cost of a sweep cell with its 95 % interval (see `sweep_rows`)."""
+    means = np.asarray(cell.mc_cost_mean.values, dtype=np.float64).ravel()
+    if means.size == 1:
+        lo, hi = float(cell.mc_cost_ci_low.values.ravel()[0]), float(cell.mc_cost_ci_high.values.ravel()[0])
+    else:
+        half = 1.959963984540054 * np.std(means, ddof=1) / np.sqrt(means.size)
+        lo, hi = float(means.mean() - half), float(means.mean() + half)
+    return f"{num(float(means.mean()))} [{num(lo)}, {num(hi)}]"
+
+
+def delay_study_warnings(results: Sequence[ControllerResult]) -> list[str]:
+    """One line per controller and delay whose Monte Carlo mean cost departs from its local
+    (linearised) prediction by more than the factor of `prediction_warning`."""
+    lines = [prediction_warning(f"{r.model}, {r.controller} at {1e3 * r.delay:g} ms", r.cost.mean, r.predicted_cost)
+             for r in results]
+    return [w for w in lines if w]
+
+
+def center_out_warnings(results: Sequence) -> list[str]:
+    """One line per delay and design of the center-out study where, on some target, the Monte Carlo
+    mean cost departs from the target's local prediction by more than the factor (which targets,
+    and the range of their ratios)."""
+    lines = []
+    for r in results:
+        bad = [(j, t) for j, t in enumerate(r.targets)
+               if prediction_warning("", t.cost_stats.mean, t.predicted_cost) is not None]
+        if not bad:
+            continue
+        ratios = [t.cost_stats.mean / t.predicted_cost if t.predicted_cost > 0 else math.inf for _, t in bad]
+        worst = bad[int(np.argmax([abs(math.log(x)) if 0 < x < math.inf else math.inf for x in ratios]))][1]
+        line = prediction_warning(f"{r.design} at {1e3 * r.delay:g} ms, targets "
+                                  f"{', '.join(str(j + 1) for j, _ in bad)} of {len(r.targets)} (the worst shown)",
+                                  worst.cost_stats.mean, worst.predicted_cost)
+        lines.append(line + f"; MC / prediction on these targets {num(min(ratios), 3)}-{num(max(ratios), 3)}")
+    return lines
+
+
+def sweep_warnings(ds) -> list[str]:
+    """One line when, in some cells of a sweep, the Monte Carlo mean cost (over the seeds) departs
+    from the local prediction by more than the factor: how many cells, and the worst."""
+    mc = np.asarray(ds.mc_cost_mean.mean("seed").values, dtype=np.float64).ravel()
+    predicted = np.asarray(ds.expected_cost.values, dtype=np.float64).ravel()
+    bad = [i for i in range(mc.size) if prediction_warning("", mc[i], predicted[i]) is not None]
+    if not bad:
+        return []
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = mc[bad] / predicted[bad]
+    worst = bad[int(np.nanargmax(np.abs(np.log(np.where(ratio > 0, ratio, np.nan))))) if np.any(ratio > 0) else 0]
+    return [prediction_warning(f"sweep, {len(bad)} of {mc.size} cells (the worst shown)", mc[worst], predicted[worst])]
 
 
 def text_table(table: Table) -> str:
@@ -176,7 +257,7 @@ def solve_summary(problem, description: str, noise: bool, method: str, timed, en
         ("status", f"{status.name}: {status.message}"),
         ("iterations", str(int(sol.iterations))),
         ("cost (eq. 2, nominal)", num(float(sol.cost))),
-        ("expected cost (LQG)", num(float(sol.expected_cost))),
+        ("expected cost (LQG): the local (linearised) prediction of E[J]", num(float(sol.expected_cost))),
         (f"nominal {label}", f"{num(float(scale * value))} {unit}".rstrip()),
         ("solve time", f"{1e3 * solve_time:.1f} ms (first call with compilation: {first:.2f} s)"),
     ]
@@ -195,11 +276,13 @@ def simulate_summary(r: ControllerResult, description: str) -> list[tuple[str, s
     return _problem_rows(r.problem, description, r.noise) + [
         ("controller", f"{r.controller}: {REGISTRY[r.controller].description}"),
         ("solve", f"{r.status} after {r.iterations} iterations, {1e3 * r.solve_time:.1f} ms"),
-        ("predicted E[J]", num(r.predicted_cost)),
+        (PREDICTED, num(r.predicted_cost)),
         ("trials", f"{c.n} (seed {r.seed}, {r.substeps} substep(s) per step)"),
         ("diverged", f"{c.n_diverged} of {c.n} (cost not finite or above {num(r.divergence_bound)})"),
         ("Monte Carlo mean J [95% CI]", _mean_ci(c) + " (trials that did not diverge; bootstrap interval)"),
         ("Monte Carlo median J [IQR]", _median_iqr(c)),
+        ("Monte Carlo / prediction", delay_study_warnings([r])[0].removeprefix("warning: ")
+         if delay_study_warnings([r]) else "within the factor of 2 either way"),
         (f"final {r.endpoint_label}", _endpoint_text(r)),
         ("mean final state", np.array2string(np.asarray(r.summary.final_state_mean), precision=4)),
     ]

@@ -13,6 +13,7 @@ position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.
                             and spread against the delay; excitation patterns
 :mod:`.perturbation`        mean corrective responses to a kick against the sensory delay
 :mod:`.sweep`               a sweep's Dataset: Monte Carlo cost and endpoint error against a grid axis
+`gallery`                   the gallery's experiments: kick, target jump, Fitts, minimal intervention
 ==========================  ===================================================================
 
 ``delay_study_figures``, ``center_out_figures`` and ``perturbation_figures`` give a study's figures

@@ -40,7 +40,7 @@ VARIABLES = (
     Variable("converged", "int8", False, "1 when the solve converged", ""),
     Variable("iterations", "int32", False, "iLQG iterations", ""),
     Variable("cost", "float64", False, "cost of the nominal trajectory (eq. 2)", "1"),
-    Variable("expected_cost", "float64", False, "predicted expected cost J(0) of the last LQG", "1"),
+    Variable("expected_cost", "float64", False, "local (linearised) prediction of E[J]: J(0) of the last LQG", "1"),
     Variable("endpoint_error", "float64", False, "endpoint error of the nominal", "endpoint"),
     Variable("mc_cost_mean", "float64", True, "Monte Carlo mean cost (trials that did not diverge)", "1"),
     Variable("mc_cost_ci_low", "float64", True, "lower end of the bootstrap 95 % interval of the mean cost", "1"),

@@ -1,0 +1,158 @@
+"""Fitts' law: the model chooses its movement time as the shortest that meets an accuracy criterion;
+is that time linear in the index of difficulty log2(2D/W), and how does it depend on the delay?
+
+Published: movement time MT = a + b log2(2D/W) (Fitts 1954, J Exp Psychol 47:381: b about 100 ms/bit
+for reciprocal tapping); in discrete aimed movements Schmidt, Zelaznik, Hawkins, Frank & Quinn 1979
+(Psychol Rev 86:415) found the effective width proportional to D / MT; slopes of 100-200 ms/bit are
+usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006 (J Biomech 39:2578), cited by the seed
+paper, explain the law by the feedback delay.
+
+The model (after Harris & Wolpert 1998's account of Fitts' law by signal-dependent noise): a reach
+of distance D (`reach_tasks.reach`, with the arm's signal-dependent motor noise and,
+by default, delayed noisy proprioception) that must be on the target, at rest, from the movement
+time T on (`reach_tasks.hold_from`). The reaches to every distance and movement time are
+solved in **one compiled, vmapped call** (T and the target are cost parameters of one horizon), and
+each runs ``trials`` times. A movement time meets the accuracy criterion for width W when the
+endpoints at T lie within the target along the movement: |bias| + 4.133 SD / 2 <= W / 2 (the
+effective width 4.133 SD, MacKenzie 1992). MT(D, W) is the shortest T that meets it
+(`responses.shortest_meeting`, linear between the grid's times); MT = a + b ID is fitted by least
+squares (`responses.fitts_fit`) over the conditions whose MT lies inside the grid: a condition met
+already at the shortest time on the grid is censored (its MT is at most that time) and one never
+met is NaN; both are left out of the fit.
+"""
+from __future__ import annotations
+
+import itertools
+from typing import NamedTuple, Optional, Sequence
+
+import numpy as np
+
+from .. import Options, Status
+from ..models.arm2 import hand_position
+from ..statistics import divergence_bound, diverged_trials, sample_stats
+from .engine import monte_carlo, solve_batch, take
+from .reach_tasks import hold_from, reach, reach_targets, solver_options
+from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
+
+__all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin",
+           "fitts_experiment", "comparison"]
+
+PUBLISHED = (
+    ("MT linear in log2(2D/W)", "Fitts 1954", "MT = a + b ID, b about 0.1 s/bit (tapping)"),
+    ("slope in discrete pointing", "Fitts 1954; Schmidt et al. 1979; MacKenzie 1992", "b = 0.1-0.2 s/bit"),
+    ("delay as a cause", "Beamish, Bhatti, MacKenzie & Wu 2006", "longer feedback delay, longer MT"),
+)
+
+#: The default grid: distances (m), widths (m) and movement times (s) the model chooses from.
+DISTANCES = (0.04, 0.08, 0.16)
+WIDTHS = (0.008, 0.016, 0.032)
+MOVEMENT_TIMES = tuple(float(t) for t in np.round(np.arange(0.15, 0.801, 0.05), 3))
+
+#: The published range of the slope b (s/bit) that the docs compare with.
+SLOPE_RANGE = (0.1, 0.2)
+
+
+class FittsResult(NamedTuple):
+    """One delay of the experiment.
+
+    Attributes:
+        delay, sensory_delay: motor and proprioceptive delays (s; sensory None: the state is seen).
+        distances [D], widths [W], movement_times [T] (s): the grid.
+        bias [D, T], sd [D, T]: mean and SD (m) of the endpoint along the movement at T.
+        status [D, T]: the solves' Status names.
+        mt [D, W]: the chosen movement time (s), NaN where no T on the grid meets the criterion.
+        index [D, W]: log2(2D/W) (bits); fit: the `responses.FittsFit` over finite MT.
+    """
+
+    delay: float
+    sensory_delay: Optional[float]
+    distances: np.ndarray
+    widths: np.ndarray
+    movement_times: np.ndarray
+    bias: np.ndarray
+    sd: np.ndarray
+    status: np.ndarray
+    mt: np.ndarray
+    index: np.ndarray
+    fit: Optional[FittsFit]
+    mc_cost: Optional[np.ndarray] = None
+    predicted_cost: Optional[np.ndarray] = None
+
+
+def criterion_margin(bias, sd, width) -> np.ndarray:
+    """W / 2 - (|bias| + 4.133 SD / 2): >= 0 where the endpoints lie within the width (module docstring)."""
+    return 0.5 * np.asarray(width) - (np.abs(bias) + 0.5 * EFFECTIVE_WIDTH_SD * np.asarray(sd))
+
+
+def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, widths: Sequence[float] = WIDTHS,
+                     movement_times: Sequence[float] = MOVEMENT_TIMES,
+                     delays: Sequence[float] = (0.03, 0.09), sensory_delay: Optional[float] = 0.05,
+                     hold: float = 0.1, trials: int = 100, seed: int = 0, direction: float = 0.0,
+                     options: Optional[Options] = None) -> list[FittsResult]:
+    """Runs the experiment of the module docstring, one `FittsResult` per motor delay.
+
+    Args:
+        arm: "arm2" or "arm2_muscle6".
+        distances: movement distances (m).
+        widths: target widths (m).
+        movement_times: the grid of movement times (s, increasing) the model chooses from.
+        delays: motor delays (s), one result each.
+        sensory_delay: proprioceptive delay (s) or None (the state is seen).
+        hold: how long (s) the hand must stay on the target after T; the horizon is max(T) + hold.
+        trials: Monte Carlo trials per (distance, movement time).
+        seed: their seed (condition n uses seed + n).
+        direction: of the movement (radians from +x; 0: to the right of the start).
+        options: solver options (default `reach_tasks.solver_options`).
+    """
+    ts = np.asarray(movement_times, dtype=float)
+    if ts.ndim != 1 or ts.size < 2 or np.any(np.diff(ts) <= 0):
+        raise ValueError(f"movement_times must be at least 2 increasing times (s); got {movement_times!r}")
+    ds, ws = np.asarray(distances, dtype=float), np.asarray(widths, dtype=float)
+    final_time = float(ts[-1] + hold)
+    results = []
+    for delay in delays:
+        grid = list(itertools.product(range(ds.size), range(ts.size)))
+        problems = [hold_from(reach(arm, reach_targets(1, ds[i], start_angle=direction)[0], delay=delay,
+                                    final_time=final_time, sensory_delay=sensory_delay), ts[j], hold)
+                    for i, j in grid]
+        sols = solve_batch(problems, solver_options(arm, options))
+        bias, sd = np.full((ds.size, ts.size), np.nan), np.full((ds.size, ts.size), np.nan)
+        status = np.empty((ds.size, ts.size), dtype=object)
+        mc_cost = np.full((ds.size, ts.size), np.nan)
+        unit = np.array([np.cos(direction), np.sin(direction)])
+        for n, (i, j) in enumerate(grid):
+            p = problems[n]
+            runs = monte_carlo(p, take(sols.policy, n), trials, seed + n).runs
+            k = int(round(ts[j] / p.dt))
+            hand = np.asarray(hand_position(np.asarray(runs.x[:, k, :2])))
+            along = (hand - np.asarray(p.cost.params["target"])) @ unit
+            bias[i, j], sd[i, j] = float(np.mean(along)), float(np.std(along, ddof=1))
+            status[i, j] = Status(int(sols.status[n])).name
+            cost = np.asarray(runs.cost)
+            mc_cost[i, j] = sample_stats(cost, diverged_trials(cost, divergence_bound(p))).mean
+        mt = np.array([[shortest_meeting(ts, criterion_margin(bias[i], sd[i], w)) for w in ws]
+                       for i in range(ds.size)])
+        index = index_of_difficulty(ds[:, None], ws[None, :])
+        inside = np.where(mt > ts[0], mt, np.nan)          # censored at the grid's shortest time: left out
+        try:
+            fit = fitts_fit(index, inside)
+        except ValueError:
+            fit = None
+        predicted = np.asarray(sols.expected_cost, dtype=float).reshape(ds.size, ts.size)
+        results.append(FittsResult(float(delay), sensory_delay, ds, ws, ts, bias, sd, status, mt, index, fit,
+                                   mc_cost, predicted))
+    return results
+
+
+def comparison(results: list) -> list[dict]:
+    """Rows (finding, source, published, measured) of the docs' table: the fit at each delay."""
+    rows = []
+    for r in results:
+        n_met = int(np.count_nonzero(r.mt > r.movement_times[0]))
+        fit = "no fit (fewer than 3 conditions met the criterion)" if r.fit is None else \
+            f"MT = {r.fit.a:.3f} s + {1e3 * r.fit.b:.0f} ms/bit x ID, R^2 = {r.fit.r2:.2f}"
+        rows.append(dict(finding=f"motor delay {1e3 * r.delay:.0f} ms", source="Fitts 1954; MacKenzie 1992",
+                         published="MT linear in ID, b = 100-200 ms/bit",
+                         measured=f"{fit} ({n_met} of {r.mt.size} conditions inside the grid; "
+                                  f"mean MT {np.nanmean(r.mt):.3f} s)"))
+    return rows

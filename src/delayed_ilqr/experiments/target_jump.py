@@ -1,0 +1,151 @@
+"""Target jumps (Liu & Todorov 2007): the target is displaced at a given time before the end of the
+reach; when does the correction start, and does the hand reach the new target?
+
+Published (what the experiment is compared with), Liu & Todorov 2007 (J Neurosci 27:9354): the hand
+reaches the displaced target when the jump comes early enough; when it comes late, the corrections
+are stronger near the end of the movement but incomplete (timing-dependent feedback gains, as
+optimal feedback control predicts). Visual corrections start 100-150 ms after the jump
+(Pruszynski & Scott 2012; Scott 2016).
+
+The model: the reach's target is part of the state (`reach_tasks.with_target_state`), so the
+delayed feedback policy's gains on it are the optimal response to a displaced target, and a jump of
+``jump`` metres perpendicular to the movement at step kp is a disturbance of those states. The
+policy sees the state at once; its commands act ``delay`` seconds later, so the motor delay is the
+loop latency of this experiment (a visual loop: use 0.1-0.15 s). The same trials run with and
+without each jump on the same noise.
+
+Measured per jump time (`analyse`, rules in `responses`): the first change of the
+applied command and the onset of the mean hand response (10 % of its peak lateral displacement),
+both after the jump; the median final distance to the new target and the fraction of the jump the
+hand made up.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple, Optional, Sequence
+
+import numpy as np
+
+from .. import Options, Problem, Solution, solve
+from ..models.arm2 import hand_position
+from ..models.metadata import default_u_init
+from ..statistics import SampleStats, sample_stats
+from .engine import monte_carlo
+from .reach_tasks import movement_direction, reach, solver_options, with_target_state
+from .responses import first_change, onset
+
+__all__ = ["PUBLISHED", "JumpAnalysis", "JumpResult", "analyse", "target_jump_experiment", "comparison"]
+
+PUBLISHED = (
+    ("correction of an early jump", "Liu & Todorov 2007", "the hand reaches the displaced target"),
+    ("correction of a late jump", "Liu & Todorov 2007", "stronger corrections near the end, incomplete"),
+    ("onset of the visual correction", "Pruszynski & Scott 2012; Scott 2016", "100-150 ms after the jump"),
+)
+
+
+class JumpAnalysis(NamedTuple):
+    """One jump time (seconds after the jump; metres).
+
+    Attributes:
+        time_before_end: when the jump came, seconds before the end of the movement.
+        first_change: first change of the applied command (any trial), None if none.
+        onset: onset of the mean hand displacement from the unjumped reach (10 % of its peak).
+        loop_latency: the motor delay, the causal bound on ``first_change``.
+        error_new: SampleStats of the final distance to the new target.
+        corrected: the mean final displacement along the jump over the jump size (1: all of it).
+    """
+
+    time_before_end: float
+    first_change: Optional[float]
+    onset: Optional[float]
+    loop_latency: float
+    error_new: SampleStats
+    corrected: float
+
+
+class JumpResult(NamedTuple):
+    """The experiment: the plant with its target states, its solution, the jump vector [2], the
+    unjumped trials (x [N, K+1, n]) and per jump time the jumped trials' states and the analysis;
+    ``base_cost`` [N] the unjumped trials' costs."""
+
+    problem: Problem
+    solution: Solution
+    jump: np.ndarray
+    base_x: np.ndarray
+    jumped_x: list
+    analyses: list
+    base_cost: Optional[np.ndarray] = None
+
+
+def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
+            motor_steps: int, time_before_end: float) -> JumpAnalysis:
+    """The `JumpAnalysis` of runs on common noise: commands ``base_u``, ``jumped_u`` [N, K, d]
+    (issued), hand positions ``hand_base``, ``hand_jumped`` [N, K+1, 2], the ``jump`` vector [2], the
+    ``new_target`` [2]; the jump enters x_{jump_step+1}; ``motor_steps`` l_m."""
+    start = jump_step + 1
+    first = first_change(np.asarray(jumped_u) - np.asarray(base_u))
+    shift = np.asarray(hand_jumped) - np.asarray(hand_base)                  # [N, K+1, 2]
+    unit = np.asarray(jump) / np.linalg.norm(jump)
+    along = shift.mean(axis=0) @ unit
+    on = onset(along, start=start)
+    final = np.asarray(hand_jumped)[:, -1]
+    return JumpAnalysis(float(time_before_end), None if first is None else dt * (first + motor_steps - start),
+                        None if on is None else dt * (on - start), dt * motor_steps,
+                        sample_stats(np.linalg.norm(final - new_target, axis=1)),
+                        float(along[-1] / np.linalg.norm(jump)))
+
+
+def target_jump_experiment(arm: str = "arm2", delay: float = 0.1, jump: float = 0.02,
+                           times_before_end: Sequence[float] = (0.1, 0.2, 0.3, 0.4), trials: int = 100,
+                           seed: int = 0, target=None, final_time: float = 0.6,
+                           options: Optional[Options] = None) -> JumpResult:
+    """Runs the experiment of the module docstring.
+
+    Args:
+        arm: "arm2" or "arm2_muscle6".
+        delay: the motor delay (s), the loop latency here.
+        jump: the target displacement (m), perpendicular (counter-clockwise) to the movement.
+        times_before_end: when the target jumps, seconds before the end of the movement.
+        trials: Monte Carlo trials per condition (same noise in each).
+        seed: their seed.
+        target: [2] the first target (default 10 cm ahead).
+        final_time: the movement time (s).
+        options: solver options (default `reach_tasks.solver_options`).
+    """
+    base = reach(arm, target, delay=delay, final_time=final_time)
+    problem = with_target_state(base)
+    sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
+    d = movement_direction(base)
+    vec = jump * np.array([-d[1], d[0]])
+    new_target = np.asarray(base.cost.params["target"]) + vec
+    calm = monte_carlo(problem, sol.policy, trials, seed)
+    hand = lambda x: np.asarray(hand_position(np.asarray(x)[..., :2]))              # noqa: E731
+    jumped_x, analyses = [], []
+    for t in times_before_end:
+        kp = problem.horizon - int(round(t / problem.dt)) - 1
+        if not 0 <= kp < problem.horizon - 1:
+            raise ValueError(f"times_before_end must lie within the movement, 0 < t < {final_time:g} s; got {t!r}")
+        W = np.zeros((problem.horizon, problem.n_states))
+        W[kp, -2:] = vec
+        runs = monte_carlo(problem, sol.policy, trials, seed, disturbance=W).runs
+        jumped_x.append(np.asarray(runs.x))
+        analyses.append(analyse(calm.runs.u, runs.u, hand(calm.runs.x), hand(runs.x), vec, new_target, kp,
+                                problem.dt, problem.delay_steps, float(t)))
+    return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses, np.asarray(calm.runs.cost))
+
+
+def comparison(result: JumpResult) -> list[dict]:
+    """Rows (finding, source, published, measured) of the docs' table: one per jump time, then the
+    onset."""
+    rows = []
+    for a in result.analyses:
+        rows.append(dict(finding=f"jump {1e3 * a.time_before_end:.0f} ms before the end", source="Liu & Todorov 2007",
+                         published="reaches the new target if early enough; incomplete if late",
+                         measured=f"median final distance to the new target {1e3 * a.error_new.median:.1f} mm, "
+                                  f"{100 * a.corrected:.0f} % of the jump made up"))
+    first = next((a for a in result.analyses if a.first_change is not None), None)
+    rows.append(dict(finding=PUBLISHED[2][0], source=PUBLISHED[2][1], published=PUBLISHED[2][2],
+                     measured="no response" if first is None else
+                     f"first command change {1e3 * first.first_change:.0f} ms, hand onset "
+                     f"{'none' if first.onset is None else f'{1e3 * first.onset:.0f} ms'} "
+                     f"(loop latency {1e3 * first.loop_latency:.0f} ms)"))
+    return rows

@@ -1,0 +1,128 @@
+"""Figures of the gallery's experiments (`delayed_ilqr.experiments`: kick, target_jump, fitts,
+minimal_intervention), each with the published numbers it is compared with in its title or legend.
+Lengths in millimetres, times in milliseconds after the perturbation or in seconds of movement."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..models.arm2 import hand_position
+from ._common import ellipse, figure
+
+__all__ = ["plot_kick", "plot_target_jump", "plot_fitts", "plot_minimal_intervention"]
+
+
+def _hand(x):
+    return np.asarray(hand_position(np.asarray(x)[..., :2]))
+
+
+def plot_kick(result):
+    """Mean hand paths (kicked, unperturbed) in mm; |mean applied-command response| against the time
+    after the kick with the loop latency (dotted) and the published latency bands (reflex 20-50 ms,
+    long-latency 50-100 ms, voluntary 100-150 ms; Pruszynski & Scott 2012); final hand errors."""
+    a, p = result.analysis, result.problem
+    fig = figure(figsize=(15, 4.6), layout="constrained")
+    ax_path, ax_u, ax_err = fig.subplots(1, 3)
+    calm, kicked = _hand(result.base.runs.x).mean(0), _hand(result.kicked.runs.x).mean(0)
+    target = np.asarray(p.cost.params["target"])
+    ax_path.plot(1e3 * calm[:, 0], 1e3 * calm[:, 1], "--", color="0.4", label="unperturbed (mean)")
+    ax_path.plot(1e3 * kicked[:, 0], 1e3 * kicked[:, 1], color="tab:red", lw=2, label="kicked (mean)")
+    ax_path.scatter(*(1e3 * calm[result.pulse_step + 1]), marker="x", color="k", zorder=5, label="kick")
+    ax_path.scatter(*(1e3 * target), marker="o", facecolor="none", edgecolor="k", s=80, label="target")
+    ax_path.set_aspect("equal", adjustable="datalim")
+    ax_path.set_xlabel("hand x [mm]")
+    ax_path.set_ylabel("hand y [mm]")
+    ax_path.legend(fontsize=8)
+    dt, lm = p.dt, p.delay_steps
+    resp = np.linalg.norm((np.asarray(result.kicked.runs.u) - np.asarray(result.base.runs.u)).mean(0), axis=1)
+    t_after = 1e3 * dt * (np.arange(resp.size) + lm - (result.pulse_step + 1))     # applied command
+    for lo, hi, c, name in ((20, 50, "tab:green", "reflex"), (50, 100, "tab:olive", "long-latency"),
+                            (100, 150, "tab:orange", "voluntary")):
+        ax_u.axvspan(lo, hi, color=c, alpha=0.15, label=f"{name} {lo}-{hi} ms (published)")
+    ax_u.plot(t_after, resp, color="tab:red", lw=2, drawstyle="steps-post", label="model (held over each step)")
+    ax_u.axvline(1e3 * a.loop_latency, color="k", ls=":", label=f"loop latency {1e3 * a.loop_latency:.0f} ms")
+    ax_u.set_xlim(-50, max(300, t_after[-1]))
+    ax_u.set_xlabel("time after the kick [ms] (applied command)")
+    ax_u.set_ylabel("|mean command response|")
+    ax_u.legend(fontsize=7)
+    eb, ek = 1e3 * np.asarray(result.base.errors), 1e3 * np.asarray(result.kicked.errors)
+    ax_err.boxplot([eb, ek])
+    ax_err.set_xticks([1, 2], ["unperturbed", "kicked"])
+    ax_err.set_ylabel("final hand error [mm]")
+    ax_err.set_title(f"median ratio {a.error_ratio:.2g} (published: about 1-2)", fontsize=9)
+    return fig
+
+
+def plot_target_jump(result):
+    """Mean hand paths in mm for each jump time, and the median final distance to the new target
+    against the jump time (published: the hand reaches the new target when the jump is early
+    enough, Liu & Todorov 2007)."""
+    fig = figure(figsize=(11, 4.6), layout="constrained")
+    ax_path, ax_err = fig.subplots(1, 2)
+    from matplotlib import colormaps
+    base = _hand(result.base_x).mean(0)
+    ax_path.plot(1e3 * base[:, 0], 1e3 * base[:, 1], "--", color="0.4", label="no jump")
+    n = len(result.analyses)
+    for i, (a, x) in enumerate(zip(result.analyses, result.jumped_x)):
+        h = _hand(x).mean(0)
+        ax_path.plot(1e3 * h[:, 0], 1e3 * h[:, 1], color=colormaps["viridis"](0.85 * i / max(n - 1, 1)), lw=2,
+                     label=f"jump {1e3 * a.time_before_end:.0f} ms before the end")
+    t0 = np.asarray(result.problem.x0[-2:])
+    ax_path.scatter(*(1e3 * t0), marker="o", facecolor="none", edgecolor="k", s=80, label="first target")
+    ax_path.scatter(*(1e3 * (t0 + result.jump)), marker="o", color="k", s=40, label="new target")
+    ax_path.set_aspect("equal", adjustable="datalim")
+    ax_path.set_xlabel("hand x [mm]")
+    ax_path.set_ylabel("hand y [mm]")
+    ax_path.legend(fontsize=7)
+    tb = [1e3 * a.time_before_end for a in result.analyses]
+    ax_err.plot(tb, [1e3 * a.error_new.median for a in result.analyses], "o-", label="model: median")
+    ax_err.axhline(10, color="tab:green", ls="--", label="1 cm")
+    ax_err.axvline(1e3 * result.analyses[0].loop_latency, color="k", ls=":", label="loop latency")
+    ax_err.set_xlabel("jump time before the end [ms]")
+    ax_err.set_ylabel("final distance to the new target [mm]")
+    ax_err.legend(fontsize=8)
+    return fig
+
+
+def plot_fitts(results: Sequence):
+    """The chosen movement time against log2(2D/W), one colour per delay, with the fitted lines and
+    the published slope range 0.1-0.2 s/bit (shaded, through the model's mean point)."""
+    fig = figure(figsize=(6.5, 4.8), layout="constrained")
+    ax = fig.subplots()
+    colors = ("tab:blue", "tab:red", "tab:green", "tab:purple")
+    for i, r in enumerate(results):
+        c = colors[i % len(colors)]
+        ax.scatter(r.index.ravel(), r.mt.ravel(), color=c, label=f"motor delay {1e3 * r.delay:.0f} ms")
+        if r.fit is not None:
+            x = np.linspace(np.nanmin(r.index), np.nanmax(r.index), 10)
+            ax.plot(x, r.fit.a + r.fit.b * x, color=c,
+                    label=f"MT = {r.fit.a:.3f} + {r.fit.b:.3f} ID, R^2 = {r.fit.r2:.2f}")
+    ok = [r for r in results if r.fit is not None]
+    if ok:
+        x = np.linspace(np.nanmin(ok[0].index), np.nanmax(ok[0].index), 10)
+        xm, ym = float(np.nanmean(ok[0].index)), float(np.nanmean(ok[0].mt))
+        ax.fill_between(x, ym + 0.1 * (x - xm), ym + 0.2 * (x - xm), color="0.8", alpha=0.5,
+                        label="published slopes 0.1-0.2 s/bit")
+    ax.set_xlabel("index of difficulty log2(2D/W) [bit]")
+    ax.set_ylabel("movement time [s]")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def plot_minimal_intervention(scatters: Sequence):
+    """Endpoints (mm, relative to the target) with 2-sigma ellipses of the point and the bar target;
+    the title gives the SD ratios (published: larger along the task-irrelevant direction, about 2x,
+    Todorov & Jordan 2002; Knill et al. 2011)."""
+    fig = figure(figsize=(6.5, 5.5), layout="constrained")
+    ax = fig.subplots()
+    for s, c in zip(scatters, ("tab:blue", "tab:red")):
+        e = 1e3 * (s.endpoints - np.asarray(s.problem.cost.params["target"]))
+        ax.scatter(e[:, 0], e[:, 1], s=5, color=c, alpha=0.4)
+        ellipse(ax, e, c, label=f"{s.name}: irrelevant/relevant SD {s.ratio:.2f}")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("hand x - target [mm]")
+    ax.set_ylabel("hand y - target [mm]")
+    ax.set_title("bar across the movement; published ratio about 2", fontsize=9)
+    ax.legend(fontsize=8)
+    return fig
