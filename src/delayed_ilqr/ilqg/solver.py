@@ -82,6 +82,17 @@ class _Best(NamedTuple):
     merit: jax.Array
 
 
+class _Finite(NamedTuple):
+    """The last nominal whose backward pass gave finite gains, with them: what the solve returns
+    when the pass at its final nominal does not (``Status.NON_FINITE_GAINS``)."""
+
+    us: jax.Array
+    xs: jax.Array
+    cost: jax.Array
+    gains: SlotGains
+    expected_cost: jax.Array
+
+
 class _State(NamedTuple):
     us: jax.Array
     xs: jax.Array
@@ -96,6 +107,11 @@ class _State(NamedTuple):
     trace: Trace
     latch: _Latch | None         # None without noise or without limits
     best: _Best | None           # None without noise
+    finite: _Finite
+
+
+def _all_finite(tree):
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(tree)]))
 
 
 def grad_norm(gains: SlotGains, us):
@@ -234,6 +250,9 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     held = None if st.latch is None else st.latch.held
     bp = backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin, held)
     pd = bp.positive_definite
+    usable = pd & _all_finite(bp.gains) & jnp.isfinite(bp.expected_cost)
+    finite = jax.tree_util.tree_map(lambda a, b: jnp.where(usable, a, b),
+                                    _Finite(st.us, st.xs, st.cost, bp.gains, bp.expected_cost), st.finite)
     running = st.status == _RUNNING
     gnorm = grad_norm(bp.gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < NEWTON_REG)
@@ -281,8 +300,9 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     # one more pass when the stop moved the nominal, or left gains from a failed factorisation
     final_pass = (status != _RUNNING) & (move | ~pd | restore)
     iterated = _State(us, xs, cost, reg, dreg, it, status, final_pass, bp.gains, bp.expected_cost, trace, latch,
-                      best)
-    finished = st._replace(final_pass=jnp.asarray(False), gains=bp.gains, expected_cost=bp.expected_cost)
+                      best, finite)
+    finished = st._replace(final_pass=jnp.asarray(False), gains=bp.gains, expected_cost=bp.expected_cost,
+                           finite=finite)
     return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), iterated, finished)
 
 
@@ -306,11 +326,19 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
                   jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
-                  ~ok, no_gains, jnp.asarray(jnp.nan), trace, latch, best)
+                  ~ok, no_gains, jnp.asarray(jnp.nan), trace, latch, best,
+                  _Finite(u_init, xs, cost, no_gains, jnp.asarray(jnp.nan)))
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
-    policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
-    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
+    # no NaN in a returned policy: when the pass at the final nominal failed, the last nominal
+    # with finite gains is returned, with them (u_init's rollout and no feedback if none had)
+    failed = ~(_all_finite(st.gains) & jnp.isfinite(st.expected_cost))
+    last = _Finite(st.us, st.xs, st.cost, st.gains, st.expected_cost)
+    last = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), st.finite, last)
+    status = jnp.where(failed & (st.status != Status.NON_FINITE_INITIAL), Status.NON_FINITE_GAINS,
+                       st.status).astype(jnp.int32)
+    policy = Policy(last.xs, last.us, *from_slots(last.gains, nx))
+    return Solution(x=last.xs, u=last.us, cost=last.cost, expected_cost=last.expected_cost, status=status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 
