@@ -151,8 +151,8 @@ _MESSAGES = {
                               "at the nominal states",
     Status.INVALID_TRACED_INPUT: "nothing was solved: a traced argument (under jit or vmap) broke a rule that is "
                                  "checked when it is concrete: a delay_steps outside 0..delay_frame or "
-                                 "not below the horizon, or limits with u_min >= u_max in some component; the "
-                                 "nominal is the rollout of u_init (clipped) with zero feedback",
+                                 "not below the horizon, or limits with u_min >= u_max (or NaN) in some component; "
+                                 "the nominal is the rollout of u_init with zero feedback",
 }
 
 

@@ -306,9 +306,26 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), iterated, finished)
 
 
+def broken_traced_rules(problem: Problem):
+    """Whether a traced field of ``problem`` breaks a rule that :class:`~delayed_ilqr.Problem`
+    checks when it is concrete (then this is a constant False): limits with u_min >= u_max (or
+    NaN) in some component, a framed delay outside 0..min(L, K - 1). The solve then does not run
+    (``Status.INVALID_TRACED_INPUT``)."""
+    broken = jnp.asarray(False)
+    if problem.has_limits:
+        broken = broken | ~jnp.all(problem.u_min < problem.u_max)
+    if problem.delay_frame is not None:
+        l = problem.delay_steps
+        broken = broken | (l < 0) | (l > problem.delay_frame) | (l >= problem.horizon)
+    return broken
+
+
 def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     """The solve that is compiled: the rollout of u_init, then :func:`_iteration` until the stop."""
-    u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
+    invalid = broken_traced_rules(problem)
+    u_init = jnp.asarray(u_init, jnp.float64)
+    # (limits that break the rules would make the clipped commands NaN)
+    u_init = jnp.where(invalid, u_init, jnp.clip(u_init, problem.u_min, problem.u_max))
     xs = rollout(problem, u_init)
     cost = trajectory_cost(problem, xs, u_init)
     ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(xs))
@@ -324,9 +341,10 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                    jnp.full(2, jnp.nan)) \
         if noisy and problem.has_limits else None
     best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
+    status = jnp.where(invalid, Status.INVALID_TRACED_INPUT, jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL))
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
-                  jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
-                  ~ok, no_gains, jnp.asarray(jnp.nan), trace, latch, best,
+                  jnp.asarray(0, jnp.int32), status.astype(jnp.int32), ~ok & ~invalid, no_gains,
+                  jnp.asarray(jnp.nan), trace, latch, best,
                   _Finite(u_init, xs, cost, no_gains, jnp.asarray(jnp.nan)))
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
@@ -335,7 +353,7 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     failed = ~(_all_finite(st.gains) & jnp.isfinite(st.expected_cost))
     last = _Finite(st.us, st.xs, st.cost, st.gains, st.expected_cost)
     last = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), st.finite, last)
-    status = jnp.where(failed & (st.status != Status.NON_FINITE_INITIAL), Status.NON_FINITE_GAINS,
+    status = jnp.where(failed & (st.status != Status.NON_FINITE_INITIAL) & ~invalid, Status.NON_FINITE_GAINS,
                        st.status).astype(jnp.int32)
     policy = Policy(last.xs, last.us, *from_slots(last.gains, nx))
     return Solution(x=last.xs, u=last.us, cost=last.cost, expected_cost=last.expected_cost, status=status,
