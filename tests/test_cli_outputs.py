@@ -82,4 +82,5 @@ def test_simulate_refuses_more_trials_than_memory_holds():
     with pytest.raises(ValueError, match=r"n_trials=50000000000 trials would hold about .* GB"):
         di.simulate(problem, policy, 50_000_000_000)
     p = problem.n_noise
-    assert memory_estimate(problem, 10, 3) == 8 * 10 * (61 * 4 + 60 * 2 + 1 + 60 * 3 * p)
+    # an upper bound of the peak: PEAK_FACTOR = 4 times the arrays (tests/test_simulate.py measures it)
+    assert memory_estimate(problem, 10, 3) == 4 * 8 * 10 * (61 * 4 + 60 * 2 + 1 + 60 * 3 * p)
