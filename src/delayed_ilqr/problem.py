@@ -468,9 +468,27 @@ def _problem_flatten(p: Problem):
     # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
     framed = p.delay_frame is not None
     return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise)
-            + ((frame_delay_leaf(p.delay_steps),) if framed else ()),
+            + ((_delay_leaf(p.delay_steps),) if framed else ()),
             (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
              p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
+
+
+def _delay_leaf(delay_steps):
+    """A framed problem's delay as its leaf: a whole number of steps held as a float64 scalar, so
+    that ``jax.grad`` over a whole problem takes it (its derivative is zero: the delay is discrete)."""
+    leaf = frame_delay_leaf(delay_steps)
+    dtype = getattr(leaf, "dtype", None)
+    return leaf.astype(np.float64 if isinstance(leaf, np.ndarray) else jnp.float64) \
+        if dtype is not None and np.issubdtype(dtype, np.integer) else leaf
+
+
+def _delay_from_leaf(leaf):
+    """The delay l (int32) from its leaf (:func:`_delay_leaf`); anything that is not an array of
+    numbers (JAX's own placeholders) as it is."""
+    dtype = getattr(leaf, "dtype", None)
+    if dtype is None or not np.issubdtype(dtype, np.floating):
+        return leaf
+    return leaf.astype(np.int32) if isinstance(leaf, np.ndarray) else leaf.astype(jnp.int32)
 
 
 def _problem_unflatten(aux, data):
@@ -478,7 +496,8 @@ def _problem_unflatten(aux, data):
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
      new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
     if new.delay_frame is not None:
-        *data, new.delay_steps = data
+        *data, leaf = data
+        new.delay_steps = _delay_from_leaf(leaf)
     new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise = data
     new.dynamics = dynamics_static if dynamics is None else dynamics
     new.noise = noise_static if noise is None else noise
