@@ -28,7 +28,7 @@ from ..solution import Estimator, Solution, Status
 from .closed_loop import augmented_feedback
 from .linearize import linearize
 
-__all__ = ["design_estimator", "with_estimator", "without_observation"]
+__all__ = ["design_estimator", "with_estimator", "without_observation", "all_finite"]
 
 
 def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: int = 0, tol=1e-10):
@@ -82,7 +82,8 @@ def _without_updates(problem: Problem, xs, us, designed: Estimator) -> Estimator
                      jnp.concatenate([jnp.zeros((1, nx, nx), xs.dtype), P]), sensory_delay=designed.sensory_delay)
 
 
-def _all_finite(tree):
+def all_finite(tree):
+    """Whether every leaf of ``tree`` is finite (a traced bool)."""
     return jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(tree)]))
 
 
@@ -92,7 +93,7 @@ def _with_estimator(problem: Problem, sol: Solution, max_alternations: int, tol)
     policy = sol.policy
     full_state = Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback)
     estimator, gains, cost = design_estimator(problem, sol.x, sol.u, full_state, max_alternations, tol)
-    finite = _all_finite((estimator, gains)) & _all_finite((full_state,))
+    finite = all_finite((estimator, gains)) & all_finite((full_state,))
     # a non-finite filter (the sensors' h or G NaN along the nominal) is not returned: the
     # full-state feedback goes with a filter that makes no measurement updates
     estimator, gains = jax.lax.cond(finite, lambda: (estimator, gains),

@@ -20,6 +20,12 @@ With noise and limits, commands whose feedback keeps switching on and off while 
 in a cycle lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
+No returned policy holds NaN: when the backward pass at the final nominal gives non-finite gains,
+the last nominal whose gains were finite is returned with them (``Status.NON_FINITE_GAINS``). Under
+``jit`` or ``vmap`` the rules a concrete :class:`~delayed_ilqr.Problem` is checked against when it
+is built (a non-empty command box, a framed delay within its frame) are checked in the compiled
+solve instead, which does not run when one is broken (``Status.INVALID_TRACED_INPUT``).
+
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal. For a
 problem with delayed sensors (``Problem.observation``) the controller is that of the same problem
@@ -48,7 +54,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import implicit, regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
-from .estimation import with_estimator, without_observation
+from .estimation import all_finite as _all_finite, with_estimator, without_observation
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
 
@@ -108,10 +114,6 @@ class _State(NamedTuple):
     latch: _Latch | None         # None without noise or without limits
     best: _Best | None           # None without noise
     finite: _Finite
-
-
-def _all_finite(tree):
-    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(tree)]))
 
 
 def grad_norm(gains: SlotGains, us):
