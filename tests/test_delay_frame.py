@@ -15,11 +15,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from delayed_ilqr import lqg as _lqg
-from delayed_ilqr import Options, simulate, solve
+from delayed_ilqr import Options, Status, simulate, solve
 from delayed_ilqr.ilqg import solver
 from delayed_ilqr.lqg import DelayedLQG
 from delayed_ilqr.lqg import structured
-from delayed_ilqr.models import arm2, pendulum
+from delayed_ilqr.models import arm2, pendulum, point_mass
 
 from comparisons import WorstDifference, rel_err   # tests/comparisons.py
 from test_lqg import random_arrays                  # tests/test_lqg.py
@@ -214,3 +214,34 @@ def test_shared_delay_frame_frames_only_different_delays():
     from delayed_ilqr.problem import shared_delay_frame
     assert shared_delay_frame([arm2(delay=0.05), arm2(delay=0.0), arm2(delay=0.12)]) == 12
     assert shared_delay_frame([arm2(delay=0.05), arm2(delay=0.05)]) is None
+
+
+def test_a_traced_delay_outside_the_frame_is_flagged_in_the_status():
+    """A delay that is data (a frame) is checked against 0 <= l <= L when concrete; traced (under
+    vmap) it cannot be refused, so a delay above the frame or a negative one ends
+    INVALID_TRACED_INPUT without solving, beside valid delays in the same batch (before, l = 12 in
+    a frame of 9 was solved at a wrong delay and l = -1 ended converged)."""
+    problem = point_mass(delay=0.02).replace(horizon=20, delay_frame=9)
+    sols = jax.vmap(lambda l: solve(problem.replace(delay_steps=l)))(jnp.array([2, 12, -1, 9]))
+    statuses = [int(s) for s in sols.status]
+    assert statuses[1:3] == [Status.INVALID_TRACED_INPUT] * 2, statuses
+    assert Status(statuses[0]).converged and Status(statuses[3]).converged, statuses
+    assert "delay_steps outside 0..delay_frame" in sols.message[1]
+    assert np.all(np.asarray(sols.iterations[1:3]) == 0)
+    for leaf in jax.tree_util.tree_leaves(sols.policy):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    ref = solve(problem.replace(delay_steps=2).without_frame("test"))
+    assert rel_err(sols.u[0], ref.u) <= RTOL
+
+
+@pytest.mark.parametrize("frame", [20, 10 ** 6])
+def test_a_frame_beyond_the_horizon_is_refused_before_anything_is_allocated(frame):
+    """A frame holds delays below the horizon K, so L >= K only costs memory (L = 10**6 asked the
+    solver for 32 TB): refused by name, for a concrete and for a traced delay."""
+    problem = point_mass(delay=0.02).replace(horizon=20)
+    match = f"delay_frame must be below the horizon.*got delay_frame={frame}, horizon=20"
+    with pytest.raises(ValueError, match=match):
+        problem.replace(delay_frame=frame)
+    with pytest.raises(ValueError, match=match):
+        jax.vmap(lambda l: problem.replace(delay_steps=l, delay_frame=frame).x0)(jnp.array([1, 2]))
+    assert problem.replace(delay_frame=19).delay_frame == 19

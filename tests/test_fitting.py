@@ -172,5 +172,54 @@ def test_fit_command_names_bad_input(tmp_path):
     assert negative.exit_code == 2 and "positive finite" in negative.output and "--start" in negative.output
     off_grid = run(str(path), "--start", "r=1e-4", "--start", "w_v=1.0", "--start", "sigma_u=0.1", "--delays", "0.055")
     assert off_grid.exit_code == 2 and "--delays" in off_grid.output
+    start = ["--start", "r=1e-4", "--start", "w_v=1.0", "--start", "sigma_u=0.1", "--delays", "0.05"]
+    fitting.save_reach_data(path, TARGETS, fitting.ReachData(np.zeros((2, 40, 2)), np.tile(np.eye(2), (2, 1, 1))))
+    short = run(str(path), *start)             # was exit 3, a broadcasting error inside the loss
+    assert short.exit_code == 2 and "data.mean must have shape (C=2, K+1=51, m=2)" in short.output, short.output
+    assert "got shape (2, 40, 2)" in short.output and "DATA" in short.output
+    fitting.save_reach_data(path, TARGETS, fitting.ReachData(np.zeros((2, 51, 3)), np.tile(np.eye(3), (2, 1, 1))))
+    wide = run(str(path), *start)
+    assert wide.exit_code == 2 and "got shape (2, 51, 3)" in wide.output, wide.output
+    fitting.save_reach_data(path, TARGETS, fitting.ReachData(np.zeros((2, 51, 2)), np.zeros((2, 2, 2))))
+    singular = run(str(path), *start)
+    assert singular.exit_code == 2 and "data.endpoint_cov[0] must be positive definite" in singular.output
     nowhere = CliRunner().invoke(cli.main, ["fit", "no_such_module:f", str(path), "--start", "r=1", "--delays", "0"])
     assert nowhere.exit_code == 2 and "cannot import module 'no_such_module'" in nowhere.output
+
+
+def _valid_data():
+    return fitting.ReachData(np.zeros((2, 51, 2)), np.tile(np.eye(2) * 1e-4, (2, 1, 1)))
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(mean=np.zeros((2, 40, 2))), r"data.mean must have shape \(C=2, K\+1=51, m=2\).*got shape \(2, 40, 2\)"),
+    (dict(mean=np.zeros((2, 51, 3))), r"data.mean must have shape \(C=2, K\+1=51, m=2\).*got shape \(2, 51, 3\)"),
+    (dict(mean=np.zeros((3, 51, 2))), r"data.mean must have shape \(C=2, K\+1=51, m=2\).*got shape \(3, 51, 2\)"),
+    (dict(endpoint_cov=np.zeros((2, 3, 3))), r"data.endpoint_cov must have shape \(C=2, m=2, m=2\).*got shape"),
+    (dict(mean=np.full((2, 51, 2), np.nan)), r"data.mean must be finite"),
+    (dict(endpoint_cov=np.tile(np.diag([1e-4, 0.0]), (2, 1, 1))),
+     r"data.endpoint_cov\[0\] must be positive definite.*smallest eigenvalue of 0"),
+    (dict(endpoint_cov=-np.tile(np.eye(2), (2, 1, 1))),
+     r"data.endpoint_cov\[0\] must be positive definite.*smallest eigenvalue of -1"),
+    (dict(endpoint_cov=np.tile(np.array([[1.0, 0.5], [0.0, 1.0]]), (2, 1, 1))),
+     r"data.endpoint_cov\[0\] must be symmetric"),
+])
+def test_fit_refuses_data_that_does_not_fit_the_model(change, match):
+    """Data of the wrong length, task dimension or count, non-finite data and an endpoint
+    covariance that is not positive definite (whose KL term is infinite or negative) are refused
+    by name before any solve (before, the fit ran and reported converged with an infinite or a
+    negative loss, or failed inside the loss with a broadcasting error)."""
+    data = _valid_data()._replace(**change)
+    with pytest.raises(ValueError, match=match):
+        fitting.fit(arm_problem, TARGETS, data, TRUTH, max_iterations=1)
+
+
+def test_a_non_finite_loss_is_not_converged():
+    """A model that predicts no endpoint spread (noise off) has an infinite KL term at every
+    parameter: L-BFGS-B then stops at once on a zero gradient and reported success; the fit says
+    it did not converge, with the reason."""
+    noiseless = lambda params, target: arm_problem(dict(params, sigma_u=0.0), target)
+    result = fitting.fit(noiseless, TARGETS, _valid_data(), dict(r=1e-4, w_v=10.0), max_iterations=2)
+    assert result.loss == np.inf
+    assert not result.converged
+    assert "loss is not finite" in result.message

@@ -189,3 +189,26 @@ def test_bounded_step_plans_the_minimiser_over_the_box(l, method):
     exact = float(policy_cost(lqg, from_slots(gains, 3)))
     np.testing.assert_allclose(float(expected), exact, rtol=1e-10)
     np.testing.assert_allclose(float(a + b), exact - float(jnp.sum(lqg.d_tilde)), rtol=1e-9)
+
+
+def test_an_empty_box_under_vmap_is_flagged_in_the_status():
+    """u_min < u_max is checked when the limits are concrete; traced limits (a vmap over them)
+    cannot be refused, so the solve says so: an empty box (or a NaN limit) ends
+    INVALID_TRACED_INPUT without solving, beside a valid box in the same batch (before, it ended
+    converged with commands outside the box)."""
+    problem = point_mass(delay=0.03)
+
+    def solve_in(lo, hi):
+        return di.solve(problem.replace(u_min=lo, u_max=hi))
+
+    lo = jnp.array([[-1.0, -1.0], [1.0, -1.0], [jnp.nan, -1.0]])
+    hi = jnp.array([[1.0, 1.0], [-1.0, 1.0], [1.0, 1.0]])
+    sols = jax.vmap(solve_in)(lo, hi)
+    assert [di.Status(int(s)) for s in sols.status] == [di.Status.CONVERGED_GRADIENT, di.Status.INVALID_TRACED_INPUT,
+                                                        di.Status.INVALID_TRACED_INPUT], sols.status
+    assert "u_min >= u_max" in sols.message[1] and int(sols.iterations[1]) == 0
+    for leaf in jax.tree_util.tree_leaves(sols.policy):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    assert not np.any(np.asarray(sols.policy.state_feedback[1]))         # nothing was solved
+    ref = di.solve(problem.replace(u_min=-1.0, u_max=1.0))
+    np.testing.assert_allclose(sols.u[0], ref.u, rtol=1e-9, atol=1e-12)

@@ -252,6 +252,40 @@ def test_problem_checks_the_observation_against_the_state(obs, match):
         point_mass().replace(observation=obs())
 
 
+@pytest.mark.parametrize("output,match", [
+    (lambda x: jnp.full(2, jnp.nan) * x[0], r"observation output h\(x0\) must be finite; got a non-finite value "
+                                            r"at index \(0,\)"),
+    (lambda x: jnp.sqrt(x[:2] - 1.0), r"observation output h\(x0\) must be finite"),
+    (lambda x: x[jnp.array([7, 8])], r"observation output h\(x\) indexes past its argument at x0 of shape \(4,\)"
+                                     r".*index 7 is out of bounds for axis 0 with size 4"),
+    (lambda x: jnp.take(x, jnp.array([1, 9])), r"observation output h\(x\) indexes past.*index 9 is out of bounds"),
+    (lambda x: x[7:9], r"observation output h\(x\) must return shape \(m,\) with m >= 1; got \(0,\)"),
+])
+def test_problem_evaluates_the_observation_at_x0(output, match):
+    """An output that is NaN at x0 or reads past the state (JAX clamps such an index, or fills
+    NaN) is refused when the problem is built; before, the solve ended CONVERGED_GRADIENT with a
+    NaN expected cost and NaN filter gains."""
+    with pytest.raises(ValueError, match=match):
+        point_mass().replace(observation=di.Observation(output, np.eye(2) * 1e-3))
+
+
+def test_a_filter_that_is_not_finite_at_the_nominal_is_reported():
+    """Sensors finite at x0 but NaN along the nominal (a pole of h on the way): the status says
+    the filter failed, and the policy carries no NaN: the full-state feedback and a filter without
+    measurement updates."""
+    pole = lambda x: x[:2] * jnp.where(x[0] > 0.05, jnp.nan, 1.0)
+    problem = point_mass(noise=True).replace(observation=di.Observation(pole, np.eye(2) * 1e-3, 1))
+    sol = di.solve(problem)
+    assert sol.status == di.Status.NON_FINITE_FILTER, sol.status
+    assert "filter" in sol.message and "observation" in sol.message
+    for leaf in jax.tree_util.tree_leaves(sol.policy):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    assert np.all(np.asarray(sol.policy.estimator.delayed_gain) == 0)
+    assert np.all(np.asarray(sol.policy.estimator.current_gain) == 0)
+    full_state = di.solve(point_mass(noise=True))
+    np.testing.assert_array_equal(sol.policy.state_feedback, full_state.policy.state_feedback)
+
+
 def test_problem_refuses_a_non_observation():
     with pytest.raises(TypeError, match="observation must be None or a delayed_ilqr.Observation"):
         point_mass().replace(observation=np.eye(4))

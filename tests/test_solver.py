@@ -188,6 +188,39 @@ def test_iteration_limit_reports_a_status():
     assert np.all(np.isfinite(np.asarray(sol.u)))
 
 
+def _line_final(x, params):
+    """A pure-line target on the muscle arm: the hand's distance to the line y = target_y (no cost
+    along it) and its final speed."""
+    from delayed_ilqr.models.arm2 import hand_position, hand_velocity
+    v = hand_velocity(x[:2], x[2:4])
+    return params["w_p"] * (hand_position(x[:2])[1] - params["target"][1]) ** 2 + params["w_v"] * (v @ v)
+
+
+def _effort(x, u, params):
+    return params["r"] * (u @ u)
+
+
+def test_no_nan_in_the_policy_when_the_last_backward_pass_fails():
+    """The muscle arm's noisy reach to a line (a GeneralCost without lateral cost) at 50 ms: the
+    iteration limit is met at a nominal whose backward pass fails. Before, the policy carried NaN
+    feedback gains (and a NaN expected cost) under MAX_ITERATIONS; now the solve returns the last
+    nominal whose gains were finite, with them, and says so."""
+    from delayed_ilqr.models import arm2_muscle6
+    from delayed_ilqr.models.arm2_muscle6 import rest_commands
+    base = arm2_muscle6(delay=0.05)
+    problem = base.replace(cost=di.GeneralCost(_effort, _line_final, base.cost.params))
+    sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=20))
+    assert sol.status == di.Status.NON_FINITE_GAINS, sol.status
+    assert "last backward pass whose gains were finite" in sol.message and not sol.converged
+    for leaf in jax.tree_util.tree_leaves(sol.policy):
+        assert np.all(np.isfinite(np.asarray(leaf)))
+    assert np.isfinite(float(sol.expected_cost))
+    # the policy belongs to the nominal returned
+    np.testing.assert_array_equal(sol.policy.x_nominal, sol.x)
+    np.testing.assert_array_equal(sol.policy.u_nominal, sol.u)
+    np.testing.assert_allclose(float(sol.cost), float(trajectory_cost(problem, sol.x, sol.u)), rtol=1e-12)
+
+
 def test_vmap_over_initial_states_matches_separate_solves():
     problem = point_mass(delay=0.03)
     x0s = jnp.array([[0.0, 0.0, 0.0, 0.0], [0.05, -0.02, 0.1, 0.0], [-0.1, 0.1, 0.0, -0.2]])

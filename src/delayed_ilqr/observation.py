@@ -79,7 +79,8 @@ class Observation:
     def check(self, x0, horizon: int) -> None:
         """Raises ValueError, naming the argument, unless the observation fits a problem with
         state x0 [n] and ``horizon`` K (shapes, finite values, G(x0) G(x0)' positive definite,
-        l_s < K)."""
+        l_s < K). Callables are evaluated once at a concrete x0: h(x0) and G(x0) must be finite,
+        and may not index past x (JAX clamps such an index in compiled code)."""
         nx = x0.shape[0]
         if self.delay_steps >= horizon:
             raise ValueError(f"observation delay_steps must be below the horizon: a measurement that arrives at "
@@ -104,10 +105,11 @@ class Observation:
             if len(out.shape) != 2 or out.shape[0] != m:
                 raise ValueError(f"observation noise G(x) must return shape ({m}, q); got {out.shape}")
             if not isinstance(x0, jax.core.Tracer):
-                G0 = np.asarray(self.noise_matrix(jnp.asarray(x0)))
-                if not np.all(np.isfinite(G0)):
-                    raise ValueError("observation noise G(x0) must be finite; got non-finite values")
+                G0 = _at_x0("observation noise G(x)", self.noise_matrix, x0)
+                _validate.array(G0, "observation noise G(x0)", G0.shape)
                 _validate.symmetric_psd(G0 @ G0.T, "observation noise G(x0) G(x0)'", definite=True)
+        if self.output_fn is not None and not isinstance(x0, jax.core.Tracer):
+            _validate.array(_at_x0("observation output h(x)", self.measure, x0), "observation output h(x0)", (m,))
 
     def __repr__(self):
         output = "H" if self.output_fn is None else repr(self.output_fn)
@@ -123,6 +125,20 @@ def _eval_shape(what, fn, x):
     if not hasattr(out, "shape") or not jnp.issubdtype(out.dtype, jnp.floating):
         raise ValueError(f"{what} must return a floating-point array; got {out!r}")
     return out
+
+
+def _at_x0(what, fn, x0):
+    """fn(x0) as a NumPy array, evaluated once with JAX's index checks: an index past the state,
+    which JAX clamps (or fills with NaN) inside compiled code, is refused here by name."""
+    from jax.experimental import checkify
+
+    x0 = jnp.asarray(x0, jnp.float64)
+    error, out = checkify.checkify(fn, errors=checkify.index_checks)(x0)
+    message = error.get()
+    if message is not None:
+        raise ValueError(f"{what} indexes past its argument at x0 of shape {x0.shape}: "
+                         f"{message.splitlines()[0].strip()}")
+    return np.asarray(out)
 
 
 def _flatten(obs: Observation):

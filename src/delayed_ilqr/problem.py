@@ -162,7 +162,7 @@ class Problem:
             y_k = h(x_{k-l_s}) + G v_k. With it, :func:`~delayed_ilqr.solve` adds the delayed
             Kalman filter to the policy and :func:`~delayed_ilqr.simulate` runs the controller on
             its estimate; without it (the default) the controller sees the state.
-        delay_frame: optional L >= l: the delay becomes data, the pending commands are kept in a
+        delay_frame: optional L with l <= L < K: the delay becomes data, the pending commands are kept in a
             frame of L slots, and problems that differ only in ``delay_steps`` <= L share one
             compiled solver, under ``jax.vmap`` too (docs/derivation.md §17, docs/sweeps.md). A
             solve then costs what a solve at delay L costs; the policy's ``delay_feedback`` has L
@@ -218,7 +218,7 @@ class Problem:
         _check_labels(metadata, self.n_states, nd)
         self._check_callables()
         self.observation = _observation(observation, self.x0, self.horizon)
-        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation)
+        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation, self.horizon)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -308,13 +308,14 @@ class Problem:
         new = object.__new__(Problem)
         new.__dict__.update(self.__dict__)
         if delay_frame is not None and isinstance(delay_steps, jax.core.Tracer):
-            new.delay_steps, new.delay_frame = delay_steps, _validate.delay_frame(delay_frame, 0)
+            # a traced delay is checked against the frame by the solver (Status.INVALID_TRACED_INPUT)
+            new.delay_steps, new.delay_frame = delay_steps, _frame(delay_frame, 0, new.observation, new.horizon)
             return new
         if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
                 and np.issubdtype(delay_steps.dtype, np.integer):
             delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
         new.delay_steps = _delay_below_horizon(delay_steps, new.horizon)
-        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation)
+        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation, new.horizon)
         return new
 
     def _check_callables(self):
@@ -369,9 +370,13 @@ def _delay_below_horizon(delay_steps, horizon: int) -> int:
     return delay_steps
 
 
-def _frame(delay_frame, delay_steps: int, observation):
-    """A valid delay_frame for delay l (None, or L >= l), refused with sensors."""
+def _frame(delay_frame, delay_steps: int, observation, horizon: int):
+    """A valid delay_frame for delay l and horizon K (None, or l <= L < K), refused with sensors."""
     delay_frame = _validate.delay_frame(delay_frame, delay_steps)
+    if delay_frame is not None and delay_frame >= horizon:
+        raise ValueError(f"delay_frame must be below the horizon: it holds delays l < K, so a larger frame only "
+                         f"costs memory and time; got delay_frame={delay_frame}, "
+                         f"horizon={horizon}")
     if delay_frame is not None and observation is not None:
         raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
                          f"layer needs a static delay; got delay_frame={delay_frame} with an observation")
@@ -467,9 +472,27 @@ def _problem_flatten(p: Problem):
     # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
     framed = p.delay_frame is not None
     return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise)
-            + ((frame_delay_leaf(p.delay_steps),) if framed else ()),
+            + ((_delay_leaf(p.delay_steps),) if framed else ()),
             (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
              p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
+
+
+def _delay_leaf(delay_steps):
+    """A framed problem's delay as its leaf: a whole number of steps held as a float64 scalar, so
+    that ``jax.grad`` over a whole problem takes it (its derivative is zero: the delay is discrete)."""
+    leaf = frame_delay_leaf(delay_steps)
+    dtype = getattr(leaf, "dtype", None)
+    return leaf.astype(np.float64 if isinstance(leaf, np.ndarray) else jnp.float64) \
+        if dtype is not None and np.issubdtype(dtype, np.integer) else leaf
+
+
+def _delay_from_leaf(leaf):
+    """The delay l (int32) from its leaf (:func:`_delay_leaf`); anything that is not an array of
+    numbers (JAX's own placeholders) as it is."""
+    dtype = getattr(leaf, "dtype", None)
+    if dtype is None or not np.issubdtype(dtype, np.floating):
+        return leaf
+    return leaf.astype(np.int32) if isinstance(leaf, np.ndarray) else leaf.astype(jnp.int32)
 
 
 def _problem_unflatten(aux, data):
@@ -477,7 +500,8 @@ def _problem_unflatten(aux, data):
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
      new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
     if new.delay_frame is not None:
-        *data, new.delay_steps = data
+        *data, leaf = data
+        new.delay_steps = _delay_from_leaf(leaf)
     new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise = data
     new.dynamics = dynamics_static if dynamics is None else dynamics
     new.noise = noise_static if noise is None else noise

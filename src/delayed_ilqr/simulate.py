@@ -243,36 +243,64 @@ def _check_policy(problem: Problem, policy) -> Policy:
     return Policy(*(jnp.asarray(a, jnp.float64) for a in checked), estimator=_check_estimator(problem, policy))
 
 
-# The largest share of the machine's memory one Monte Carlo may plan to hold: the trials, their
-# noise samples and the copies the caller makes of them (np.asarray of the results) must fit.
+# The largest share of the memory left to the process that one Monte Carlo may plan to hold.
 MEMORY_FRACTION = 0.5
+
+# What simulate holds at its peak, per byte of the arrays it makes (trajectories, costs, estimates,
+# noise samples): XLA keeps the scan's stacked outputs besides the returned ones and the noise as
+# random bits besides the normal samples. The measured peak is 1.8 to 2.8 times the arrays' size
+# (tests/test_simulate.py measures it, and XLA's plan, against this bound).
+PEAK_FACTOR = 4
 
 
 def memory_estimate(problem: Problem, n_trials: int, substeps: int = 1) -> int:
-    """Bytes :func:`simulate` holds for ``n_trials`` trials: states [N, K+1, n], commands [N, K, d],
-    costs [N] and the noise samples [N, K, substeps, p], in float64; with an observation also the
-    estimates [N, K, n] and the sensory noise samples [N, K, q]."""
+    """An upper bound of the bytes :func:`simulate` holds at its peak for ``n_trials`` trials:
+    PEAK_FACTOR times the arrays it makes, in float64: states [N, K+1, n], commands [N, K, d],
+    costs [N] and the noise samples [N, K, substeps, p]; with an observation also the estimates
+    [N, K, n] and the sensory noise samples [N, K, q]."""
     K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
     per_trial = (K + 1) * nx + K * nd + 1 + K * int(substeps) * p
     if problem.observation is not None:
         q = jax.eval_shape(problem.observation.noise_matrix, jax.ShapeDtypeStruct((nx,), jnp.float64)).shape[1]
         per_trial += K * (nx + q)
-    return 8 * int(n_trials) * per_trial
+    return PEAK_FACTOR * 8 * int(n_trials) * per_trial
 
 
-def _available_memory() -> int:
+def _address_space_left():
+    """The bytes of address space the process may still map under RLIMIT_AS (``ulimit -v``), or
+    None without a limit (or where it cannot be read)."""
+    try:
+        import resource
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/statm") as statm:         # the mapped size, in pages
+            mapped = int(statm.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (ImportError, OSError, ValueError):
+        return None
+    return max(0, limit - mapped)
+
+
+def _available_memory() -> tuple:
+    """(bytes, what they are): the accelerator's memory, or on CPU the machine's physical memory
+    or the address space left under ``ulimit -v``, whichever is smaller."""
     device = jax.devices()[0]
     stats = device.memory_stats() if device.platform != "cpu" else None
     if stats and stats.get("bytes_limit"):
-        return int(stats["bytes_limit"])
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        return int(stats["bytes_limit"]), "of the accelerator"
+    physical = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    left = _address_space_left()
+    if left is not None and left < physical:
+        return left, "of address space left to this process under its address-space limit (ulimit -v)"
+    return physical, "of this machine"
 
 
 def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str = "n_trials", runs: int = 1) -> None:
     """Raises ValueError, with the figures, when ``runs`` Monte Carlos of ``n_trials`` trials each,
     held together, would need more than MEMORY_FRACTION of the memory of the machine (or of the
-    accelerator); ``what`` names the trial count in the message (e.g. "--trials")."""
-    need, have = memory_estimate(problem, n_trials * runs, substeps), _available_memory()
+    accelerator, or of the address space left under ``ulimit -v``); ``what`` names the trial count
+    in the message (e.g. "--trials")."""
+    need, (have, where) = memory_estimate(problem, n_trials * runs, substeps), _available_memory()
     if need > MEMORY_FRACTION * have:
         per_trial = memory_estimate(problem, 1, substeps)
         per_run = " per run" if runs > 1 else ""
@@ -282,8 +310,15 @@ def check_memory(problem: Problem, n_trials: int, substeps: int = 1, what: str =
                   f"even one trial{per_run} would not fit: shorten the horizon, use fewer substeps"
                   f"{' or fewer runs' if runs > 1 else ''}, or use a machine with more memory")
         raise ValueError(f"{what}={n_trials} trials{f' in each of {runs} runs' if runs > 1 else ''} would hold about "
-                         f"{need / 1e9:.3g} GB of trajectories and noise ({per_trial} bytes per trial), more than "
-                         f"{MEMORY_FRACTION:g} of the {have / 1e9:.3g} GB of this machine; {advice}")
+                         f"{need / 1e9:.3g} GB at their peak ({per_trial} bytes per trial), more than "
+                         f"{MEMORY_FRACTION:g} of the {have / 1e9:.3g} GB {where}; {advice}")
+
+
+def _ran_out_of_memory(exc: Exception) -> bool:
+    """Whether XLA's error is a failed allocation (its messages, XLA's CPU and GPU clients)."""
+    text = str(exc)
+    return any(s in text for s in ("RESOURCE_EXHAUSTED", "Out of memory", "out of memory", "YNNPACK operation failed",
+                                   "allocate"))
 
 
 def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, substeps: int = 1,
@@ -324,7 +359,7 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
             filter), a non-positive ``n_trials`` / ``substeps``, a seed that is not a
             non-negative integer, or a disturbance that is not a finite [K, n] array;
             ValueError when the trials would not fit in memory (:func:`check_memory`, before
-            anything is computed).
+            anything is computed); MemoryError when an allocation fails all the same.
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
@@ -337,9 +372,17 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
         disturbance = jnp.asarray(_validate.array(disturbance, "disturbance", (problem.horizon, problem.n_states)))
     check_memory(problem, n_trials, substeps)
     key = jax.random.PRNGKey(seed)
-    if policy.estimator is None:
-        return _simulate(problem, policy, n_trials, substeps, key, disturbance)
-    # with sensors, one compilation serves the runs with and without a disturbance
-    if disturbance is None:
+    if policy.estimator is not None and disturbance is None:
+        # with sensors, one compilation serves the runs with and without a disturbance
         disturbance = jnp.zeros((problem.horizon, problem.n_states))
-    return _simulate_observed(problem, policy, n_trials, substeps, key, disturbance)
+    run = _simulate if policy.estimator is None else _simulate_observed
+    try:
+        # waited for here, so that a failed allocation is reported by this call, not by a later read
+        return jax.block_until_ready(run(problem, policy, n_trials, substeps, key, disturbance))
+    except jax.errors.JaxRuntimeError as exc:
+        if not _ran_out_of_memory(exc):
+            raise
+        per_trial = memory_estimate(problem, 1, substeps)
+        raise MemoryError(f"simulate ran out of memory with n_trials={n_trials} (up to {per_trial} bytes per "
+                          f"trial): run fewer trials per call (several calls with different seeds) and pool "
+                          f"their statistics. XLA: {str(exc).splitlines()[0]}") from None

@@ -108,6 +108,9 @@ class Status(enum.IntEnum):
     REGULARIZATION_LIMIT = 3
     NON_FINITE_ROLLOUT = 4
     NON_FINITE_INITIAL = 5
+    NON_FINITE_GAINS = 6
+    NON_FINITE_FILTER = 7
+    INVALID_TRACED_INPUT = 8
 
     def __str__(self) -> str:         # print(sol.status) and f"{status}" show the name, not the code
         return self.name
@@ -137,6 +140,19 @@ _MESSAGES = {
                                "reduce dt, bound the controls, or start from a gentler u_init",
     Status.NON_FINITE_INITIAL: "the rollout of u_init is not finite (NaN or overflow) or its cost is not: "
                                "choose a u_init whose rollout stays bounded",
+    Status.NON_FINITE_GAINS: "not converged: the backward pass at the last nominal gave NaN or inf gains; the "
+                             "nominal and policy returned are those of the last backward pass whose gains were "
+                             "finite (its expected_cost too); try another u_init, more regularisation "
+                             "(Options.reg_init) or a cost that is convex in every direction the commands reach",
+    Status.NON_FINITE_FILTER: "the delayed filter designed at the nominal is not finite (the observation's output "
+                              "h, its noise G or their derivatives gave NaN or inf along the nominal); the policy "
+                              "keeps the full-state feedback and a filter without measurement updates (zero "
+                              "gains, finite stand-ins for the rest), and expected_cost is NaN: check h and G "
+                              "at the nominal states",
+    Status.INVALID_TRACED_INPUT: "nothing was solved: a traced argument (under jit or vmap) broke a rule that is "
+                                 "checked when it is concrete: a delay_steps outside 0..delay_frame or "
+                                 "not below the horizon, or limits with u_min >= u_max (or NaN) in some component; "
+                                 "the nominal is the rollout of u_init with zero feedback",
 }
 
 

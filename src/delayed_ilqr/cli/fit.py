@@ -58,9 +58,14 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
         raise click.BadParameter(f"starting values must be positive finite numbers; got {bad}", param_hint="'--start'")
     for delay in delays:
         try:
-            make_problem({k: float(v) for k, v in params0.items()}, conditions[0], delay)
+            problem = make_problem({k: float(v) for k, v in params0.items()}, conditions[0], delay)
         except ValueError as exc:
             raise click.BadParameter(f"{function} refused delay {delay:g} s: {exc}", param_hint="'--delays'") from None
+        try:
+            fitting.check_reach_data(problem, len(conditions), reach_data)
+        except ValueError as exc:
+            raise click.BadParameter(f"{data} does not fit {function} at delay {delay:g} s: {exc}",
+                                     param_hint="'DATA'") from None
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         best, fits = fitting.profile_delay(make_problem, delays, conditions, reach_data,

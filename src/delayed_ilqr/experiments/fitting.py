@@ -38,7 +38,7 @@ from ..prediction import predict, task_prediction
 from .progress import progress_bar
 
 __all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay",
-           "save_reach_data", "load_reach_data"]
+           "check_reach_data", "save_reach_data", "load_reach_data"]
 
 
 class ReachData(NamedTuple):
@@ -167,7 +167,12 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
 
     Returns:
         A :class:`Fit`. An evaluation where a solve did not converge counts as an infinite loss
-        (its gradient is NaN, ``docs/derivation.md`` §16), so the line search steps back.
+        (its gradient is NaN, ``docs/derivation.md`` §16), so the line search steps back; a fit
+        whose final loss is not finite has not converged.
+
+    Raises:
+        ValueError: naming the argument, for non-positive starting values or ``mean_scale``, and
+            for data that do not fit the model (:func:`check_reach_data`).
     """
     from scipy.optimize import minimize
 
@@ -178,8 +183,9 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
     if not (np.isfinite(mean_scale) and mean_scale > 0):
         raise ValueError(f"mean_scale must be a positive float; got {mean_scale!r}")
     count = len(jax.tree_util.tree_leaves(conditions)[0])
+    first = make_problem(dict(zip(names, values)), jax.tree_util.tree_map(lambda a: a[0], conditions))
+    data = check_reach_data(first, count, data)
     if u_init is None:
-        first = make_problem(dict(zip(names, values)), jax.tree_util.tree_map(lambda a: a[0], conditions))
         u_init = default_u_init(first)
         u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
     # every evaluation solves from the same u_init: a warm start from the previous evaluation's
@@ -207,8 +213,47 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
     value, _ = value_and_grad(result.x)
     unconverged = [Status(int(s)).name for s in last["status"] if not Status(int(s)).converged]
     message = str(result.message) + (f"; unconverged solves: {unconverged}" if unconverged else "")
-    return Fit(dict(zip(names, np.exp(result.x).tolist())), float(value), bool(result.success) and not unconverged,
-               message, int(result.nit), int(result.nfev))
+    # an infinite loss (a prediction without spread, or a solve that failed) has a zero gradient
+    # here, on which L-BFGS-B stops at once and reports success
+    finite = bool(np.isfinite(value))
+    if not finite:
+        message += "; the loss is not finite at the returned parameters (a predicted endpoint covariance that " \
+                   "is not positive definite, or a solve that did not converge)"
+    return Fit(dict(zip(names, np.exp(result.x).tolist())), float(value),
+               bool(result.success) and not unconverged and finite, message, int(result.nit), int(result.nfev))
+
+
+def check_reach_data(problem: Problem, count: int, data: ReachData) -> ReachData:
+    """``data`` as float64 arrays, checked against ``count`` conditions of ``problem``'s shape.
+
+    Raises:
+        ValueError: naming the array, the rule and what was received, unless ``data.mean`` is a
+            finite [C, K+1, m] array (m the task space's dimension) and ``data.endpoint_cov`` C
+            symmetric positive definite [m, m] matrices (the KL term of a singular or indefinite
+            one is infinite or negative).
+    """
+    if not isinstance(data, ReachData):
+        raise TypeError(f"data must be a fitting.ReachData(mean, endpoint_cov); got {type(data).__name__}")
+    task = task_space(problem)
+    if task is None:
+        raise ValueError(f"fit: problem {problem.name!r} has no task space (metadata.task is None), so reach data "
+                         "cannot be compared with it")
+    m = jax.eval_shape(task.map, jax.ShapeDtypeStruct((problem.n_states,), jnp.float64)).shape[-1]
+    K = problem.horizon
+    mean = np.asarray(data.mean, dtype=np.float64)
+    cov = np.asarray(data.endpoint_cov, dtype=np.float64)
+    if mean.shape != (count, K + 1, m):
+        raise ValueError(f"data.mean must have shape (C={count}, K+1={K + 1}, m={m}): one mean task-space path "
+                         f"per condition over the horizon of the model; got shape {mean.shape}")
+    if cov.shape != (count, m, m):
+        raise ValueError(f"data.endpoint_cov must have shape (C={count}, m={m}, m={m}): one endpoint covariance "
+                         f"per condition in the model's task space; got shape {cov.shape}")
+    for name, a in (("data.mean", mean), ("data.endpoint_cov", cov)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} must be finite; got {int(np.sum(~np.isfinite(a)))} non-finite values")
+    for c in range(count):
+        _validate.symmetric_psd(cov[c], f"data.endpoint_cov[{c}]", definite=True)
+    return ReachData(jnp.asarray(mean), jnp.asarray(cov))
 
 
 def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,

@@ -165,10 +165,11 @@ class Starts(NamedTuple):
     """What :func:`solve_from_starts` returns.
 
     Attributes:
-        solution: the cheapest :class:`~delayed_ilqr.Solution` (the batch's member ``best``).
+        solution: the cheapest :class:`~delayed_ilqr.Solution` (the batch's member ``best``):
+            lowest ``cost``, or with noise lowest ``expected_cost``, the cost the solver minimises.
         solutions: every start's solution, a batched :class:`~delayed_ilqr.Solution` (leading axis S).
         names: S names of the starts ("u_init", "looser x2", "unbounded", "augmented Lagrangian").
-        best: the index of the cheapest finite cost (an int outside ``jit`` and ``vmap``).
+        best: the index of the cheapest finite (expected) cost (an int outside ``jit`` and ``vmap``).
     """
 
     solution: Solution
@@ -179,7 +180,8 @@ class Starts(NamedTuple):
 
 def solve_from_starts(problem: Problem, options: Options | None = None, *, u_init=None,
                       looser=(math.inf,), augmented_lagrangian: bool = True, **continuation) -> Starts:
-    """The bounded ``problem`` solved from several starts at once (one ``vmap``), keeping the cheapest.
+    """The bounded ``problem`` solved from several starts at once (one ``vmap``), keeping the cheapest
+    (with noise: the lowest expected cost).
 
     The starts: ``u_init`` (default zeros: rest); for each factor s of ``looser``, the solution
     from ``u_init`` of the problem with looser limits, clipped into the box (a continuation on the
@@ -222,7 +224,9 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
         names.append("augmented Lagrangian")
         starts.append(augmented_lagrangian_start(problem, u0, options, **continuation).u)
     sols = _solve_each_start(problem, jnp.stack(starts), options)
-    best = jnp.argmin(jnp.where(jnp.isfinite(sols.cost), sols.cost, jnp.inf))
+    # what the solver minimises: with noise the expected cost, not the nominal's
+    score = sols.cost if problem.noise is None else sols.expected_cost
+    best = jnp.argmin(jnp.where(jnp.isfinite(score), score, jnp.inf))
     solution = jax.tree_util.tree_map(lambda a: a[best], sols)
     if not isinstance(best, jax.core.Tracer):      # as solve returns it outside transformations
         best = int(best)

@@ -24,11 +24,11 @@ from ..lqg.model import Gains
 from ..observation import linearized_observation
 from ..options import Options
 from ..problem import Problem
-from ..solution import Estimator, Solution
+from ..solution import Estimator, Solution, Status
 from .closed_loop import augmented_feedback
 from .linearize import linearize
 
-__all__ = ["design_estimator", "with_estimator", "without_observation"]
+__all__ = ["design_estimator", "with_estimator", "without_observation", "all_finite"]
 
 
 def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: int = 0, tol=1e-10):
@@ -61,21 +61,59 @@ def without_observation(problem: Problem) -> Problem:
     return new
 
 
+def _without_updates(problem: Problem, xs, us, designed: Estimator) -> Estimator:
+    """The stand-in for a filter that came out non-finite: no measurement updates (zero gains), so
+    the estimate is the prediction from x0 and the commands sent, and its error covariance that
+    prediction's, P_{k+1} = A_k P_k A_k' + sum_j c_j c_j' from P_0 = 0 (the additive motor noise of
+    eq. 3 at the nominal). The sensor rows keep their finite entries (zeros elsewhere): with zero
+    gains they do not enter the estimate."""
+    lqg = linearize(problem, xs, us)
+
+    def predict(P, data):
+        A, Q = data
+        P = A @ P @ A.T + Q
+        return P, P
+
+    nx = xs.shape[1]
+    _, P = jax.lax.scan(predict, jnp.zeros((nx, nx), xs.dtype), (lqg.A, _process_cov(lqg)))
+    finite = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
+    return Estimator(lqg.A, lqg.B0, lqg.B1, finite(designed.H), finite(designed.y_nominal),
+                     jnp.zeros_like(designed.delayed_gain), jnp.zeros_like(designed.current_gain),
+                     jnp.concatenate([jnp.zeros((1, nx, nx), xs.dtype), P]), sensory_delay=designed.sensory_delay)
+
+
+def all_finite(tree):
+    """Whether every leaf of ``tree`` is finite (a traced bool)."""
+    return jnp.all(jnp.stack([jnp.all(jnp.isfinite(leaf)) for leaf in jax.tree_util.tree_leaves(tree)]))
+
+
 @partial(jax.jit, static_argnames=("max_alternations",))
-def _with_estimator(problem: Problem, sol: Solution, max_alternations: int, tol) -> Solution:
+def _with_estimator(problem: Problem, sol: Solution, max_alternations: int, tol):
+    """(``sol`` with the estimator, whether the design came out finite)."""
     policy = sol.policy
-    gains = Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback)
-    estimator, gains, cost = design_estimator(problem, sol.x, sol.u, gains, max_alternations, tol)
+    full_state = Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback)
+    estimator, gains, cost = design_estimator(problem, sol.x, sol.u, full_state, max_alternations, tol)
+    finite = all_finite((estimator, gains)) & all_finite((full_state,))
+    # a non-finite filter (the sensors' h or G NaN along the nominal) is not returned: the
+    # full-state feedback goes with a filter that makes no measurement updates
+    estimator, gains = jax.lax.cond(finite, lambda: (estimator, gains),
+                                    lambda: (_without_updates(problem, sol.x, sol.u, estimator), full_state))
+    cost = jnp.where(finite, cost, jnp.nan)
     policy = policy._replace(state_feedback=gains.state_feedback, delay_feedback=gains.delay_feedback,
                              estimator=estimator)
-    return sol._replace(expected_cost=cost, policy=policy)
+    return sol._replace(expected_cost=cost, policy=policy), finite
 
 
 def with_estimator(problem: Problem, sol: Solution, options: Options) -> Solution:
     """``sol`` (the full-state solve of ``problem``) with the estimator of ``problem.observation``
     in its policy (and, with signal-dependent noise, the feedback of Todorov's alternation) and
-    the exact output-feedback cost as ``expected_cost``; the status is kept."""
+    the exact output-feedback cost as ``expected_cost``; the status is kept, unless the filter
+    came out non-finite (``Status.NON_FINITE_FILTER``, with the stand-in of :func:`_without_updates`)."""
     status = sol.status
-    out = _with_estimator(problem, sol._replace(status=jnp.asarray(status)), options.max_alternations,
-                          options.tol_cost)
+    out, finite = _with_estimator(problem, sol._replace(status=jnp.asarray(status)), options.max_alternations,
+                                  options.tol_cost)
+    if isinstance(finite, jax.core.Tracer) or isinstance(status, jax.core.Tracer):
+        status = jnp.where(finite, status, Status.NON_FINITE_FILTER).astype(jnp.int32)
+    elif not bool(finite):
+        status = Status.NON_FINITE_FILTER
     return out._replace(status=status)

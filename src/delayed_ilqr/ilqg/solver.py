@@ -20,6 +20,12 @@ With noise and limits, commands whose feedback keeps switching on and off while 
 in a cycle lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
+No returned policy holds NaN: when the backward pass at the final nominal gives non-finite gains,
+the last nominal whose gains were finite is returned with them (``Status.NON_FINITE_GAINS``). Under
+``jit`` or ``vmap`` the rules a concrete :class:`~delayed_ilqr.Problem` is checked against when it
+is built (a non-empty command box, a framed delay within its frame) are checked in the compiled
+solve instead, which does not run when one is broken (``Status.INVALID_TRACED_INPUT``).
+
 The returned policy and ``expected_cost`` come from a backward pass at the returned nominal: the
 converging iteration's own, or one more pass when the last iteration moved the nominal. For a
 problem with delayed sensors (``Problem.observation``) the controller is that of the same problem
@@ -48,7 +54,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import implicit, regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
-from .estimation import with_estimator, without_observation
+from .estimation import all_finite as _all_finite, with_estimator, without_observation
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
 
@@ -82,6 +88,17 @@ class _Best(NamedTuple):
     merit: jax.Array
 
 
+class _Finite(NamedTuple):
+    """The last nominal whose backward pass gave finite gains, with them: what the solve returns
+    when the pass at its final nominal does not (``Status.NON_FINITE_GAINS``)."""
+
+    us: jax.Array
+    xs: jax.Array
+    cost: jax.Array
+    gains: SlotGains
+    expected_cost: jax.Array
+
+
 class _State(NamedTuple):
     us: jax.Array
     xs: jax.Array
@@ -96,6 +113,7 @@ class _State(NamedTuple):
     trace: Trace
     latch: _Latch | None         # None without noise or without limits
     best: _Best | None           # None without noise
+    finite: _Finite
 
 
 def grad_norm(gains: SlotGains, us):
@@ -234,6 +252,9 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     held = None if st.latch is None else st.latch.held
     bp = backward(problem, st.xs, st.us, st.reg, o.method, o.limit_margin, held)
     pd = bp.positive_definite
+    usable = pd & _all_finite(bp.gains) & jnp.isfinite(bp.expected_cost)
+    finite = jax.tree_util.tree_map(lambda a, b: jnp.where(usable, a, b),
+                                    _Finite(st.us, st.xs, st.cost, bp.gains, bp.expected_cost), st.finite)
     running = st.status == _RUNNING
     gnorm = grad_norm(bp.gains, st.us)
     converged = pd & (gnorm < o.tol_grad) & (st.reg < NEWTON_REG)
@@ -281,14 +302,32 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     # one more pass when the stop moved the nominal, or left gains from a failed factorisation
     final_pass = (status != _RUNNING) & (move | ~pd | restore)
     iterated = _State(us, xs, cost, reg, dreg, it, status, final_pass, bp.gains, bp.expected_cost, trace, latch,
-                      best)
-    finished = st._replace(final_pass=jnp.asarray(False), gains=bp.gains, expected_cost=bp.expected_cost)
+                      best, finite)
+    finished = st._replace(final_pass=jnp.asarray(False), gains=bp.gains, expected_cost=bp.expected_cost,
+                           finite=finite)
     return jax.tree_util.tree_map(lambda a, b: jnp.where(running, a, b), iterated, finished)
+
+
+def broken_traced_rules(problem: Problem):
+    """Whether a traced field of ``problem`` breaks a rule that :class:`~delayed_ilqr.Problem`
+    checks when it is concrete (then this is a constant False): limits with u_min >= u_max (or
+    NaN) in some component, a framed delay outside 0..min(L, K - 1). The solve then does not run
+    (``Status.INVALID_TRACED_INPUT``)."""
+    broken = jnp.asarray(False)
+    if problem.has_limits:
+        broken = broken | ~jnp.all(problem.u_min < problem.u_max)
+    if problem.delay_frame is not None:
+        l = problem.delay_steps
+        broken = broken | (l < 0) | (l > problem.delay_frame) | (l >= problem.horizon)
+    return broken
 
 
 def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
     """The solve that is compiled: the rollout of u_init, then :func:`_iteration` until the stop."""
-    u_init = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
+    invalid = broken_traced_rules(problem)
+    u_init = jnp.asarray(u_init, jnp.float64)
+    # (limits that break the rules would make the clipped commands NaN)
+    u_init = jnp.where(invalid, u_init, jnp.clip(u_init, problem.u_min, problem.u_max))
     xs = rollout(problem, u_init)
     cost = trajectory_cost(problem, xs, u_init)
     ok = jnp.isfinite(cost) & jnp.all(jnp.isfinite(xs))
@@ -304,13 +343,22 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
                    jnp.full(2, jnp.nan)) \
         if noisy and problem.has_limits else None
     best = _Best(u_init, xs, cost, jnp.asarray(jnp.inf)) if noisy else None
+    status = jnp.where(invalid, Status.INVALID_TRACED_INPUT, jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL))
     init = _State(u_init, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(1.0),
-                  jnp.asarray(0, jnp.int32), jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32),
-                  ~ok, no_gains, jnp.asarray(jnp.nan), trace, latch, best)
+                  jnp.asarray(0, jnp.int32), status.astype(jnp.int32), ~ok & ~invalid, no_gains,
+                  jnp.asarray(jnp.nan), trace, latch, best,
+                  _Finite(u_init, xs, cost, no_gains, jnp.asarray(jnp.nan)))
     st = jax.lax.while_loop(lambda s: (s.status == _RUNNING) | s.final_pass, partial(_iteration, problem, options),
                             init)
-    policy = Policy(st.xs, st.us, *from_slots(st.gains, nx))
-    return Solution(x=st.xs, u=st.us, cost=st.cost, expected_cost=st.expected_cost, status=st.status,
+    # no NaN in a returned policy: when the pass at the final nominal failed, the last nominal
+    # with finite gains is returned, with them (u_init's rollout and no feedback if none had)
+    failed = ~(_all_finite(st.gains) & jnp.isfinite(st.expected_cost))
+    last = _Finite(st.us, st.xs, st.cost, st.gains, st.expected_cost)
+    last = jax.tree_util.tree_map(lambda a, b: jnp.where(failed, a, b), st.finite, last)
+    status = jnp.where(failed & (st.status != Status.NON_FINITE_INITIAL) & ~invalid, Status.NON_FINITE_GAINS,
+                       st.status).astype(jnp.int32)
+    policy = Policy(last.xs, last.us, *from_slots(last.gains, nx))
+    return Solution(x=last.xs, u=last.us, cost=last.cost, expected_cost=last.expected_cost, status=status,
                     iterations=st.iteration, policy=policy, trace=st.trace)
 
 

@@ -219,9 +219,8 @@ def _better(new, old, take):
     return jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), new, old)
 
 
-@partial(jax.jit, static_argnames=("max_alternations",))
-def _alternate(lqg, obs, gains, fgains, free, max_alternations: int, tol, run=True):
-    """``alternate``; with ``run`` false (a traced bool) the starting pair comes back as is."""
+def _alternation(lqg, obs, free, max_alternations: int, tol):
+    """(the loop's body, the ``_Loop`` it starts from given the pair and ``run``)."""
     def body(s: _Loop):
         cost = s.moments.expected_cost
         # the filter for the noise this loop has, kept if the exact cost falls
@@ -238,11 +237,45 @@ def _alternate(lqg, obs, gains, fgains, free, max_alternations: int, tol, run=Tr
         done = ~(moments.expected_cost < cost - tol * jnp.abs(cost)) | (i >= max_alternations)
         return _Loop(gains, fgains, moments, s.costs.at[i].set(moments.expected_cost), i, done)
 
-    moments = _joint_moments(lqg, obs, gains, fgains)
-    costs = jnp.full(max_alternations + 1, jnp.nan, lqg.A.dtype).at[0].set(moments.expected_cost)
-    init = _Loop(gains, fgains, moments, costs, jnp.asarray(0), (max_alternations == 0) | ~jnp.asarray(run))
-    s = jax.lax.while_loop(lambda s: ~s.done, body, init)
+    def init(gains, fgains, run):
+        moments = _joint_moments(lqg, obs, gains, fgains)
+        costs = jnp.full(max_alternations + 1, jnp.nan, lqg.A.dtype).at[0].set(moments.expected_cost)
+        return _Loop(gains, fgains, moments, costs, jnp.asarray(0), (max_alternations == 0) | ~jnp.asarray(run))
+
+    return body, init
+
+
+def _result(s: _Loop) -> Alternation:
     return Alternation(s.gains, s.fgains, s.moments.expected_cost, s.moments.error_cov, s.costs, s.i)
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(5,))
+def _alternate_differentiable(lqg, obs, gains, fgains, free, max_alternations: int, tol, run):
+    """The alternation as a ``while_loop`` (it stops when done); its derivative is that of the same
+    iterations as a ``scan`` (:func:`_alternate_unrolled`), which reverse mode can transpose."""
+    body, init = _alternation(lqg, obs, free, max_alternations, tol)
+    return _result(jax.lax.while_loop(lambda s: ~s.done, body, init(gains, fgains, run)))
+
+
+def _alternate_unrolled(lqg, obs, gains, fgains, free, max_alternations: int, tol, run):
+    """The same alternations in a ``scan`` of ``max_alternations`` steps, those after the stop skipped."""
+    body, init = _alternation(lqg, obs, free, max_alternations, tol)
+    step = lambda s, _: (jax.lax.cond(s.done, lambda s: s, body, s), None)
+    return _result(jax.lax.scan(step, init(gains, fgains, run), None, length=max_alternations)[0])
+
+
+@_alternate_differentiable.defjvp
+def _alternate_jvp(max_alternations, primals, tangents):
+    unrolled = lambda lqg, obs, gains, fgains, free, tol, run: _alternate_unrolled(
+        lqg, obs, gains, fgains, free, max_alternations, tol, run)
+    return jax.jvp(unrolled, primals, tangents)
+
+
+@partial(jax.jit, static_argnames=("max_alternations",))
+def _alternate(lqg, obs, gains, fgains, free, max_alternations: int, tol, run=True):
+    """``alternate``; with ``run`` false (a traced bool) the starting pair comes back as is."""
+    return _alternate_differentiable(lqg, obs, gains, fgains, jnp.asarray(free), max_alternations,
+                                     jnp.asarray(tol, lqg.A.dtype), jnp.asarray(run))
 
 
 def alternate(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains, free=None,
