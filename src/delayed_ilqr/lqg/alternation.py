@@ -178,7 +178,8 @@ def controller_sweep(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fga
     """Todorov's controller for the fixed filter ``fgains``: one backward pass (module docstring).
 
     Args:
-        lqg, obs: the plant and its delayed sensors.
+        lqg: the plant.
+        obs: its delayed sensors.
         gains: the current law (its feedforward is kept).
         fgains: the filter, held fixed.
         free: [K, d] bool, the commands whose feedback may change (default all); the others keep

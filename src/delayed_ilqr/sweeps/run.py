@@ -63,8 +63,9 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             runs the batches on that cluster (docs/sweeps.md).
         n_workers: workers of the LocalCluster.
         batch_size: at most this many cells per vmapped solve.
-        cache, cache_dir: the Dask workers' persistent compilation cache
+        cache: whether the Dask workers keep a persistent compilation cache
             (:func:`~delayed_ilqr.enable_compilation_cache`); this process's cache is the caller's.
+        cache_dir: the folder of the workers' cache.
         progress: a progress bar (tqdm) over the cells.
         units: units of further grid arguments, added to :data:`UNITS`.
         delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
