@@ -4,7 +4,7 @@ Format (``FORMAT_VERSION`` 1, documented in docs/guide/saving.md):
 
 - every array of the saved object is an NPZ entry named by its field path: ``x``, ``u``, ``cost``,
   ``status``, ``iterations``, ``policy.x_nominal``, ``policy.state_feedback``, ``trace.cost``, ...
-  (a :class:`~delayed_ilqr.Policy` saved alone has ``x_nominal``, ``state_feedback``, ...); a field
+  (a [`Policy`][delayed_ilqr.Policy] saved alone has ``x_nominal``, ``state_feedback``, ...); a field
   that is ``None`` has no entry;
 - the entry ``__metadata__`` is the UTF-8 bytes (uint8) of a JSON object: ``format``
   (``"delayed-ilqr"``), ``format_version``, ``library_version``, ``kind`` (``"Solution"`` or
@@ -59,12 +59,12 @@ def _flatten(record, prefix: str, arrays: dict, types: dict) -> None:
 
 
 def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
-    """Writes a :class:`~delayed_ilqr.Solution` or :class:`~delayed_ilqr.Policy` to ``path`` (``.npz``).
+    """Writes a [`Solution`][delayed_ilqr.Solution] or [`Policy`][delayed_ilqr.Policy] to ``path`` (``.npz``).
 
     Args:
         path: the file; ``.npz`` is appended by NumPy when missing.
-        obj: what to save; :func:`load` returns the same type with bitwise-equal arrays.
-        problem: optional, the :class:`~delayed_ilqr.Problem` it was solved for: its ``dt``, delay
+        obj: what to save; [`load`][delayed_ilqr.load] returns the same type with bitwise-equal arrays.
+        problem: optional, the [`Problem`][delayed_ilqr.Problem] it was solved for: its ``dt``, delay
             and name go into the header (the arrays do not hold the time step).
         info: optional JSON-serialisable dict stored in the header as ``info``.
     """
@@ -96,16 +96,16 @@ def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
 
 
 def load_metadata(path) -> dict:
-    """The JSON header of a file written by :func:`save` (checked: format and version)."""
+    """The JSON header of a file written by [`save`][delayed_ilqr.saving.save] (checked: format and version)."""
     with np.load(os.fspath(path), allow_pickle=False) as npz:
         return _header(npz, path)
 
 
 def load(path):
-    """Reads a file written by :func:`save` (or ``Solution.save`` / ``Policy.save``) and returns
-    what was saved, a :class:`~delayed_ilqr.Solution` or :class:`~delayed_ilqr.Policy`, with
+    """Reads a file written by [`save`][delayed_ilqr.saving.save] (or ``Solution.save`` / ``Policy.save``) and returns
+    what was saved, a [`Solution`][delayed_ilqr.Solution] or [`Policy`][delayed_ilqr.Policy], with
     float64 JAX arrays bitwise equal to the saved ones (a scalar status comes back as a
-    :class:`~delayed_ilqr.Status`). The time step and delay are in :func:`load_metadata`."""
+    [`Status`][delayed_ilqr.Status]). The time step and delay are in [`load_metadata`][delayed_ilqr.load_metadata]."""
     _precision.require_x64("load")
     with np.load(os.fspath(path), allow_pickle=False) as npz:
         header = _header(npz, path)

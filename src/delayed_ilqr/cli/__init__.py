@@ -1,6 +1,6 @@
 """The ``delayed-ilqr`` command line: parses arguments, runs the studies of
-:mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
-(:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
+`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
+(`delayed_ilqr.experiments.report`) and the figures ([`delayed_ilqr.plot`][delayed_ilqr.plot]).
 
 Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``,
 ``sweep`` and ``fit`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
@@ -12,7 +12,7 @@ in one line (``--debug`` shows the traceback).
 MODEL is a built-in model (``delayed-ilqr models``) or your own factory as
 ``package.module:factory`` (imported with the current folder on the path), called like the
 built-ins as ``factory(delay=seconds, noise=bool, **params)`` and returning a
-:class:`~delayed_ilqr.Problem`; ``--param key=value`` (repeatable, the value a Python literal)
+[`Problem`][delayed_ilqr.Problem]; ``--param key=value`` (repeatable, the value a Python literal)
 adds keyword arguments and ``--dt`` sets the time step (``dt=``), so that delays that are not
 multiples of the model's default step can be studied.
 
@@ -20,9 +20,9 @@ Outputs are atomic: a command writes into a hidden folder beside ``--out`` and r
 ``--out`` at the end, with a ``manifest.json`` listing the files, the command and the version; an
 interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty ``--out`` whole.
 
-The package: :mod:`.arguments` (parameter types and the checks made before computing),
-:mod:`.output` (the atomic ``--out`` folder), one module per group of commands (:mod:`.solve`,
-:mod:`.studies`, :mod:`.fit`, :mod:`.sweep`), and here the group that runs them.
+The package: `arguments` (parameter types and the checks made before computing),
+`output` (the atomic ``--out`` folder), one module per group of commands (`solve`,
+`studies`, `fit`, `sweep`), and here the group that runs them.
 """
 from __future__ import annotations
 

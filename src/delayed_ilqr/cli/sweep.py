@@ -1,5 +1,5 @@
 """The ``sweep`` command: solve and simulate a model on every cell of a grid over its factory's
-arguments, into a resumable store (:mod:`delayed_ilqr.sweeps`)."""
+arguments, into a resumable store ([`delayed_ilqr.sweeps`][delayed_ilqr.sweeps])."""
 from __future__ import annotations
 
 import json

@@ -1,8 +1,8 @@
 """Tables of the studies and of single solves, as strings: every row is built here, once.
 
-A table is a header and rows of strings (:func:`delay_study_rows`, :func:`center_out_rows`),
-formatted as aligned plain text (:func:`text_table`) or GitHub markdown (:func:`markdown_table`);
-the ``solve`` and ``simulate`` commands print two-column summaries (:func:`pairs`).
+A table is a header and rows of strings (`delay_study_rows`, `center_out_rows`),
+formatted as aligned plain text (`text_table`) or GitHub markdown (`markdown_table`);
+the ``solve`` and ``simulate`` commands print two-column summaries (`pairs`).
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def _median_iqr(st, scale: float = 1.0, digits: int = 4) -> str:
 def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
     """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs
     (mean over the trials that did not diverge with its bootstrap 95 % interval; median and
-    inter-quartile range), diverged trials (one definition, :mod:`delayed_ilqr.statistics`) and
+    inter-quartile range), diverged trials (one definition, [`delayed_ilqr.statistics`][delayed_ilqr.statistics]) and
     the endpoint error likewise."""
     scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
     label = results[0].endpoint_label if results else "endpoint error"
@@ -91,7 +91,7 @@ def _center_out_row(r) -> list[str]:
 
 
 def center_out_rows(results: Sequence) -> Table:
-    """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`):
+    """One row per delay and design of the center-out study ([`center_out.DelayResult`][delayed_ilqr.experiments.center_out.DelayResult]):
     Monte Carlo means and spreads over the trials that did not diverge, and how many did (per
     target, then averaged over the targets)."""
     return list(_CENTER_OUT_HEADER), [_center_out_row(r) for r in results]
@@ -105,7 +105,7 @@ def records_table(records: Sequence[dict]) -> Table:
 
 
 def sweep_rows(ds) -> Table:
-    """One row per cell of a sweep's Dataset (:func:`delayed_ilqr.sweep`): its grid values, the
+    """One row per cell of a sweep's Dataset ([`delayed_ilqr.sweep`][delayed_ilqr.sweeps.sweep]): its grid values, the
     solve (status, iterations, predicted E[J]) and the Monte Carlo pooled over the seeds (mean of
     the seeds' mean costs, their diverged trials, the median endpoint error)."""
     dims = list(ds["status"].dims)

@@ -38,7 +38,7 @@ def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: i
     (linearised model).
 
     Returns:
-        (:class:`~delayed_ilqr.Estimator`, the law :class:`~delayed_ilqr.lqg.Gains`, expected cost []).
+        ([`Estimator`][delayed_ilqr.Estimator], the law [`Gains`][delayed_ilqr.lqg.Gains], expected cost []).
     """
     lqg = linearize(problem, xs, us)
     obs, y_nominal = linearized_observation(problem.observation, xs)

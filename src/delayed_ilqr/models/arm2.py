@@ -1,6 +1,6 @@
 """P2: the planar two-link arm driven by delayed joint torques (``docs/models.md`` §2, P2 and P3).
 
-Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``)::
+Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``):
 
     M(q) ddq + C(q, dq) + B dq = tau
     M(q) = [[a1 + 2 a2 cos q2, a3 + a2 cos q2], [a3 + a2 cos q2, a3]]
@@ -13,10 +13,10 @@ P_f = diag(1e3, 1e3, 1e1, 1e1); x0 = [pi/4, pi/2, 0, 0], target [pi/2, pi/3, 0, 
 P2-noisy: F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], p = 2, sigma_u = 0.2.
 P3 is ``arm2(dt=0.002, delay=0.1)`` (K = 250, l = 50).
 
-Noise level. F is a continuous-time diffusion (:mod:`delayed_ilqr.models.noise`): a held torque u
+Noise level. F is a continuous-time diffusion (`delayed_ilqr.models.noise`): a held torque u
 has a per-step relative noise sigma_u / sqrt(dt), 2.0 for P2-noisy's 0.2 at dt = 10 ms, far above
 human motor noise; P2-noisy stays a fixed numerical benchmark (``docs/models.md`` §2). For studies
-of movement, :data:`SIGMA_U_HUMAN` = 0.01 (``arm2(noise=True, sigma_u=SIGMA_U_HUMAN)``, the demo's
+of movement, `SIGMA_U_HUMAN` = 0.01 (``arm2(noise=True, sigma_u=SIGMA_U_HUMAN)``, the demo's
 choice) is calibrated to human force variability (``docs/models.md`` §4.5): low-pass filtered at
 the muscles' activation time constant t = 50-66 ms, the torque of a held command then has a
 coefficient of variation sigma_u / sqrt(2 t) = 2.8-3.2 %, within the few per cent that isometric
@@ -25,10 +25,10 @@ force, Jones, Hamilton & Wolpert 2002 [V abstract] for the proportionality, [R] 
 size; the coefficient of variation of joint torque falls with muscle strength, Hamilton, Jones &
 Wolpert 2004 [V abstract]; peak elbow torque varies by under 4 % across cyclic trials, BMC Sports
 Sci Med Rehabil 2016 [V abstract]). Any other level: the ``sigma_u`` argument, and
-:func:`~delayed_ilqr.models.noise.per_step_noise_to_diffusion` for a per-step sigma.
+[`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion] for a per-step sigma.
 
-The functions :func:`mass_matrix`, :func:`mass_matrix_inverse`, :func:`coriolis`,
-:func:`joint_acceleration`, :func:`hand_position`, :func:`hand_jacobian` and :func:`hand_velocity`
+The functions [`mass_matrix`][delayed_ilqr.models.arm2.mass_matrix], [`mass_matrix_inverse`][delayed_ilqr.models.arm2.mass_matrix_inverse], [`coriolis`][delayed_ilqr.models.arm2.coriolis],
+[`joint_acceleration`][delayed_ilqr.models.arm2.joint_acceleration], [`hand_position`][delayed_ilqr.models.arm2.hand_position], [`hand_jacobian`][delayed_ilqr.models.arm2.hand_jacobian] and [`hand_velocity`][delayed_ilqr.models.arm2.hand_velocity]
 are pure ``jax.numpy`` functions of (q, dq, params) for reuse by other arm models (e.g. the
 six-muscle arm); they accept leading batch axes on q, dq, tau ([..., 2]).
 """
@@ -244,15 +244,15 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
         horizon: K; default ``round(0.5 / dt)`` (50 at dt = 0.01, 250 at dt = 0.002).
         x0: [4] initial state [q1, q2, dq1, dq2].
         x_target: [4] final target state.
-        params: arm parameters; P2 uses :data:`ARM2_PARAMS`.
+        params: arm parameters; P2 uses [`ARM2_PARAMS`][delayed_ilqr.models.arm2.ARM2_PARAMS].
         sigma_u: the diffusion scale of the torque noise (used when ``noise``): 0.2 for P2-noisy
-            (default), :data:`SIGMA_U_HUMAN` for human-like noise (module docstring).
+            (default), `SIGMA_U_HUMAN` for human-like noise (module docstring).
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
-            velocities seen that late through additive noise (:func:`.sensors.joint_sensors`).
+            velocities seen that late through additive noise (`sensors.joint_sensors`).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"arm2"``; its metadata's task space is the hand
+        A [`Problem`][delayed_ilqr.Problem] named ``"arm2"``; its metadata's task space is the hand
         position (target: the hand at ``x_target``).
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)

@@ -35,7 +35,7 @@ CHUNK_CELLS = 256
 
 
 def checksum(values: dict) -> str:
-    """SHA-256 of a cell's values, variable by variable in the order of :data:`VARIABLES`, each as
+    """SHA-256 of a cell's values, variable by variable in the order of `VARIABLES`, each as
     its dtype's little-endian bytes."""
     h = hashlib.sha256()
     for v in VARIABLES:
@@ -64,7 +64,7 @@ def _write_atomically(path: pathlib.Path, text: str) -> None:
 
 
 class Store:
-    """A sweep's store folder (see the module docstring). Open it with :meth:`open`."""
+    """A sweep's store folder (see the module docstring). Open it with `open`."""
 
     def __init__(self, path: pathlib.Path):
         self.path = pathlib.Path(path)
