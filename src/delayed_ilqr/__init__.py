@@ -5,7 +5,7 @@ corrections listed in ``docs/derivation.md``) and builds a full solver around it
 
 Notation (used in names throughout the library; arrays are time-major):
 
-|  |  |
+| symbol | meaning |
 |---|---|
 | n, d, p | number of states, controls, noise columns |
 | l | ``delay_steps``: the command u_k acts on the plant from step k + l (tau = l dt) |

@@ -3,7 +3,7 @@
 The data flow: a model's problem -> designs (problem transforms) -> timed solves -> Monte Carlo
 on the plant -> statistics -> tables and files (figures: [`delayed_ilqr.plot`][delayed_ilqr.plot]).
 
-|  |  |
+| module | its job |
 |---|---|
 | `designs` | controller designs as problem transforms (aware, ignorant, augmented, noise-aware, deterministic) |
 | `engine` | timed solves (one problem, or a batch in one compiled call), Monte Carlo with endpoint errors in the model's task space |

@@ -3,7 +3,7 @@
 For each input delay tau the study builds the problem and evaluates controllers on the same
 (delayed, possibly noisy) plant (designs: `designs`):
 
-|  |  |
+| controller | design |
 |---|---|
 | aware | ``solve(problem)``: iLQG with the delay (Theorem 1, structured backward pass) |
 | ignorant | ``solve(problem.replace(delay_steps=0))``: designed as if the commands acted at once, then run on the delayed plant (its policy has l_p = 0, see [`simulate`][delayed_ilqr.simulate]) |

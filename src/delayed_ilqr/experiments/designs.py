@@ -3,7 +3,7 @@
 Every study measures a controller on the plant it is given; the designs differ only in the problem
 the controller is *designed* for and in the backward pass:
 
-|  |  |
+| design | the controller is designed for |
 |---|---|
 | aware | the plant itself (Theorem 1's structured backward pass) |
 | ignorant | the plant without its delay (``delay_steps=0``), run on the delayed plant |

@@ -2,7 +2,7 @@
 
 Data flow of one iteration, one module per job:
 
-|  |  |
+| module | its job |
 |---|---|
 | linearize.py | eq. (3)-(4): rollout, cost, the LQG of a nominal (stored or step by step) |
 | backward.py | the backward pass of an iteration: linearise, Theorem 1 (or augmentation), the solver's gain rules (box limits, noise) |

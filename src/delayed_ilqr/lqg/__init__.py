@@ -22,7 +22,7 @@ gains (see ``docs/derivation.md`` §4), so that J(0) is always the true cost of 
 
 Modules (the solver's internals are imported from them, not from here):
 
-|  |  |
+| module | contents |
 |---|---|
 | model | [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG], the per-step `Stage`, ``StepModels``, Gains, Value |
 | frame | the circular slot frame of the pending commands (``SlotGains``, conversions) |

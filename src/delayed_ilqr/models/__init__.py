@@ -10,7 +10,7 @@ equations, parameters and their sources are in ``docs/models.md``. Noise is a co
 diffusion (``sqrt(dt) F xi`` per step); [`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion] converts the per-step
 sigma of Todorov's and Li's discrete-time code (`noise`).
 
-|  |  |
+| factory | model |
 |---|---|
 | point_mass | P1 / P1-noisy / P4 of ``docs/models.md`` (damped planar point mass) |
 | arm2 | P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters) |

@@ -18,7 +18,7 @@ mass:
 
 Parameters (borrowed from trajax, which has Gym's values; chosen: the rest):
 
-|  |  |  |
+| parameter | value | source or note |
 |---|---|---|
 | m1, m2 | 1 kg, 1 kg | link masses |
 | l1 | 1 m | length of link 1 (link 2's length does not enter) |

@@ -15,7 +15,7 @@ theta = pi the upright target, as for [`pendulum`][delayed_ilqr.models.pendulum]
 
 Parameters (borrowed: m_c, m_p, l, g from anassinator/ilqr; chosen: the rest):
 
-|  |  |  |
+| parameter | value | source or note |
 |---|---|---|
 | m_c, m_p | 1.0, 0.1 kg | cart and pole masses |
 | l | 1.0 m | pole half-length (the pole is 2 m long) |

@@ -10,7 +10,7 @@ TrajectoryOptimization.jl simple pendulum (with its viscous friction coefficient
 limit in the spirit of Gym Pendulum-v1 (m = l = 1, |u| <= 2 with g = 10) and of Todorov & Li's (2005)
 "limited-torque inverted pendulum", whose parameters were not retrieved. Chosen here:
 
-|  |  |  |
+| parameter | value | source or note |
 |---|---|---|
 | m, l | 1 kg, 1 m | point mass on a massless rod (inertia m l^2 = 1 kg m^2) |
 | g | 9.81 m/s^2 |  |

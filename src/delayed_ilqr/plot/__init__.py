@@ -6,7 +6,7 @@ state, no backend switch in the caller's session, never ``show()``) and returns 
 importing [`delayed_ilqr`][delayed_ilqr] does not import it. Labels, units and the task space (e.g. the hand
 position of the arms) come from the model's metadata ([`delayed_ilqr.models.metadata`][delayed_ilqr.models.metadata]).
 
-|  |  |
+| module | figures |
 |---|---|
 | `solution` | states and commands against time; convergence of solves |
 | `delay_study` | cost and endpoint error against the delay; task-space (hand) paths |

@@ -1,6 +1,6 @@
 """Sweeps: studies over a grid of a model factory's arguments and seeds (``delayed_ilqr.sweep``).
 
-|  |  |
+| module | its job |
 |---|---|
 | run.py | ``sweep`` and ``open_sweep``: the grid, the Dataset, local or Dask execution |
 | grid.py | cells, grouped by the problems' static structure, cut into padded batches |
