@@ -1,4 +1,4 @@
-"""Delayed, noisy sensors of a nonlinear [`Problem`][delayed_ilqr.Problem] (issue 20):
+"""Delayed, noisy sensors of a nonlinear [`Problem`][delayed_ilqr.Problem]:
 
     y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k,    v_k ~ N(0, I_q),    k = l_s..K-1
 

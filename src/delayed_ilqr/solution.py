@@ -11,7 +11,7 @@ __all__ = ["Policy", "Estimator", "Status", "Trace", "Solution"]
 
 
 class Estimator:
-    """The delayed Kalman filter of a policy whose sensors are delayed and noisy (issue 20).
+    """The delayed Kalman filter of a policy whose sensors are delayed and noisy.
 
     It runs on deviations from the policy's nominal (``docs/derivation.md`` §14):
 

@@ -1,6 +1,6 @@
 """Inverse optimal control: fit a model's cost weights and noise level to measured reaches by
 gradient-based minimisation through the solver, and its delay by a profile over whole steps
-(``docs/fitting.md``; issue 24).
+(``docs/fitting.md``).
 
 The data of one condition c (a reach target, say) are the mean task-space path m_c [K+1, m] of the
 trials and the covariance C_c [m, m] of their endpoints. The model with parameters theta predicts

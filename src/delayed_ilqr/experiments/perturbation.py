@@ -1,4 +1,4 @@
-"""Perturbation experiments (issue 20, item 5): a lateral kick of the hand during a reach, and the
+"""Perturbation experiments: a lateral kick of the hand during a reach, and the
 mean corrective response against the sensory delay.
 
 Per sensory delay l_s the model gets its default sensors (``sensory_delay=``), the controller and

@@ -1,4 +1,4 @@
-"""The sensory-delay study (issue 20, item 6): expected cost, endpoint spread and correction latency
+"""The sensory-delay study: expected cost, endpoint spread and correction latency
 against the sensory delay at a fixed motor delay, for the estimator-based design and for one that
 ignores the sensory delay.
 

@@ -1,4 +1,4 @@
-"""The estimator of an observed problem, designed at the solver's returned nominal (issue 20).
+"""The estimator of an observed problem, designed at the solver's returned nominal.
 
 iLQG designs the controller with the full state, as without sensors. At the returned nominal the
 plant is linearised (eq. 3) and so are the sensors (``observation.linearized_observation``); the

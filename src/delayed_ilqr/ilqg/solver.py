@@ -130,7 +130,7 @@ LATCH_RECUR = 1e-2
 
 
 def first_order(o: Options, bp: BackwardPass, reg, merit_now):
-    """The first-order certificate every convergence status requires (issue 22, item 8).
+    """The first-order certificate every convergence status requires.
 
     With lambda < NEWTON_REG the feedforward is the (box-projected) Newton step of the LQG model,
     and its full step (alpha = 1) promises the merit reduction -(a + b) = g' H^-1 g / 2 (the

@@ -1,4 +1,4 @@
-"""Signal-dependent noise with delayed sensors: Todorov's alternation, with both delays (issue 20, item 4).
+"""Signal-dependent noise with delayed sensors: Todorov's alternation, with both delays.
 
 With motor noise that grows with the command (C0, C1 != 0) the separation design of
 `output_feedback` is not optimal: its filter assumes the noise of the nominal commands, and

@@ -1,4 +1,4 @@
-"""The delayed Kalman filter, structured like the controller: no state augmentation (issue 20, item 1).
+"""The delayed Kalman filter, structured like the controller: no state augmentation.
 
 The information for du_k is dy_{l_s..k} (measurements of dx_0..dx_{k-l_s}), the commands already
 sent and dx_0 = 0. So the filter is an ordinary Kalman filter *in delayed time* j = k - l_s, whose

@@ -1,4 +1,4 @@
-"""Output feedback for the delayed LQG with delayed, noisy sensors (issue 20, items 2-3).
+"""Output feedback for the delayed LQG with delayed, noisy sensors.
 
 The policy is Theorem 1's law acting on the delayed filter's estimate:
 

@@ -1,4 +1,4 @@
-"""The models' default sensors (issue 20): ``sensory_delay=`` of [`point_mass`][delayed_ilqr.models.point_mass], [`arm2`][delayed_ilqr.models.arm2]
+"""The models' default sensors: ``sensory_delay=`` of [`point_mass`][delayed_ilqr.models.point_mass], [`arm2`][delayed_ilqr.models.arm2]
 and [`arm2_muscle6`][delayed_ilqr.models.arm2_muscle6] attaches one (``docs/models.md`` §1.1 has the levels and their sources).
 
 The sensory noise is additive and given as a density: a component with density s has the
