@@ -158,16 +158,18 @@ _DEMO_FILES = """\
 Monte Carlo mean cost with its bootstrap 95 % interval and each controller's predicted E[J]; the
 mean distance of the final hand position from the target; the spread of the final hand positions
 (1-sigma major axis). Compared with: human endpoint scatter of a few millimetres for unseen
-reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This plant has no sensory noise or
-sensory delay, so at no delay its scatter is far smaller (see the note above the figures).
+reaches (Gordon, Ghilardi & Ghez 1994, Exp Brain Res 99:97). This controller sees the exact state
+at once (no sensory noise, no sensory delay), so at no delay its scatter is far smaller; with the
+arm's proprioception (`sensory_delay=`, docs/models.md §1.1) the six-muscle arm's reaches scatter by
+millimetres (`delayed-ilqr center-out --sensory-delay 0`, docs/results/noise_calibration.md §6).
 
 ![hand paths, hand speed and endpoints](hand_paths.png)
 
 Top: nominal hand paths (thick) and ten noisy trials (thin). Middle: hand speed against time.
 Bottom: endpoints relative to the target (mm) with 2-sigma ellipses. Compared with: human reaches
 run along nearly straight paths with single-peaked, bell-shaped speed profiles (Morasso 1981, Exp
-Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). The P2 task (benchmark_problems.md)
-weighs effort and the final state only: its paths curve and its speed profile at no delay is
+Brain Res 42:223; Flash & Hogan 1985, J Neurosci 5:1688). This reach task (`models.arm2`,
+docs/models.md §2) weighs effort and the final state only: its paths curve and its speed profile at no delay is
 flat-topped; with delay the delay-aware reach starts one delay late, with a higher, earlier peak.
 
 ![convergence of the solves](convergence.png)
