@@ -286,8 +286,8 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
     seconds); the times include ``base``'s.
 
     Compiled ahead and run once (seconds: the run; first: compilation and run), not called twice
-    as the solves are: an SL run costs several times the solve it starts from (the README's
-    center-out table gives both).
+    as the solves are: an SL run costs several times the solve it starts from (the center-out
+    table of ``docs/results/studies.md`` gives both).
     """
     args = (stack(plants), base.solution.policy)
     start = time.perf_counter()
