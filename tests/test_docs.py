@@ -188,3 +188,17 @@ def test_no_issue_numbers():
              for path in _markdown_files() + sorted(SRC.rglob("*.py"))
              for k, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
     assert not found, "\n".join(found[:30])
+
+
+def test_tables_stand_apart():
+    """A Markdown table directly under a line of text is not a table (it runs into the paragraph):
+    every table of the pages and the docstrings has a blank line before it."""
+    def run_together(text):
+        lines = text.split("\n")
+        return [lines[k - 1].strip()[:60] for k in range(1, len(lines))
+                if re.match(r"\s*\|.*\|\s*$", lines[k]) and lines[k - 1].strip()
+                and not re.match(r"\s*\|", lines[k - 1])]
+    bad = [f"{path.relative_to(ROOT)}: {line}" for path in _markdown_files() for line in run_together(path.read_text())]
+    bad += [f"{path.relative_to(ROOT)}:{k}: {line}" for path in sorted(SRC.rglob("*.py"))
+            for k, text in _docstrings(path) for line in run_together(text)]
+    assert not bad, "\n".join(bad)
