@@ -81,20 +81,24 @@ def test_no_rst_tables_in_docstrings():
 
 
 def _documented_objects():
-    """The objects that the API pages render (their ``::: identifier`` lines), by id()."""
+    """The objects that the API pages render, by id(): each ``::: identifier`` and, for a module
+    rendered with its members, the names of its ``__all__``."""
     import importlib
+    import types
     objects = set()
     for page in (DOCS / "api").glob("*.md"):
-        for ident in re.findall(r"^::: *([\w.]+)", page.read_text(), re.M):
+        for ident, options in re.findall(r"^::: *([\w.]+)\n((?:[ \t]+\S.*\n)*)", page.read_text() + "\n", re.M):
             parts = ident.split(".")
             obj = importlib.import_module(parts[0])
             for k, name in enumerate(parts[1:], 2):     # attributes first, as the site resolves them
                 obj = getattr(obj, name, None) or importlib.import_module(".".join(parts[:k]))
             objects.add(id(obj))
+            if isinstance(obj, types.ModuleType) and not re.search(r"members: *false", options):
+                objects.update(id(getattr(obj, name)) for name in getattr(obj, "__all__", ()))
     return objects
 
 
-@pytest.mark.parametrize("module", ["delayed_ilqr", "delayed_ilqr.lqg"])
+@pytest.mark.parametrize("module", ["delayed_ilqr", "delayed_ilqr.lqg", "delayed_ilqr.models"])
 def test_reference_lists_every_public_name(module):
     import importlib
     mod = importlib.import_module(module)
