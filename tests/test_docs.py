@@ -26,6 +26,12 @@ def test_site_builds_strict(tmp_path):
         assert (tmp_path / "site" / page).is_file(), page
     api = (tmp_path / "site" / "api" / "solver" / "index.html").read_text()
     assert "time_dependent" in api and "delayed_ilqr.saving" in api     # rendered from the docstrings
+    # the notation table is a table, and the cross-references are links, not raw text
+    assert re.search(r"<th>symbol</th>\s*<th>meaning</th>", api)
+    for page in (tmp_path / "site" / "api").rglob("*.html"):
+        html = page.read_text()
+        assert not SPHINX_ROLE.search(html) and "[<code>" not in html, page
+        assert "autorefs-internal" in html, page
 
 
 def test_every_guide_page_is_in_the_navigation():
