@@ -1,9 +1,9 @@
-"""JAX's persistent compilation cache, opt-in: :func:`enable_compilation_cache`.
+"""JAX's persistent compilation cache, opt-in: [`enable_compilation_cache`][delayed_ilqr.enable_compilation_cache].
 
 A solve takes about a millisecond and its compilation about a second, and every new static
 structure (model, sizes, delay) compiles again, in every new process. JAX can keep the compiled
 executables on disk, keyed by the program, the compile options, XLA's flags (so the flags of
-:func:`~delayed_ilqr.configure_cpu` are part of the key), the backend and the jax version; a
+[`configure_cpu`][delayed_ilqr.configure_cpu] are part of the key), the backend and the jax version; a
 second process that compiles the same solver reads it back instead (docs/performance.md#compilation-cache).
 
 Importing ``delayed_ilqr`` sets nothing: the cache is a process-wide JAX setting, the program's to
@@ -54,7 +54,7 @@ def enable_compilation_cache(path: Optional[os.PathLike | str] = None,
     folder moves the cache there.
 
     Args:
-        path: the cache folder (created if missing); default :func:`default_cache_dir`.
+        path: the cache folder (created if missing); default [`default_cache_dir`][delayed_ilqr.default_cache_dir].
         min_compile_seconds: compilations shorter than this are not written
             (``jax_persistent_cache_min_compile_time_secs``); 0 writes every one.
 

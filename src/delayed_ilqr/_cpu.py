@@ -1,4 +1,4 @@
-"""XLA's CPU backend, configured for loops of many small operations: :func:`configure_cpu`.
+"""XLA's CPU backend, configured for loops of many small operations: [`configure_cpu`][delayed_ilqr.configure_cpu].
 
 XLA on CPU runs each operation of a loop body as a separate thunk, at about 0.1 to 0.2 us each,
 and the time steps of motor-control problems are small (P1's backward step is 29 such operations
@@ -9,19 +9,19 @@ make that cover the solver's scans, about halving the time of a small solve (mea
 docs/performance.md#configure_cpu):
 
 * ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000``
-  (:data:`SMALL_LOOP_BYTES`): trades the thunk runtime's multi-threaded library kernels, which
+  (`SMALL_LOOP_BYTES`): trades the thunk runtime's multi-threaded library kernels, which
   only large per-step products need, for no per-operation cost in every smaller loop; see
   docs/performance.md#xla_cpu_small_while_loop_byte_threshold.
 * ``--xla_cpu_experimental_ynn_fusion_type=-individual_dot``: trades YNNPACK's single dots, fast
   on large products, for loops that can be compiled as one function (a loop that holds one
   never is); ``ilqg.solver.compiled_solver`` turns them back on for long delays
-  (:data:`LIBRARY_DOTS`); see docs/performance.md#xla_cpu_experimental_ynn_fusion_type.
+  (`LIBRARY_DOTS`); see docs/performance.md#xla_cpu_experimental_ynn_fusion_type.
 
 Both are process-wide, and only ``XLA_FLAGS`` sets the threshold (``jax.jit``'s
 ``compiler_options`` take no map-valued options); XLA reads it once, when JAX starts its
 backend. Importing ``delayed_ilqr`` sets nothing (a process-wide setting is the program's to
 choose, and a flag that another jaxlib does not know aborts every process that inherits it): a
-program that wants the speed calls :func:`configure_cpu` before its first JAX computation, as the
+program that wants the speed calls [`configure_cpu`][delayed_ilqr.configure_cpu] before its first JAX computation, as the
 ``delayed-ilqr`` command line, the tests and the benchmarks do.
 """
 from __future__ import annotations

@@ -4,9 +4,9 @@ Writes are atomic: the content goes to a hidden temporary file beside the target
 disk, and is renamed over the target (``os.replace``, atomic on POSIX and Windows), so that a
 process killed or interrupted mid-write leaves the old file (or none), never a truncated one.
 Every writer of the library (saved solutions, sweep stores' metadata, the command line's JSON,
-markdown, NPZ files and figures) goes through :func:`atomic_file`.
+markdown, NPZ files and figures) goes through `atomic_file`.
 
-Reads that fail raise :class:`FileFormatError`, a ``ValueError`` whose message names the file,
+Reads that fail raise `FileFormatError`, a ``ValueError`` whose message names the file,
 what it should be and what is wrong with it, whatever the underlying library raised
 (``zipfile``, ``json``, NumPy's pickle refusal, a missing entry, ...).
 """
@@ -98,7 +98,7 @@ def save_figure(figure, path, **kwargs) -> None:
 def open_npz(path, what: str) -> "np.lib.npyio.NpzFile":
     """``path`` opened as an NPZ archive of arrays (``allow_pickle=False``: nothing in it runs);
     ``what`` says what the file should be (e.g. "a delayed-ilqr file (delayed_ilqr.save writes
-    one)"). Use as a context manager. Raises :class:`FileFormatError` for a missing file, a
+    one)"). Use as a context manager. Raises `FileFormatError` for a missing file, a
     folder, a single ``.npy`` array, a text or pickle file, an empty, truncated or damaged archive."""
     path = pathlib.Path(path)
     if not path.exists():
@@ -125,7 +125,7 @@ def open_npz(path, what: str) -> "np.lib.npyio.NpzFile":
 
 def read_entry(npz, name: str, path, what: str) -> np.ndarray:
     """The array ``name`` of an open NPZ archive; a damaged entry (truncated, bad CRC, pickled
-    object) is a :class:`FileFormatError` naming it."""
+    object) is a `FileFormatError` naming it."""
     try:
         return npz[name]
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, UnicodeError, KeyError) as exc:
@@ -134,7 +134,7 @@ def read_entry(npz, name: str, path, what: str) -> np.ndarray:
 
 def read_json(path, what: str):
     """The JSON value of the file ``path``; a missing, unreadable, non-UTF-8 or malformed file is
-    a :class:`FileFormatError` saying ``what`` it should be."""
+    a `FileFormatError` saying ``what`` it should be."""
     path = pathlib.Path(path)
     try:
         text = path.read_bytes().decode()
@@ -147,7 +147,7 @@ def read_json(path, what: str):
 
 def parse_json(text: str, path, what: str, part: str = ""):
     """``text`` (the content of ``path``, or of its ``part`` such as "its header") parsed as
-    JSON, or a :class:`FileFormatError`."""
+    JSON, or a `FileFormatError`."""
     try:
         return json.loads(text)
     except (ValueError, RecursionError) as exc:

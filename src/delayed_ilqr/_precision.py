@@ -1,4 +1,4 @@
-"""The library computes in float64 and refuses to run without it: :func:`require_x64`.
+"""The library computes in float64 and refuses to run without it: `require_x64`.
 
 Why refuse rather than switch precision for the library's own computations: in float32 the
 solver still runs but wanders (P2 took 38 iterations instead of 9 and stopped at a cost 1e-6

@@ -1,12 +1,12 @@
-"""Delayed, noisy sensors of a nonlinear :class:`~delayed_ilqr.Problem` (issue 20)::
+"""Delayed, noisy sensors of a nonlinear [`Problem`][delayed_ilqr.Problem]:
 
     y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k,    v_k ~ N(0, I_q),    k = l_s..K-1
 
 ``y_k`` is available when u_k is computed: the information for u_k is y_{l_s..k}, the commands
 already sent, and x0 (known exactly; states before time 0 equal x0). A disturbance that changes
-x_{k+1} is first seen in y_{k+1+l_s}. :func:`delayed_ilqr.solve` designs the delayed Kalman filter
-of the linearisation around its nominal (:func:`linearized_observation`, ``lqg.delayed_kalman``) and
-:func:`delayed_ilqr.simulate` runs it on the nonlinear plant (``docs/derivation.md`` §14).
+x_{k+1} is first seen in y_{k+1+l_s}. [`delayed_ilqr.solve`][delayed_ilqr.solve] designs the delayed Kalman filter
+of the linearisation around its nominal (`linearized_observation`, ``lqg.delayed_kalman``) and
+[`delayed_ilqr.simulate`][delayed_ilqr.simulate] runs it on the nonlinear plant (``docs/derivation.md`` §14).
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ __all__ = ["Observation", "linearized_observation"]
 
 
 class Observation:
-    """The sensors y_k = h(x_{k-l_s}) + G v_k of a :class:`~delayed_ilqr.Problem`.
+    """The sensors y_k = h(x_{k-l_s}) + G v_k of a [`Problem`][delayed_ilqr.Problem].
 
     Args:
         output: an [m, n] array H (y = H x) or a callable ``h(x) -> [m]`` written with
@@ -169,7 +169,7 @@ def linearized_observation(observation: Observation, xs):
     x_bar_{k-l_s} (x0 for k < l_s, rows the filter never uses).
 
     Returns:
-        (:class:`~delayed_ilqr.lqg.DelayedObservation`, y_nominal [K, m] = h(x_bar_{k-l_s})).
+        ([`DelayedObservation`][delayed_ilqr.lqg.DelayedObservation], y_nominal [K, m] = h(x_bar_{k-l_s})).
     """
     sensed = sensed_states(xs, observation.delay_steps)
     H = jax.vmap(observation.jacobian)(sensed)

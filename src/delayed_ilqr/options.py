@@ -1,4 +1,4 @@
-"""Solver settings: :class:`Options`, immutable and validated when built."""
+"""Solver settings: [`Options`][delayed_ilqr.Options], immutable and validated when built."""
 from __future__ import annotations
 
 import dataclasses

@@ -1,22 +1,22 @@
 """What a solution predicts about its own trials: the mean and covariance of the states, and of the
 task-space point (the arms' hand), from the exact second moments of the linearised closed loop.
 
-The policy runs on the plant as :func:`delayed_ilqr.simulate` runs it (eq. 6 without the
+The policy runs on the plant as [`delayed_ilqr.simulate`][delayed_ilqr.simulate] runs it (eq. 6 without the
 feedforward). Linearised at the nominal (eq. 3, the solver's model), the deviations
 z_k = [dx_k, du_{k-l}, ..., du_{k-1}] of that closed loop start at 0, have mean 0 and the second
-moments of :func:`delayed_ilqr.lqg.closed_loop_moments` (signal-dependent noise included). So, to
-first order in the noise::
+moments of [`delayed_ilqr.lqg.closed_loop_moments`][delayed_ilqr.lqg.closed_loop_moments] (signal-dependent noise included). So, to
+first order in the noise:
 
     E[x_k] = x_nominal_k,   Cov(x_k) = E[dx_k dx_k']
     E[e_k] = e(x_nominal_k),   Cov(e_k) = J_k Cov(x_k) J_k'     (e the task map, J_k = de/dx at x_nominal_k)
 
-Everything is differentiable: through :func:`delayed_ilqr.solve` (``docs/derivation.md`` §16) these
+Everything is differentiable: through [`delayed_ilqr.solve`][delayed_ilqr.solve] (``docs/derivation.md`` §16) these
 are the model's predictions as functions of its parameters, which is what fitting a model to
 measured reaches needs (``delayed_ilqr.experiments.fitting``). The prediction ignores what the
 linearisation leaves out: the clipping of commands at their limits, and the plant's curvature
 (``docs/fitting.md`` measures the gap against Monte Carlo).
 
-:func:`closed_loop_prediction` takes the plant's curvature in: it propagates the mean and
+[`closed_loop_prediction`][delayed_ilqr.prediction.closed_loop_prediction] takes the plant's curvature in: it propagates the mean and
 covariance of the nonlinear closed loop (state and pending commands) under a Gaussian closure, by
 a second-order expansion or by sigma points, and returns its expected cost (eq. P1-P4 there).
 """
@@ -78,16 +78,16 @@ def task_prediction(problem: Problem, states: Prediction) -> Prediction:
 
 
 RULES = ("second_order", "fifth_degree", "cubature")
-"""The expectation rules of :func:`closed_loop_prediction` (eq. P3-P4)."""
+"""The expectation rules of [`closed_loop_prediction`][delayed_ilqr.prediction.closed_loop_prediction] (eq. P3-P4)."""
 
 
 class ClosedLoopPrediction(NamedTuple):
-    """Moments of the nonlinear closed loop from :func:`closed_loop_prediction`.
+    """Moments of the nonlinear closed loop from [`closed_loop_prediction`][delayed_ilqr.prediction.closed_loop_prediction].
 
     Attributes:
-        expected_cost: [] E[J], eq. (2) of the trials as :func:`delayed_ilqr.simulate` scores them.
-        state: :class:`Prediction` of the states: mean [K+1, n] E[x_k], cov [K+1, n, n] Cov(x_k).
-        z: :class:`Prediction` of the whole Markov state of eq. P1, z_k = [dx_k; du_{k-m}; ...;
+        expected_cost: [] E[J], eq. (2) of the trials as [`delayed_ilqr.simulate`][delayed_ilqr.simulate] scores them.
+        state: [`Prediction`][delayed_ilqr.prediction.Prediction] of the states: mean [K+1, n] E[x_k], cov [K+1, n, n] Cov(x_k).
+        z: [`Prediction`][delayed_ilqr.prediction.Prediction] of the whole Markov state of eq. P1, z_k = [dx_k; du_{k-m}; ...;
             du_{k-1}] (deviations from the nominal; the pending commands' deviations are those of
             the clipped commands sent, oldest first): mean [K+1, N] E[z_k], cov [K+1, N, N]
             Cov(z_k), N = n + m d. Its first n entries are ``state`` less the nominal; the rest is
@@ -233,7 +233,7 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
 
 
 def _check_closure_input(entry_point: str, problem: Problem, policy: Policy, rule: str) -> None:
-    """The checks of the closure's callers (:func:`closed_loop_prediction` and
+    """The checks of the closure's callers ([`closed_loop_prediction`][delayed_ilqr.prediction.closed_loop_prediction] and
     ``statistical.statistical_feedback``, ``entry_point`` as "module.function"): float64 on,
     full-state feedback, a known rule; a ``ValueError`` naming the function otherwise."""
     _precision.require_x64(entry_point)
@@ -247,17 +247,17 @@ def _check_closure_input(entry_point: str, problem: Problem, policy: Policy, rul
 
 def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second_order") -> ClosedLoopPrediction:
     """E[J] and the states' moments of ``policy`` on ``problem``'s nonlinear plant, as
-    :func:`delayed_ilqr.simulate` runs it (``substeps=1``), by moment propagation (no sampling).
+    [`delayed_ilqr.simulate`][delayed_ilqr.simulate] runs it (``substeps=1``), by moment propagation (no sampling).
 
     The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (N = n + m d entries),
     m = max(l, l_p) (l the plant's delay, l_p the policy's; du the commands sent minus their
-    nominal)::
+    nominal):
 
         u_k = clip(u_bar_k + L_k dx_k + sum_i M_k^i du_{k+i-l_p}),   ud_k = u_{k-l} (u_k if l = 0)
         z_{k+1} = g_k(z_k) + [G_k(z_k) xi_k; 0],   xi_k ~ N(0, I_p)                          (P1)
         g_k(z) = [x_k + dt f(x_k, u_k, ud_k) - x_bar_{k+1}; du_{k-m+1}; ...; du_k],   G_k = sqrt(dt) F(x_k, u_k, ud_k)
 
-    from z_0 = 0. As xi_k is independent of z_k, exactly::
+    from z_0 = 0. As xi_k is independent of z_k, exactly:
 
         E[z_{k+1}] = E[g_k],   Cov(z_{k+1}) = Cov(g_k) + [E[G_k G_k'] 0; 0 0]
         E[J] = sum_k dt E[l(x_k, u_k)] + E[h(x_K)]                                            (P2)
@@ -266,7 +266,7 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
     ``rule``:
 
     - ``"second_order"`` (default): the Gaussian moments of each function's second-order Taylor
-      expansion at the mean (J = dg/dz, H_i = d^2 g_i/dz^2 at mean_k; the same for G G' and l)::
+      expansion at the mean (J = dg/dz, H_i = d^2 g_i/dz^2 at mean_k; the same for G G' and l):
 
           E[g] = g(mean) + tr(H P) / 2,   Cov(g) = J P J' + [tr(H_i P H_j P)]_ij / 2          (P3)
 
@@ -284,7 +284,7 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
     l = 0): dx_k, the feedback's du_k and the delayed du_{k-l}. For a Gaussian z, z = mean_k +
     R_k eta + e with eta ~ N(0, I_r), e ~ N(0, E_k) independent of eta and T_k e = 0 (R_k = S W,
     E_k = S (I - W W') S', S the symmetric root of P_k and W the right singular vectors of T_k S),
-    so g_k(z) = g_k(mean_k + R_k eta) + D e, D the shift of the pending queue, and::
+    so g_k(z) = g_k(mean_k + R_k eta) + D e, D the shift of the pending queue, and:
 
         E[g_k] = E_eta[g_k(mean_k + R_k eta)],   Cov(g_k) = Cov_eta(g_k(mean_k + R_k eta)) + D E_k D'  (P5)
 
@@ -293,22 +293,22 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
     the six-muscle arm, 969 fifth-degree points instead of 20001.
 
     On a linear plant with quadratic cost g is affine and G G', l and h quadratic: every rule is
-    then exact (equal to :func:`delayed_ilqr.lqg.closed_loop_moments` and
-    :func:`~delayed_ilqr.lqg.policy_cost` of the policy's gains, whatever the law of z_k). On a
+    then exact (equal to [`delayed_ilqr.lqg.closed_loop_moments`][delayed_ilqr.lqg.closed_loop_moments] and
+    [`policy_cost`][delayed_ilqr.lqg.policy_cost] of the policy's gains, whatever the law of z_k). On a
     nonlinear plant the rules capture the mean shift and covariance growth from the plant's
-    curvature that :func:`predict` and ``Solution.expected_cost`` leave out, but not what the
+    curvature that [`predict`][delayed_ilqr.prediction.predict] and ``Solution.expected_cost`` leave out, but not what the
     Gaussian closure leaves out: signal-dependent noise makes z_k heavy-tailed
     (``docs/results/noise_calibration.md`` §2 measures both against Monte Carlo on the torque arm).
 
     Args:
         problem: the plant, full-state feedback (no observation).
-        policy: a :class:`~delayed_ilqr.Policy` without estimator (e.g. ``solve(problem).policy``),
-            run without its feedforward as :func:`~delayed_ilqr.simulate` runs it; its delay l_p
+        policy: a [`Policy`][delayed_ilqr.Policy] without estimator (e.g. ``solve(problem).policy``),
+            run without its feedforward as [`simulate`][delayed_ilqr.simulate] runs it; its delay l_p
             may differ from the plant's.
         rule: ``"second_order"``, ``"fifth_degree"`` or ``"cubature"``.
 
     Returns:
-        :class:`ClosedLoopPrediction`: expected_cost [], state mean [K+1, n] and cov [K+1, n, n],
+        [`ClosedLoopPrediction`][delayed_ilqr.prediction.ClosedLoopPrediction]: expected_cost [], state mean [K+1, n] and cov [K+1, n, n],
         and z, the moments of the whole chain (P1): mean [K+1, N] and cov [K+1, N, N] of
         z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (the clipped commands' deviations, oldest first).
         One compiled scan over time; cost per step O(n N^3) (second order), O(r^2) plant

@@ -13,7 +13,7 @@ and callable objects hide it. Without it the callables are called exactly as bef
 compiled solver does not contain the time at all.
 
 All callables are written with ``jax.numpy`` and see one time step (no batch axis). A
-:class:`Problem` is a JAX pytree: its arrays (x0, the cost's arrays or parameters, the limits) are
+[`Problem`][delayed_ilqr.Problem] is a JAX pytree: its arrays (x0, the cost's arrays or parameters, the limits) are
 data, its callables and sizes are static, so two problems that differ only in arrays share one
 compiled solver, and ``jax.vmap`` over a batch of problems works.
 """
@@ -140,33 +140,33 @@ class Problem:
         delay_steps: 0 <= l < K, the input delay in steps (tau = l dt). l >= K is refused: no
             command would act within the horizon (the LQG layer, ``lqg.DelayedLQG``, keeps
             accepting it as the reference case of its tests).
-        cost: a :class:`QuadraticCost` or :class:`GeneralCost`.
+        cost: a [`QuadraticCost`][delayed_ilqr.QuadraticCost] or [`GeneralCost`][delayed_ilqr.GeneralCost].
         noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1),
             dx = f dt + F dw: one step adds ``sqrt(dt) F xi``, xi ~ N(0, I_p), so its covariance is
             ``dt F F'``. A per-step relative noise sigma as in Todorov's discrete-time code
             (covariance ``dt^2 sigma^2 ...``) is ``F`` with sigma_u = sigma sqrt(dt):
-            :func:`delayed_ilqr.models.per_step_noise_to_diffusion`. Entered unconverted, it is
+            [`delayed_ilqr.models.per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion]. Entered unconverted, it is
             ``1 / sqrt(dt)`` times too large (10x at dt = 10 ms).
         u_min: optional [d] lower limits on the commands (a scalar for all; ``-inf`` for none).
         u_max: optional [d] upper limits on the commands (a scalar for all; ``inf`` for none).
         n_controls: d; needed only when it cannot be read from ``cost.Q`` or the limits.
         name: a label for reports.
-        metadata: optional :class:`~delayed_ilqr.models.ModelMetadata` (labels, task space, warm
+        metadata: optional [`ModelMetadata`][delayed_ilqr.models.metadata.ModelMetadata] (labels, task space, warm
             start) that studies and figures read; static data, so it must be hashable.
         time_dependent: if True, ``dynamics`` and ``noise`` take the step's time as a last
             argument, ``f(x, u, ud, t)`` and ``F(x, u, ud, t)`` with t = k dt in seconds (within
-            a step of :func:`~delayed_ilqr.simulate` with sub-steps, the sub-step's time): force
+            a step of [`simulate`][delayed_ilqr.simulate] with sub-steps, the sub-step's time): force
             fields, timed perturbations. A time-dependent cost is declared on the
-            :class:`GeneralCost`. Static: part of the compiled solver.
-        observation: optional :class:`~delayed_ilqr.Observation`, the delayed noisy sensors
-            y_k = h(x_{k-l_s}) + G v_k. With it, :func:`~delayed_ilqr.solve` adds the delayed
-            Kalman filter to the policy and :func:`~delayed_ilqr.simulate` runs the controller on
+            [`GeneralCost`][delayed_ilqr.GeneralCost]. Static: part of the compiled solver.
+        observation: optional [`Observation`][delayed_ilqr.Observation], the delayed noisy sensors
+            y_k = h(x_{k-l_s}) + G v_k. With it, [`solve`][delayed_ilqr.solve] adds the delayed
+            Kalman filter to the policy and [`simulate`][delayed_ilqr.simulate] runs the controller on
             its estimate; without it (the default) the controller sees the state.
         delay_frame: optional L with l <= L < K: the delay becomes data, the pending commands are kept in a
             frame of L slots, and problems that differ only in ``delay_steps`` <= L share one
             compiled solver, under ``jax.vmap`` too (docs/derivation.md §17, docs/sweeps.md). A
             solve then costs what a solve at delay L costs; the policy's ``delay_feedback`` has L
-            entries, of which those of the L - l commands that have acted are zero (:func:`solve`
+            entries, of which those of the L - l commands that have acted are zero ([`solve`][delayed_ilqr.solve]
             trims them when l is known). Not with ``observation``.
     """
 
@@ -304,7 +304,7 @@ class Problem:
         return Problem(**fields)
 
     def _with_delay(self, delay_steps, delay_frame) -> "Problem":
-        """:meth:`replace` of the delay and the frame alone: a copy, the callables not re-checked."""
+        """[`replace`][delayed_ilqr.Problem.replace] of the delay and the frame alone: a copy, the callables not re-checked."""
         new = object.__new__(Problem)
         new.__dict__.update(self.__dict__)
         if delay_frame is not None and isinstance(delay_steps, jax.core.Tracer):
@@ -487,7 +487,7 @@ def _delay_leaf(delay_steps):
 
 
 def _delay_from_leaf(leaf):
-    """The delay l (int32) from its leaf (:func:`_delay_leaf`); anything that is not an array of
+    """The delay l (int32) from its leaf (`_delay_leaf`); anything that is not an array of
     numbers (JAX's own placeholders) as it is."""
     dtype = getattr(leaf, "dtype", None)
     if dtype is None or not np.issubdtype(dtype, np.floating):

@@ -4,7 +4,7 @@ Format (``FORMAT_VERSION`` 1, documented in docs/guide/saving.md):
 
 - every array of the saved object is an NPZ entry named by its field path: ``x``, ``u``, ``cost``,
   ``status``, ``iterations``, ``policy.x_nominal``, ``policy.state_feedback``, ``trace.cost``, ...
-  (a :class:`~delayed_ilqr.Policy` saved alone has ``x_nominal``, ``state_feedback``, ...); a field
+  (a [`Policy`][delayed_ilqr.Policy] saved alone has ``x_nominal``, ``state_feedback``, ...); a field
   that is ``None`` has no entry;
 - the entry ``__metadata__`` is the UTF-8 bytes (uint8) of a JSON object: ``format``
   (``"delayed-ilqr"``), ``format_version``, ``library_version``, ``kind`` (``"Solution"`` or
@@ -20,7 +20,7 @@ record that gains an optional field still reads old files), an entry the class d
 error, and a ``format_version`` other than this library's is refused with the versions named.
 Everything is read with ``allow_pickle=False``: loading a file runs no code from it. A file that
 is not one of these (damaged, truncated, foreign) or whose header contradicts its arrays is one
-:class:`FileFormatError` (a ``ValueError``) naming the file and what is wrong; float arrays come
+`FileFormatError` (a ``ValueError``) naming the file and what is wrong; float arrays come
 back as float64.
 """
 from __future__ import annotations
@@ -67,14 +67,14 @@ def _flatten(record, prefix: str, arrays: dict, types: dict) -> None:
 
 
 def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
-    """Writes a :class:`~delayed_ilqr.Solution` or :class:`~delayed_ilqr.Policy` to ``path`` (``.npz``),
+    """Writes a [`Solution`][delayed_ilqr.Solution] or [`Policy`][delayed_ilqr.Policy] to ``path`` (``.npz``),
     atomically: an interrupted save leaves the old file (or none), never a truncated one.
 
     Args:
-        path: the file; ``.npz`` is appended when missing (as NumPy does; :func:`load` finds it
+        path: the file; ``.npz`` is appended when missing (as NumPy does; [`load`][delayed_ilqr.load] finds it
             under the same name).
-        obj: what to save; :func:`load` returns the same type with bitwise-equal arrays.
-        problem: optional, the :class:`~delayed_ilqr.Problem` it was solved for: its ``dt``, delay
+        obj: what to save; [`load`][delayed_ilqr.load] returns the same type with bitwise-equal arrays.
+        problem: optional, the [`Problem`][delayed_ilqr.Problem] it was solved for: its ``dt``, delay
             and name go into the header (the arrays do not hold the time step), and
             ``load(path, problem=...)`` checks a plant against them.
         info: optional JSON-serialisable dict stored in the header as ``info``.
@@ -112,14 +112,14 @@ def _with_suffix(path) -> pathlib.Path:
 
 
 def _existing(path) -> pathlib.Path:
-    """The file :func:`save` wrote for ``path``: ``path`` itself, or ``path.npz`` when ``path``
+    """The file [`save`][delayed_ilqr.saving.save] wrote for ``path``: ``path`` itself, or ``path.npz`` when ``path``
     does not exist (save appended the suffix)."""
     path = pathlib.Path(os.fspath(path))
     return path if path.exists() or path.suffix == ".npz" else _with_suffix(path)
 
 
 def load_metadata(path) -> dict:
-    """The JSON header of a file written by :func:`save` (checked: format and version).
+    """The JSON header of a file written by [`save`][delayed_ilqr.saving.save] (checked: format and version).
 
     Raises:
         FileFormatError: a ``ValueError`` naming the file and what is wrong with it.
@@ -130,14 +130,14 @@ def load_metadata(path) -> dict:
 
 
 def load(path, problem=None):
-    """Reads a file written by :func:`save` (or ``Solution.save`` / ``Policy.save``) and returns
-    what was saved, a :class:`~delayed_ilqr.Solution` or :class:`~delayed_ilqr.Policy`, with
+    """Reads a file written by [`save`][delayed_ilqr.saving.save] (or ``Solution.save`` / ``Policy.save``) and returns
+    what was saved, a [`Solution`][delayed_ilqr.Solution] or [`Policy`][delayed_ilqr.Policy], with
     float64 JAX arrays equal to the saved ones (bitwise for float64 files; a float32 file's arrays
-    are converted exactly; a scalar status comes back as a :class:`~delayed_ilqr.Status`). The
-    time step and delay are in :func:`load_metadata`.
+    are converted exactly; a scalar status comes back as a [`Status`][delayed_ilqr.Status]). The
+    time step and delay are in [`load_metadata`][delayed_ilqr.load_metadata].
 
     Args:
-        path: the file (``path.npz`` when ``path`` does not exist, as :func:`save` names it).
+        path: the file (``path.npz`` when ``path`` does not exist, as [`save`][delayed_ilqr.saving.save] names it).
         problem: optional, the plant the loaded policy is for: its horizon, states and controls
             must be the saved ones and its ``dt`` the one recorded by ``save(..., problem=)``
             (the gains are per step, so on another time step they are another controller); a file
@@ -145,7 +145,7 @@ def load(path, problem=None):
 
     Raises:
         FileFormatError: a ``ValueError`` naming the file and what is wrong: not a file of
-            :func:`save` (missing, empty, truncated, damaged, a single ``.npy`` array, text, a
+            [`save`][delayed_ilqr.saving.save] (missing, empty, truncated, damaged, a single ``.npy`` array, text, a
             pickle, another NPZ), an unknown format version or record type, a header whose kind,
             sizes or array shapes contradict the arrays, or arrays whose shapes disagree.
         ValueError: a ``problem`` that does not match the file.

@@ -1,15 +1,15 @@
-"""Monte Carlo of the nonlinear stochastic plant (eq. 1) under a delayed feedback :class:`Policy`.
+"""Monte Carlo of the nonlinear stochastic plant (eq. 1) under a delayed feedback [`Policy`][delayed_ilqr.Policy].
 
 Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-Maruyama, with
-``substeps`` sub-steps of length h = dt / substeps per control step (zero-order hold of u and ud)::
+``substeps`` sub-steps of length h = dt / substeps per control step (zero-order hold of u and ud):
 
     x <- x + h f(x, u_k, ud_k) + sqrt(h) F(x, u_k, ud_k) xi,      xi ~ N(0, I_p)
 
 (a time-dependent problem's f and F see each sub-step's own time, k dt + j h)
 
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
-terms, without the feedforward, see :class:`~delayed_ilqr.Policy`; the law is the solver's,
-``ilqg.closed_loop.delayed_law``)::
+terms, without the feedforward, see [`Policy`][delayed_ilqr.Policy]; the law is the solver's,
+``ilqg.closed_loop.delayed_law``):
 
     u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
     ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
@@ -54,7 +54,7 @@ class Runs(NamedTuple):
         x: [N, K+1, n] states (x[:, 0] = x0).
         u: [N, K, d] commands sent (the plant receives them ``problem.delay_steps`` steps later).
         cost: [N] eq. (2) of each trial, ``trajectory_cost(problem, x, u)``.
-        x_hat: None with full-state feedback; with an :class:`~delayed_ilqr.Estimator`, [N, K, n]
+        x_hat: None with full-state feedback; with an [`Estimator`][delayed_ilqr.Estimator], [N, K, n]
             the estimates x_nominal_k + E[dx_k | I_k] the commands u_k were computed from.
     """
 
@@ -66,7 +66,7 @@ class Runs(NamedTuple):
     def summary(self) -> Summary:
         """Mean and median cost with 95 % intervals; mean and covariance of x_K (only non-finite
         costs count as diverged here; studies pass the plant's bound to
-        :func:`~delayed_ilqr.statistics.summarize`)."""
+        [`summarize`][delayed_ilqr.statistics.summarize])."""
         return summarize(self.cost, self.x[:, -1])
 
 
@@ -145,7 +145,7 @@ def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, ke
 
 
 def _observed_trial_step(problem: Problem, l_p: int, ls_e: int, buffer: int, substeps: int):
-    """The scan body of one trial with delayed noisy sensors: the plant as in :func:`_trial_step`,
+    """The scan body of one trial with delayed noisy sensors: the plant as in `_trial_step`,
     the measurement y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k of the plant's sensors (l_s =
     ``problem.observation.delay_steps``; x0 before time 0), the policy's delayed filter on it
     (designed for l_s_e = ``ls_e`` and the motor delay l_p, ``lqg.estimator``) and the law on its
@@ -254,7 +254,7 @@ PEAK_FACTOR = 4
 
 
 def memory_estimate(problem: Problem, n_trials: int, substeps: int = 1) -> int:
-    """An upper bound of the bytes :func:`simulate` holds at its peak for ``n_trials`` trials:
+    """An upper bound of the bytes [`simulate`][delayed_ilqr.simulate.simulate] holds at its peak for ``n_trials`` trials:
     PEAK_FACTOR times the arrays it makes, in float64: states [N, K+1, n], commands [N, K, d],
     costs [N] and the noise samples [N, K, substeps, p]; with an observation also the estimates
     [N, K, n] and the sensory noise samples [N, K, q]."""
@@ -325,7 +325,7 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
              disturbance=None) -> Runs:
     """Monte Carlo of ``problem``'s stochastic plant under the delayed feedback law of ``policy``.
 
-    With delayed sensors (``problem.observation``) the policy's :class:`~delayed_ilqr.Estimator`
+    With delayed sensors (``problem.observation``) the policy's [`Estimator`][delayed_ilqr.Estimator]
     runs on the measurements y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k of the nonlinear plant (x0 before
     time 0) and the law acts on its estimate x_nominal_k + x_hat_k instead of x_k; the sensory noise
     v is drawn from ``jax.random.fold_in(trial_key, 1)``, so the motor noise xi of a trial is that
@@ -334,20 +334,20 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     Args:
         problem: the plant (dynamics, noise, delay ``delay_steps`` = l, limits, cost). Without
             noise (``problem.noise`` None) every trial is the same deterministic closed loop.
-        policy: the :class:`~delayed_ilqr.Policy` to run, e.g. ``solve(problem).policy``. Its
+        policy: the [`Policy`][delayed_ilqr.Policy] to run, e.g. ``solve(problem).policy``. Its
             arrays must match the problem's horizon K, states n and controls d; its delay l_p
             (``delay_feedback.shape[1]``) may differ from the plant's l.
         n_trials: N, the number of independent trials (positive int).
         seed: non-negative integer; the trials use ``jax.random.split(jax.random.PRNGKey(seed), N)``.
         substeps: Euler-Maruyama sub-steps per control step (positive int); 1 integrates at dt,
-            exactly like :func:`~delayed_ilqr.ilqg.linearize.rollout` in the noise-free case.
+            exactly like `rollout` in the noise-free case.
         disturbance: optional [K, n] array W added to every trial's state update,
             x_{k+1} = ... + W_k, and unknown to the controller (a perturbation experiment: a force
             pulse is W_k = dt f_pulse on the velocity rows). With delayed sensors, the first
             command that can respond to W_k is u_{k+1+l_s}.
 
     Returns:
-        :class:`Runs` with x [N, K+1, n], u [N, K, d], cost [N] (and x_hat [N, K, n] with an
+        [`Runs`][delayed_ilqr.Runs] with x [N, K+1, n], u [N, K, d], cost [N] (and x_hat [N, K, n] with an
         estimator); ``runs.summary()`` gives the mean
         cost, its standard error and 95 % confidence interval, the median, and the final-state
         statistics. A trial whose closed loop blows up has a non-finite cost (counted in
@@ -358,7 +358,7 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
             whose shapes do not match the problem (or a filter without sensors, sensors without a
             filter), a non-positive ``n_trials`` / ``substeps``, a seed that is not a
             non-negative integer, or a disturbance that is not a finite [K, n] array;
-            ValueError when the trials would not fit in memory (:func:`check_memory`, before
+            ValueError when the trials would not fit in memory ([`check_memory`][delayed_ilqr.simulate.check_memory], before
             anything is computed); MemoryError when an allocation fails all the same.
     """
     if not isinstance(problem, Problem):

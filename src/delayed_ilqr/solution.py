@@ -11,9 +11,9 @@ __all__ = ["Policy", "Estimator", "Status", "Trace", "Solution"]
 
 
 class Estimator:
-    """The delayed Kalman filter of a policy whose sensors are delayed and noisy (issue 20).
+    """The delayed Kalman filter of a policy whose sensors are delayed and noisy.
 
-    It runs on deviations from the policy's nominal (``docs/derivation.md`` §14)::
+    It runs on deviations from the policy's nominal (``docs/derivation.md`` §14):
 
         e_k     = (y_k - y_nominal_k) - H_k x_tilde_k                   innovation of the measurement
         x_del_k = x_tilde_k + Kd_k e_k                                  E[dx_{k-l_s} | I_k]
@@ -65,19 +65,19 @@ jax.tree_util.register_pytree_node(
 class Policy(NamedTuple):
     """A delayed feedback controller around a nominal trajectory (eq. 6 in absolute terms).
 
-    The command sent at step k is::
+    The command sent at step k is:
 
         u_k = u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l} - u_nominal_{k+i-l})
 
     where u_{k+i-l} are the commands actually sent earlier (zero, like their nominal, for negative
     indices), clipped to the problem's limits. ``feedforward`` is the LQG step that the solver would
-    take next (about zero at convergence); :func:`delayed_ilqr.simulate` does not add it.
+    take next (about zero at convergence); [`delayed_ilqr.simulate`][delayed_ilqr.simulate] does not add it.
 
     Attributes:
         x_nominal: [K+1, n]; u_nominal: [K, d]; feedforward: [K, d] I_k; state_feedback: [K, d, n]
         L_k; delay_feedback: [K, l, d, d] M_k^i (index i multiplies the command sent at k+i-l).
         estimator: None when the controller sees the state; for a problem with an
-            :class:`~delayed_ilqr.Observation`, the :class:`Estimator` whose estimate
+            [`Observation`][delayed_ilqr.Observation], the [`Estimator`][delayed_ilqr.Estimator] whose estimate
             x_nominal_k + x_hat_k replaces x_k in the law above.
     """
 
@@ -89,14 +89,14 @@ class Policy(NamedTuple):
     estimator: Optional[Estimator] = None
 
     def save(self, path, problem=None, info=None) -> None:
-        """Writes the policy to ``path`` (``.npz`` with a JSON header, :mod:`delayed_ilqr.saving`);
-        ``problem`` (optional) records its dt and delay; :func:`delayed_ilqr.load` reads it back."""
+        """Writes the policy to ``path`` (``.npz`` with a JSON header, [`delayed_ilqr.saving`][delayed_ilqr.saving]);
+        ``problem`` (optional) records its dt and delay; [`delayed_ilqr.load`][delayed_ilqr.load] reads it back."""
         from .saving import save
         save(path, self, problem, info)
 
 
 class Status(enum.IntEnum):
-    """Exit statuses of :func:`delayed_ilqr.solve`; ``Status.X.message`` says what to change.
+    """Exit statuses of [`delayed_ilqr.solve`][delayed_ilqr.solve]; ``Status.X.message`` says what to change.
 
     The two converged statuses are certified first-order points (``Options``, derivation §12);
     with noise, the others come with the nominal of lowest merit the solve met.
@@ -177,7 +177,7 @@ class Trace(NamedTuple):
 
 
 class Solution(NamedTuple):
-    """The result of :func:`delayed_ilqr.solve`.
+    """The result of [`delayed_ilqr.solve`][delayed_ilqr.solve].
 
     Attributes:
         x: [K+1, n] nominal states; u: [K, d] nominal commands.
@@ -189,11 +189,11 @@ class Solution(NamedTuple):
             only; the plant's higher-order terms can make the Monte Carlo cost of
             `simulate` many times larger (``docs/results/noise_calibration.md``),
             so measure by Monte Carlo (`delayed_ilqr.statistics.prediction_warning`).
-        status: the :class:`Status` (an IntEnum: prints as its name, compares as its code); an
+        status: the [`Status`][delayed_ilqr.Status] (an IntEnum: prints as its name, compares as its code); an
             int32 array of codes when the solve was traced (``jit``, ``vmap``).
         iterations: number of iterations run.
-        policy: the :class:`Policy` (nominal trajectory and gains at the returned nominal).
-        trace: the :class:`Trace`.
+        policy: the [`Policy`][delayed_ilqr.Policy] (nominal trajectory and gains at the returned nominal).
+        trace: the [`Trace`][delayed_ilqr.Trace].
     """
 
     x: jax.Array
@@ -207,8 +207,8 @@ class Solution(NamedTuple):
 
     def save(self, path, problem=None, info=None) -> None:
         """Writes the solution (nominal, policy, trace, status) to ``path`` (``.npz`` with a JSON
-        header, :mod:`delayed_ilqr.saving`); ``problem`` (optional) records its dt and delay;
-        :func:`delayed_ilqr.load` reads it back."""
+        header, [`delayed_ilqr.saving`][delayed_ilqr.saving]); ``problem`` (optional) records its dt and delay;
+        [`delayed_ilqr.load`][delayed_ilqr.load] reads it back."""
         from .saving import save
         save(path, self, problem, info)
 

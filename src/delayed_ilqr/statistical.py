@@ -15,7 +15,7 @@ iteration:
 2. the expected Jacobians of the Euler step x' = x + dt f(x, u, ud) over z_k ~ N(mean_k, P_k), by
    sigma points Z_i, weights w_i (the rule's, in the r = n + 2d inputs of the plant's step,
    ``prediction`` eq. P5; fifth-degree points for ``"second_order"``, whose expansion of a
-   Jacobian would need the plant's third derivatives)::
+   Jacobian would need the plant's third derivatives):
 
        x_i = x_bar_k + dx_i,  u_i = clip(u_bar_k + [L_k M_k] Z_i),  ud_i = u_bar_{k-l} + du_{k-l,i}
        A_k = sum_i w_i (I + dt f_x(x_i, u_i, ud_i)),   B0_k = sum_i w_i dt f_u(.),
@@ -32,7 +32,7 @@ iteration:
                                                                                            (SL2)
 
 The solver's feedback latch (commands held without feedback, ``docs/derivation.md`` §12) is not
-part of a Solution: :func:`solver_latch` recovers it as the commands that the pass on the nominal's
+part of a Solution: [`solver_latch`][delayed_ilqr.statistical.solver_latch] recovers it as the commands that the pass on the nominal's
 own LQG gives feedback and the solver's policy does not, grown to a fixed point (holding one
 command frees others upstream). On a linear plant SL1 is the nominal's A, B0, B1 whatever the
 distribution, and SL returns the solver's gains.
@@ -63,7 +63,7 @@ __all__ = ["StatisticalFeedback", "statistical_feedback", "expected_jacobians", 
 
 
 class StatisticalFeedback(NamedTuple):
-    """The result of :func:`statistical_feedback`.
+    """The result of [`statistical_feedback`][delayed_ilqr.statistical.statistical_feedback].
 
     Attributes:
         policy: the input policy with the SL gains: the same nominal (x_nominal [K+1, n],
@@ -77,7 +77,7 @@ class StatisticalFeedback(NamedTuple):
             model's LQG at ``policy`` (``lqg.policy_cost``).
         predicted_costs: [iterations] ``predicted_cost`` of the gains each iteration started from.
         model_costs: [iterations] ``model_cost`` of the gains each iteration started from.
-        latch: [K, d] bool, the solver's feedback latch held in every pass (:func:`solver_latch`).
+        latch: [K, d] bool, the solver's feedback latch held in every pass ([`solver_latch`][delayed_ilqr.statistical.solver_latch]).
         latch_error: [] relative difference between the input policy's feedback and the pass's
             on the nominal's LQG with that latch: round-off when the latch is recovered.
     """
@@ -212,16 +212,16 @@ def statistical_feedback(problem: Problem, policy: Policy, options: Optional[Opt
     Args:
         problem: the plant the policy was designed for, full-state feedback (no observation); a
             problem with a ``delay_frame`` is taken without it (its delay must be static).
-        policy: a :class:`~delayed_ilqr.Policy` without estimator, of the plant's delay, e.g.
+        policy: a [`Policy`][delayed_ilqr.Policy] without estimator, of the plant's delay, e.g.
             ``solve(problem).policy``.
-        options: the solver's :class:`~delayed_ilqr.Options` (its ``limit_margin``); default
+        options: the solver's [`Options`][delayed_ilqr.Options] (its ``limit_margin``); default
             ``Options()``.
         rule: the closure's rule, one of ``prediction.RULES``.
         iterations: number of SL2 iterations (>= 1; static: one compilation per value).
         relax: the relaxation of SL2 step 4, in (0, 1].
 
     Returns:
-        :class:`StatisticalFeedback`: the policy with SL gains, the last and every change, the
+        [`StatisticalFeedback`][delayed_ilqr.statistical.StatisticalFeedback]: the policy with SL gains, the last and every change, the
         closure's and the SL model's expected cost, the latch held. One compiled function: a
         ``lax.scan`` over iterations; per iteration one closure and one Jacobian pass over the
         rule's points (O(K r^2) plant Jacobians for fifth degree, r = n + 2d) and one backward pass.

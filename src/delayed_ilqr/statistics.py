@@ -1,14 +1,14 @@
 """Statistics of Monte Carlo trials, with one definition of a diverged trial used everywhere.
 
 A trial **diverged** when its cost is not finite (the closed loop blew up to inf or NaN) or exceeds
-a bound: by default :data:`DIVERGENCE_FACTOR` times the cost of not moving at all (the plant's cost
-with every command zero, :func:`divergence_bound`). A controller that does a hundred times worse
+a bound: by default `DIVERGENCE_FACTOR` times the cost of not moving at all (the plant's cost
+with every command zero, [`divergence_bound`][delayed_ilqr.statistics.divergence_bound]). A controller that does a hundred times worse
 than doing nothing has lost control of the plant; its trial carries no information about the
 controller's typical performance, and a single one makes a sample mean meaningless (a mean of
 5.8e252 is a blow-up, not an expected cost). Tables, figures and JSON records all take the diverged
-count from :func:`diverged_trials`, so they always agree.
+count from [`diverged_trials`][delayed_ilqr.statistics.diverged_trials], so they always agree.
 
-Every statistic is then computed as follows (:func:`sample_stats`):
+Every statistic is then computed as follows ([`sample_stats`][delayed_ilqr.statistics.sample_stats]):
 
 - the **mean** (and standard deviation, standard error) over the trials that did not diverge, with
   ``n_diverged`` reported next to it;
@@ -96,7 +96,7 @@ def prediction_warning(label: str, mc_mean: float, predicted: Optional[float],
 def divergence_bound(problem) -> float:
     """The cost above which a trial of ``problem``'s plant counts as diverged.
 
-    :data:`DIVERGENCE_FACTOR` times the cost (eq. 2) of the noise-free Euler trajectory with every
+    `DIVERGENCE_FACTOR` times the cost (eq. 2) of the noise-free Euler trajectory with every
     command zero, the cost of not moving at all. Where that cost is zero or not finite (a plant that
     starts at its target, or blows up by itself), no finite bound is meaningful and only non-finite
     costs count (``inf`` is returned).
@@ -125,7 +125,7 @@ class SampleStats(NamedTuple):
 
     Attributes:
         n: N.
-        n_diverged: trials that diverged (:func:`diverged_trials`), left out of the mean.
+        n_diverged: trials that diverged ([`diverged_trials`][delayed_ilqr.statistics.diverged_trials]), left out of the mean.
         mean: sample mean over the N - n_diverged other trials (NaN when every trial diverged).
         std: their sample standard deviation (ddof = 1; NaN for fewer than 2).
         standard_error: std / sqrt(N - n_diverged).
@@ -172,12 +172,12 @@ def _bootstrap_ci(kept: np.ndarray) -> tuple:
 
 
 def sample_stats(values, diverged: Optional[np.ndarray] = None) -> SampleStats:
-    """The :class:`SampleStats` of a 1-D sample [N].
+    """The [`SampleStats`][delayed_ilqr.statistics.SampleStats] of a 1-D sample [N].
 
     Args:
         values: [N] per-trial values.
         diverged: [N] bool, the trials that diverged (default: those whose value is not finite;
-            pass :func:`diverged_trials` of the costs to judge an endpoint error by the same trials).
+            pass [`diverged_trials`][delayed_ilqr.statistics.diverged_trials] of the costs to judge an endpoint error by the same trials).
     """
     v = np.asarray(values, dtype=np.float64).ravel()
     n = v.shape[0]
@@ -208,15 +208,15 @@ def sample_stats(values, diverged: Optional[np.ndarray] = None) -> SampleStats:
 
 
 class Summary(NamedTuple):
-    """Sample statistics of a Monte Carlo run (see :meth:`~delayed_ilqr.Runs.summary`).
+    """Sample statistics of a Monte Carlo run (see [`summary`][delayed_ilqr.Runs.summary]).
 
     Attributes:
         n_trials: N.
-        n_diverged: trials that diverged (:func:`diverged_trials`: cost not finite or above the bound).
+        n_diverged: trials that diverged ([`diverged_trials`][delayed_ilqr.statistics.diverged_trials]: cost not finite or above the bound).
         mean_cost: the sample mean of the per-trial cost (eq. 2) over the trials that did not diverge.
         std_cost: their sample standard deviation (ddof = 1; NaN for fewer than 2).
         standard_error: std_cost / sqrt(N - n_diverged), the standard error of ``mean_cost``.
-        ci95: (low, high), the bootstrap 95 % interval of ``mean_cost`` (see :class:`SampleStats`).
+        ci95: (low, high), the bootstrap 95 % interval of ``mean_cost`` (see [`SampleStats`][delayed_ilqr.statistics.SampleStats]).
         median_cost, median_ci95: the median cost over all trials (diverged as +inf) and its
             distribution-free 95 % interval.
         final_state_mean: [n] sample mean of x_K over the trials that did not diverge.
@@ -248,8 +248,8 @@ class Summary(NamedTuple):
 
 
 def summarize(cost, final_state, bound: float = math.inf) -> Summary:
-    """The :class:`Summary` of per-trial costs [N] and final states [N, n]; a trial whose cost is
-    above ``bound`` (e.g. :func:`divergence_bound` of the plant) or not finite diverged."""
+    """The [`Summary`][delayed_ilqr.statistics.Summary] of per-trial costs [N] and final states [N, n]; a trial whose cost is
+    above ``bound`` (e.g. [`divergence_bound`][delayed_ilqr.statistics.divergence_bound] of the plant) or not finite diverged."""
     diverged = diverged_trials(cost, bound)
     stats = sample_stats(cost, diverged)
     final_state = np.asarray(final_state, dtype=np.float64)

@@ -69,7 +69,7 @@ def packed_scan(f, init, xs, reverse: bool = False, blocks: Blocks | None = None
     compiled as one function (see ``_cpu``) and its slices cost nothing
     (docs/performance.md#pack_inputs-and-pack_outputs). The carry is passed as it is (its large
     members, such as the value matrix of the backward pass, are updated in place). ``blocks``:
-    see :class:`Blocks`.
+    see `Blocks`.
     """
     leaves, in_tree = jax.tree_util.tree_flatten(xs)
     K = leaves[0].shape[0]

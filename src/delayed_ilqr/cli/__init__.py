@@ -1,6 +1,6 @@
 """The ``delayed-ilqr`` command line: parses arguments, runs the studies of
-:mod:`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
-(:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
+`delayed_ilqr.experiments`, prints their tables and hands results to the report writer
+(`delayed_ilqr.experiments.report`) and the figures ([`delayed_ilqr.plot`][delayed_ilqr.plot]).
 
 Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``,
 ``sweep``, ``fit`` and the gallery's ``kick``, ``target-jump``, ``fitts`` and ``minimal-intervention``
@@ -9,12 +9,12 @@ still written); 2 for bad arguments (unknown model, a delay that is not a whole 
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
 in one line (``--debug`` shows the traceback); 130 (Ctrl-C) or 143 (SIGTERM) when interrupted,
-with nothing written (:mod:`.interrupts`).
+with nothing written (`interrupts`).
 
 MODEL is a built-in model (``delayed-ilqr models``) or your own factory as
 ``package.module:factory`` (imported with the current folder on the path), called like the
 built-ins as ``factory(delay=seconds, noise=bool, **params)`` and returning a
-:class:`~delayed_ilqr.Problem`; ``--param key=value`` (repeatable, the value a Python literal)
+[`Problem`][delayed_ilqr.Problem]; ``--param key=value`` (repeatable, the value a Python literal)
 adds keyword arguments and ``--dt`` sets the time step (``dt=``), so that delays that are not
 multiples of the model's default step can be studied.
 
@@ -22,9 +22,9 @@ Outputs are atomic: a command writes into a hidden folder beside ``--out`` and r
 ``--out`` at the end, with a ``manifest.json`` listing the files, the command and the version; an
 interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty ``--out`` whole.
 
-The package: :mod:`.arguments` (parameter types and the checks made before computing),
-:mod:`.output` (the atomic ``--out`` folder), one module per group of commands (:mod:`.solve`,
-:mod:`.studies`, :mod:`.fit`, :mod:`.sweep`, :mod:`.gallery`), and here the group that runs them.
+The package: `arguments` (parameter types and the checks made before computing),
+`output` (the atomic ``--out`` folder), one module per group of commands (`solve`,
+`studies`, `fit`, `sweep`, `gallery`), and here the group that runs them.
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ ERROR_EXIT = 3      # neither a usage error (2) nor a solve that did not converg
 class _Main(click.Group):
     """The command group: an error that is not click's becomes one line and exit code 3 (with
     ``--debug``, the traceback); a staging folder left by it is removed by the command. Ctrl-C
-    and SIGTERM stop the command cleanly with exit code 130 or 143 (:mod:`.interrupts`)."""
+    and SIGTERM stop the command cleanly with exit code 130 or 143 (`interrupts`)."""
 
     def main(self, args=None, **kwargs):
         if args is not None:                  # run from Python (click's test runner): exits as click does

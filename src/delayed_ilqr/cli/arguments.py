@@ -140,7 +140,7 @@ NOISE_CHOICES = ("on", "off", "human", "benchmark")
 
 def noise_option(f):
     """--noise [on|off|human|benchmark] and --no-noise: one default (on) for every command that
-    builds a model's problem; :func:`noise_value` turns them into the factory's ``noise``."""
+    builds a model's problem; `noise_value` turns them into the factory's ``noise``."""
     f = click.option("--no-noise", is_flag=True, help="The deterministic plant (the same as --noise off).")(f)
     return click.option("--noise", type=click.Choice(NOISE_CHOICES), is_flag=False, flag_value="on", default="on",
                         show_default=True,
@@ -184,7 +184,7 @@ def factory_kwargs(params, dt) -> dict:
 
 
 def build_problem(model: Model, delay: float, noise, kwargs: Optional[dict] = None, hint: str = "--delay"):
-    """The model's problem (``noise``: True, False or a preset's name, :func:`noise_value`); the
+    """The model's problem (``noise``: True, False or a preset's name, `noise_value`); the
     factory's refusal of a delay, a noise preset or a parameter becomes a usage error (exit code
     2), naming the option."""
     from ..problem import Problem

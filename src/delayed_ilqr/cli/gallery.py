@@ -96,7 +96,7 @@ def _cost_warnings(label, cost, predicted, problem) -> list:
               help="When the kick hits (s from the start).  [default: mid-movement]")
 @TRIALS
 @SEED_OPTION
-@out_option(default=None, help="Folder for kick.json, kick.md, kick.png.")
+@out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (kick.*).")
 def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out, overwrite):
     """A mid-reach kick of the hand: latency of the first command change and final error.
 
@@ -134,7 +134,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
               help="Movement time (s).")
 @TRIALS
 @SEED_OPTION
-@out_option(default=None, help="Folder for target_jump.json, target_jump.md, target_jump.png.")
+@out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (target_jump.*).")
 def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, overwrite):
     """Target jumps (Liu & Todorov 2007) at several times before the end of the reach."""
     _check(arm, delay=delay, final_time=final_time)
@@ -170,7 +170,7 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
 @click.option("--trials", type=click.IntRange(min=2), default=100, show_default=True,
               help="Monte Carlo trials per distance and movement time.")
 @SEED_OPTION
-@out_option(default=None, help="Folder for fitts.json, fitts.md, fitts.png.")
+@out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (fitts.*).")
 def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times, trials, seed, out, overwrite):
     """Fitts' law: the shortest movement time that meets the accuracy criterion, against log2(2D/W).
 

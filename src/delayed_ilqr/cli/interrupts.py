@@ -1,15 +1,15 @@
 """Ctrl-C (SIGINT) and SIGTERM while a command runs: a clean stop with the shell's exit code.
 
-While a command runs, both signals raise :class:`Interrupted` (a ``KeyboardInterrupt``) in the
+While a command runs, both signals raise `Interrupted` (a ``KeyboardInterrupt``) in the
 main thread, so that the command unwinds as for any error: the ``--out`` staging folder is removed
 and ``--out`` stays as it was (a sweep's store keeps the cells it finished). The signal is also
 recorded, so that an interrupt whose exception a library swallowed still stops the command before
-it writes its results (:func:`check`); one that lands where Python drops exceptions (a
+it writes its results (`check`); one that lands where Python drops exceptions (a
 garbage-collector callback, which JAX registers, a weakref callback or a ``__del__``: Python
 reports it to ``sys.unraisablehook``) is raised again just after, in the main thread. The process then exits with 128 + the signal's number (130
 for Ctrl-C, 143 for SIGTERM), as a shell reports a process killed by it.
 
-The real process exits with ``os._exit`` after flushing its output (:func:`exit_now`): an
+The real process exits with ``os._exit`` after flushing its output (`exit_now`): an
 interrupt can come while XLA still computes on its own threads (asynchronous dispatch,
 compilation), and the interpreter's teardown destroying JAX's objects under them can end in a
 segmentation fault. Nothing is left to tear down: the outputs are written or removed already.
@@ -56,7 +56,7 @@ def _handler(signum, frame):
 
 
 def _unraisable(previous):
-    """A ``sys.unraisablehook`` that raises an :class:`Interrupted` that Python dropped (raised in
+    """A ``sys.unraisablehook`` that raises an `Interrupted` that Python dropped (raised in
     a garbage-collector or weakref callback or a ``__del__``) again just after, in the main thread."""
     def hook(unraisable):
         if isinstance(unraisable.exc_value, Interrupted):
@@ -73,7 +73,7 @@ def _raise_again(signum: int) -> None:
 
 @contextlib.contextmanager
 def handled() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` in the block (the main thread only; the
+    """SIGINT and SIGTERM raise `Interrupted` in the block (the main thread only; the
     previous handlers are restored after it, so that running a command from Python, e.g. click's
     test runner, leaves the process's handlers as they were)."""
     _State.received, _State.deferring, _State.written = None, False, None
@@ -91,7 +91,7 @@ def handled() -> Iterator[None]:
 
 
 def check() -> None:
-    """Raises :class:`Interrupted` when a signal came (also one whose exception was lost)."""
+    """Raises `Interrupted` when a signal came (also one whose exception was lost)."""
     if _State.received is not None:
         raise Interrupted(_State.received)
 

@@ -28,8 +28,8 @@ def manifest(settings: dict, files) -> dict:
 
 
 class Output:
-    """An ``--out`` folder written atomically: :meth:`open` (before computing) checks it and
-    makes a hidden staging folder beside it; the command writes into ``staging``; :meth:`commit`
+    """An ``--out`` folder written atomically: `open` (before computing) checks it and
+    makes a hidden staging folder beside it; the command writes into ``staging``; `commit`
     adds manifest.json and renames the staging folder to ``out``, replacing an old one whole."""
 
     def __init__(self, out: Optional[pathlib.Path], overwrite: bool):

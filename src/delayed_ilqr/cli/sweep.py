@@ -1,5 +1,5 @@
 """The ``sweep`` command: solve and simulate a model on every cell of a grid over its factory's
-arguments, into a resumable store (:mod:`delayed_ilqr.sweeps`)."""
+arguments, into a resumable store ([`delayed_ilqr.sweeps`][delayed_ilqr.sweeps])."""
 from __future__ import annotations
 
 import importlib.util
@@ -36,7 +36,7 @@ def _remove_if_empty(folder) -> None:
 
 
 def _require_extra(modules: list[str]) -> None:
-    """The sweep extra's packages importable, else :class:`MissingExtra` with the install command."""
+    """The sweep extra's packages importable, else `MissingExtra` with the install command."""
     missing = [m for m in modules if importlib.util.find_spec(m) is None]
     if missing:
         raise MissingExtra(f"delayed-ilqr sweep needs the sweep extra (xarray, zarr, dask[distributed]); not installed: "

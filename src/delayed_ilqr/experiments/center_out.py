@@ -2,11 +2,11 @@
 
 For each delay and design: the reaches to ``n_targets`` hand targets on a circle around the start
 hand position are solved in one compiled, vectorised call (``jax.vmap`` of
-:func:`~delayed_ilqr.solve` over the targets, which are cost parameters,
-:func:`.engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
+[`solve`][delayed_ilqr.solve] over the targets, which are cost parameters,
+`engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
 times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s ``noise=True``).
 
-Three designs of the same plant (:mod:`.designs`; all three by default, the first two with
+Three designs of the same plant (`designs`; all three by default, the first two with
 sensors):
 
 * ``"noise-aware"`` (iLQG): designed on the noisy arm itself, so the signal-dependent
@@ -15,7 +15,7 @@ sensors):
 * ``"deterministic"`` (iLQR): designed on the noise-free arm, then run in the noise.
 * ``"statistical"``: the noise-aware design's nominal and feedforward with its feedback
   re-designed by statistical linearisation around the closed loop's predicted distribution
-  (:func:`~delayed_ilqr.statistical.statistical_feedback` with its defaults, vmapped over the
+  ([`statistical_feedback`][delayed_ilqr.statistical.statistical_feedback] with its defaults, vmapped over the
   targets; ``docs/results/noise_calibration.md`` §5.5), for the delays where the noise-aware
   design's trials leave its linearisation. Full-state feedback only (not with
   ``sensory_delay``). Its solver statistics are the noise-aware solve's (the same solve, done
@@ -70,7 +70,7 @@ class TargetResult:
 
     Attributes:
         target: [2] hand target.
-        status: the solver's :class:`~delayed_ilqr.Status` name; iterations: its iteration count.
+        status: the solver's [`Status`][delayed_ilqr.Status] name; iterations: its iteration count.
         cost: eq. (2) of the noise-free nominal.
         predicted_cost: the design's expected cost J(0) of its last LQG (for the deterministic
             design, the noise-free cost: it does not know the noise; for the statistical design,
@@ -80,8 +80,8 @@ class TargetResult:
         endpoints: [N, 2] final hand positions of the noisy trials.
         mc_error: [N] their distances from the target.
         mc_cost: [N] eq. (2) of each noisy trial.
-        diverged: [N] bool, the trials that diverged (:func:`~delayed_ilqr.statistics.diverged_trials`
-            with the plant's :func:`~delayed_ilqr.statistics.divergence_bound`); every statistic
+        diverged: [N] bool, the trials that diverged ([`diverged_trials`][delayed_ilqr.statistics.diverged_trials]
+            with the plant's [`divergence_bound`][delayed_ilqr.statistics.divergence_bound]); every statistic
             below leaves them out of its mean and spread.
         sl_change: the statistical design's last relative feedback change
             (``StatisticalFeedback.change``, near 0 at a fixed point); None for the other designs.
@@ -131,13 +131,13 @@ class DelayResult:
 
     Attributes:
         delay: tau in seconds; delay_steps: l; dt: the time step (s).
-        design: one of :data:`DESIGNS` (see the module docstring).
+        design: one of `DESIGNS` (see the module docstring).
         solve_time: seconds of the compiled batched solve of all targets (second call); for the
             statistical design, the noise-aware solve's plus the batched SL re-design's.
         first_call: seconds of the first call (compilation included), summed likewise.
-        targets: one :class:`TargetResult` per target.
-        solutions: the batched :class:`~delayed_ilqr.Solution` (leading axis: target).
-        runs: the Monte Carlo :class:`~delayed_ilqr.Runs` per target.
+        targets: one [`TargetResult`][delayed_ilqr.experiments.center_out.TargetResult] per target.
+        solutions: the batched [`Solution`][delayed_ilqr.Solution] (leading axis: target).
+        runs: the Monte Carlo [`Runs`][delayed_ilqr.Runs] per target.
         plants: the plant of each target (its metadata maps states to hand positions).
     """
 
@@ -157,7 +157,7 @@ class DelayResult:
         return take(self.solutions.policy, j)
 
 
-#: A speed maximum counts as a peak of :func:`reach_shape` when it rises this fraction of the
+#: A speed maximum counts as a peak of [`reach_shape`][delayed_ilqr.experiments.center_out.reach_shape] when it rises this fraction of the
 #: peak speed above the lower of the two minima around it (SciPy's prominence): ripples smaller
 #: than 2 % of the peak are not peaks.
 PEAK_PROMINENCE = 0.02
@@ -169,7 +169,7 @@ class ReachShape(NamedTuple):
 
     Attributes:
         speed: [K] hand speed (m/s), the hand displacement per step over dt (as plotted).
-        peaks: number of speed peaks (maxima of prominence :data:`PEAK_PROMINENCE` x the peak).
+        peaks: number of speed peaks (maxima of prominence `PEAK_PROMINENCE` x the peak).
         deviation: largest distance of the hand from the straight start-target line, over the
             start-target distance (0 for a straight path).
         peak_to_mean: peak speed over mean speed; 15/8 for the minimum-jerk profile of Flash &
@@ -205,9 +205,9 @@ def reach_shape(plant: Problem, x) -> ReachShape:
 
 
 def designs_for(names: Optional[Sequence[str]], sensory_delay: Optional[float]) -> tuple:
-    """The designs :func:`center_out` runs: ``names`` (a non-empty selection of :data:`DESIGNS`),
+    """The designs [`center_out`][delayed_ilqr.experiments.center_out.center_out] runs: ``names`` (a non-empty selection of `DESIGNS`),
     in their order, each once, checked against ``sensory_delay``; for None the default,
-    :data:`DESIGNS` with the state seen and :data:`SENSING_DESIGNS` with a ``sensory_delay``.
+    `DESIGNS` with the state seen and `SENSING_DESIGNS` with a ``sensory_delay``.
     ``ValueError`` names the rule broken."""
     if names is None:
         return DESIGNS if sensory_delay is None else SENSING_DESIGNS
@@ -226,7 +226,7 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
                geometry: str = "angle_dependent", sigma_u: float = SIGMA_U,
                designs: Optional[Sequence[str]] = None, sensory_delay: Optional[float] = None,
                progress: bool = False) -> list[DelayResult]:
-    """Runs the center-out study; one :class:`DelayResult` per delay and design (delay-major).
+    """Runs the center-out study; one [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult] per delay and design (delay-major).
 
     Args:
         delays: input delays in seconds (whole multiples of the 10 ms step).
@@ -234,20 +234,20 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
         radius: circle radius in metres (start hand position at the centre).
         n_trials: noisy trials per target; seed: their seed (target j uses seed + j, so every
             design meets the same noise).
-        options: solver options (default :data:`DEFAULT_OPTIONS`).
+        options: solver options (default `DEFAULT_OPTIONS`).
         geometry: muscle moment arms, "angle_dependent" (default) or "constant".
         sigma_u: excitation noise of the plant (the model's default 0.01, calibrated to human force
             variability, ``docs/models.md`` §4.5); the noise-aware design
             is made for it.
-        designs: a non-empty selection of :data:`DESIGNS` (default: all of them, or
-            :data:`SENSING_DESIGNS` with a ``sensory_delay``).
+        designs: a non-empty selection of `DESIGNS` (default: all of them, or
+            `SENSING_DESIGNS` with a ``sensory_delay``).
         sensory_delay: None (default): the controllers see the state. A delay in seconds (0
             allowed): they see the arm's proprioception that late through its sensory noise
             (``arm2_muscle6``'s ``sensory_delay``; each design gets the delayed Kalman filter of
             its own problem, the noise-aware one with Todorov's alternation), the sensorimotor
             loop whose noise and delay make human endpoint scatter (``docs/results/noise_calibration.md``).
         progress: a progress bar on stderr over the solves and the Monte Carlo runs (when stderr is
-            a terminal, :mod:`.progress`).
+            a terminal, `progress`).
 
     Raises:
         ValueError: an unknown design, or ``"statistical"`` with a ``sensory_delay``.

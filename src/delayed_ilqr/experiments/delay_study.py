@@ -1,25 +1,24 @@
 """Delay studies: what ignoring the delay costs, measured by Monte Carlo on the nonlinear plant.
 
 For each input delay tau the study builds the problem and evaluates controllers on the same
-(delayed, possibly noisy) plant (designs: :mod:`.designs`):
+(delayed, possibly noisy) plant (designs: `designs`):
 
-==========  =====================================================================================
-aware       ``solve(problem)``: iLQG with the delay (Theorem 1, structured backward pass)
-ignorant    ``solve(problem.replace(delay_steps=0))``: designed as if the commands acted at once,
-            then run on the delayed plant (its policy has l_p = 0, see :func:`~delayed_ilqr.simulate`)
-augmented   ``solve(problem, Options(method="augmented"))``: the state-augmentation reference
-==========  =====================================================================================
+|  |  |
+|---|---|
+| aware | ``solve(problem)``: iLQG with the delay (Theorem 1, structured backward pass) |
+| ignorant | ``solve(problem.replace(delay_steps=0))``: designed as if the commands acted at once, then run on the delayed plant (its policy has l_p = 0, see [`simulate`][delayed_ilqr.simulate]) |
+| augmented | ``solve(problem, Options(method="augmented"))``: the state-augmentation reference |
 
-Each policy is run ``n_trials`` times by :func:`~delayed_ilqr.simulate` with the same seed, so all
+Each policy is run ``n_trials`` times by [`simulate`][delayed_ilqr.simulate] with the same seed, so all
 controllers at one delay see the same noise samples (common random numbers). A result reports the
 controller's own prediction of its expected cost (``Solution.expected_cost`` of the problem it was
 designed for: for the delay-ignorant controller, the plant without delay), the Monte Carlo cost
-with 95 % intervals, the endpoint error in the model's task space (:func:`.engine.endpoint_error`:
+with 95 % intervals, the endpoint error in the model's task space (`engine.endpoint_error`:
 the hand's distance from the target for the arms, the position error for the point mass, the final
 cost for a plant without metadata), iterations and solve time.
 
-Everything here returns plain data; tables and files are :mod:`.report`'s, figures
-:mod:`delayed_ilqr.plot`'s.
+Everything here returns plain data; tables and files are `report`'s, figures
+[`delayed_ilqr.plot`][delayed_ilqr.plot]'s.
 """
 from __future__ import annotations
 
@@ -50,24 +49,24 @@ class ControllerResult:
 
     Attributes:
         model: the problem's name; delay: tau in seconds; delay_steps: l; noise: whether the plant
-            is stochastic; controller: one of :data:`CONTROLLERS`.
+            is stochastic; controller: one of `CONTROLLERS`.
         converged, status, message, iterations: from the solve (``status`` is the Status name).
         solve_time: seconds for a solve once compiled; first_solve_time: the first call's seconds
             (compilation included, about zero when an equal-shaped problem was compiled before).
         nominal_cost: eq. (2) on the controller's nominal, noise-free trajectory (on the plant it was
             designed for).
         predicted_cost: ``Solution.expected_cost``, the controller's own prediction of E[J].
-        cost: :class:`~delayed_ilqr.statistics.SampleStats` of the Monte Carlo cost on the delayed
+        cost: [`SampleStats`][delayed_ilqr.statistics.SampleStats] of the Monte Carlo cost on the delayed
             plant (mean over the trials that did not diverge, their count, median and IQR).
-        endpoint_error: SampleStats of the final endpoint error (see :func:`.engine.endpoint_error`)
+        endpoint_error: SampleStats of the final endpoint error (see `engine.endpoint_error`)
             over the same trials (the diverged ones are those of ``cost``).
         divergence_bound: the cost above which a trial diverged
-            (:func:`~delayed_ilqr.statistics.divergence_bound` of the plant; inf: only non-finite).
+            ([`divergence_bound`][delayed_ilqr.statistics.divergence_bound] of the plant; inf: only non-finite).
         endpoint_label, endpoint_unit: what the endpoint error measures, and in which unit.
-        summary: the :class:`~delayed_ilqr.statistics.Summary` of the runs (final-state statistics).
+        summary: the [`Summary`][delayed_ilqr.statistics.Summary] of the runs (final-state statistics).
         n_trials, seed, substeps: the Monte Carlo settings.
-        problem, solution, runs: the plant, the :class:`~delayed_ilqr.Solution` and the
-            :class:`~delayed_ilqr.Runs` (for figures and files; left out of :meth:`to_dict`).
+        problem, solution, runs: the plant, the [`Solution`][delayed_ilqr.Solution] and the
+            [`Runs`][delayed_ilqr.Runs] (for figures and files; left out of [`to_dict`][delayed_ilqr.experiments.delay_study.ControllerResult.to_dict]).
     """
 
     model: str
@@ -123,8 +122,8 @@ def evaluate(problem: Problem, controller: str = "aware", n_trials: int = 1000, 
 
     Args:
         problem: the (delayed, possibly noisy) plant.
-        controller: "aware", "ignorant" or "augmented" (see :data:`CONTROLLERS`).
-        n_trials: Monte Carlo trials, passed to :func:`~delayed_ilqr.simulate`.
+        controller: "aware", "ignorant" or "augmented" (see `CONTROLLERS`).
+        n_trials: Monte Carlo trials, passed to [`simulate`][delayed_ilqr.simulate].
         seed: the seed of the Monte Carlo noise.
         substeps: Euler-Maruyama sub-steps per control step.
         options: solver options; default ``Options()`` (``method`` is forced to "augmented" for the
@@ -133,7 +132,7 @@ def evaluate(problem: Problem, controller: str = "aware", n_trials: int = 1000, 
             zeros for a plant without one).
 
     Returns:
-        A :class:`ControllerResult`.
+        A [`ControllerResult`][delayed_ilqr.experiments.delay_study.ControllerResult].
     """
     if not isinstance(problem, Problem):
         raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
@@ -199,20 +198,20 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
     """For each delay, designs each controller and measures it by Monte Carlo on the delayed plant.
 
     Args:
-        model: a name in :data:`delayed_ilqr.models.REGISTRY` or a factory
+        model: a name in [`delayed_ilqr.models.REGISTRY`][delayed_ilqr.models.REGISTRY] or a factory
             ``factory(delay=seconds, noise=bool, **model_kwargs) -> Problem``.
         delays: input delays tau in seconds (each a whole number of the model's steps).
         n_trials: Monte Carlo trials per controller and delay.
         seed: the seed of every Monte Carlo run (common random numbers across controllers).
         noise: the factory's ``noise``: True (the model's default noise, the human preset of the
             arms), False (the deterministic plant) or a preset's name (e.g. ``"benchmark"``).
-        controllers: names in :data:`CONTROLLERS`, in the order to report them.
-        options: solver options (see :func:`evaluate`).
+        controllers: names in `CONTROLLERS`, in the order to report them.
+        options: solver options (see [`evaluate`][delayed_ilqr.experiments.delay_study.evaluate]).
         substeps: Euler-Maruyama sub-steps per control step.
         u_init: initial commands for every solve, or a callable ``u_init(problem)`` (default: the
-            model's, see :func:`evaluate`).
+            model's, see [`evaluate`][delayed_ilqr.experiments.delay_study.evaluate]).
         model_kwargs: further keyword arguments of the factory (e.g. ``dt``).
-        progress: show a ``tqdm`` progress bar on stderr (when it is a terminal, :mod:`.progress`).
+        progress: show a ``tqdm`` progress bar on stderr (when it is a terminal, `progress`).
         delay_frame: None (each delay compiles its solvers and its Monte Carlo), an int L, or
             "auto" (L = the longest delay in steps, when the delays differ): every problem gets
             ``delay_frame=L``, so the delays share one compilation of each (docs/derivation.md §17). Results equal the
@@ -220,7 +219,7 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
             first delay only.
 
     Returns:
-        A list of :class:`ControllerResult`, delay-major in the order given.
+        A list of [`ControllerResult`][delayed_ilqr.experiments.delay_study.ControllerResult], delay-major in the order given.
 
     Raises:
         ValueError, TypeError: for an unknown model or controller, or a delay the factory refuses

@@ -3,13 +3,13 @@
 Every study measures a controller on the plant it is given; the designs differ only in the problem
 the controller is *designed* for and in the backward pass:
 
-=============  =========================================================================
-aware          the plant itself (Theorem 1's structured backward pass)
-ignorant       the plant without its delay (``delay_steps=0``), run on the delayed plant
-augmented      the plant itself, with the state-augmentation backward pass (reference)
-noise-aware    the plant itself, noise included (iLQG: the noise enters the backward pass)
-deterministic  the plant without its noise (``noise=None``: iLQR), run in the noise
-=============  =========================================================================
+| design | the controller is designed for |
+|---|---|
+| aware | the plant itself (Theorem 1's structured backward pass) |
+| ignorant | the plant without its delay (``delay_steps=0``), run on the delayed plant |
+| augmented | the plant itself, with the state-augmentation backward pass (reference) |
+| noise-aware | the plant itself, noise included (iLQG: the noise enters the backward pass) |
+| deterministic | the plant without its noise (``noise=None``: iLQR), run in the noise |
 
 ("aware" and "noise-aware" are the same transform under the names of the two studies.)
 """
@@ -27,7 +27,7 @@ __all__ = ["Design", "REGISTRY", "design", "filter_on_plant"]
 class Design(NamedTuple):
     """One design: ``transform(plant) -> design problem``; ``method`` forces ``Options.method``;
     ``filter_on_plant``: with sensors, the estimator is designed on the plant (its noise) rather than
-    on the design problem (see :func:`filter_on_plant`)."""
+    on the design problem (see `filter_on_plant`)."""
 
     description: str
     transform: Callable[[Problem], Problem]
@@ -62,7 +62,7 @@ def design(problem: Problem, name: str, options: Optional[Options] = None) -> tu
 
     Args:
         problem: the plant.
-        name: a key of :data:`REGISTRY`.
+        name: a key of `REGISTRY`.
         options: solver options (default ``Options()``); a design with a ``method`` overrides it.
 
     Raises:

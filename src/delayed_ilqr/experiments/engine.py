@@ -3,8 +3,8 @@ policy on its plant, and the endpoint error in the model's task space.
 
 Both studies are built from these pieces: the delay study solves one design problem at a time,
 the center-out study solves the reaches to all targets in one vectorised call; both run every
-policy on its plant with :func:`~delayed_ilqr.simulate` and judge the final states in the task
-space the model's metadata names (:mod:`delayed_ilqr.models.metadata`).
+policy on its plant with [`simulate`][delayed_ilqr.simulate] and judge the final states in the task
+space the model's metadata names ([`delayed_ilqr.models.metadata`][delayed_ilqr.models.metadata]).
 """
 from __future__ import annotations
 
@@ -35,9 +35,9 @@ class Trials(NamedTuple):
     """Monte Carlo of one policy on its plant.
 
     Attributes:
-        runs: the :class:`~delayed_ilqr.Runs` (N trials).
+        runs: the [`Runs`][delayed_ilqr.Runs] (N trials).
         endpoints: [N, m] final task-space positions, or None when the model has no task space.
-        errors: [N] endpoint errors (:func:`endpoint_error`).
+        errors: [N] endpoint errors (`endpoint_error`).
     """
 
     runs: Runs
@@ -56,7 +56,7 @@ def _timed(call: Callable[[], Solution]) -> Timed:
 
 
 def timed_solve(problem: Problem, options: Optional[Options] = None, u_init=None) -> Timed:
-    """``solve(problem, u_init, options)`` timed (see :class:`Timed`)."""
+    """``solve(problem, u_init, options)`` timed (see `Timed`)."""
     return _timed(lambda: solve(problem, u_init=u_init, options=options))
 
 
@@ -68,7 +68,7 @@ _batched_solve = jax.jit(jax.vmap(solve, in_axes=(0, None, None)), static_argnum
 def solve_batch(problems: Sequence[Problem], options: Optional[Options] = None, u_init=None) -> Solution:
     """One compiled, vmapped solve of problems that differ only in their arrays (e.g. targets);
     the solution's leaves carry a leading axis over ``problems``. ``u_init`` [K, d] is shared
-    (default: the model's, :func:`~delayed_ilqr.models.metadata.default_u_init` of the first)."""
+    (default: the model's, [`default_u_init`][delayed_ilqr.models.metadata.default_u_init] of the first)."""
     if u_init is None:
         u_init = default_u_init(problems[0])
     stacked = stack(problems)
@@ -83,7 +83,7 @@ def timed_batched_solve(problems: Sequence[Problem], options: Options, u_init=No
         problems: design problems of equal structure.
         options: solver options, shared.
         u_init: initial commands [K, d] shared by all; default the model's
-            (:func:`~delayed_ilqr.models.metadata.default_u_init` of the first problem).
+            ([`default_u_init`][delayed_ilqr.models.metadata.default_u_init] of the first problem).
     """
     if u_init is None:
         u_init = default_u_init(problems[0])
@@ -93,7 +93,7 @@ def timed_batched_solve(problems: Sequence[Problem], options: Options, u_init=No
 
 def stack(trees):
     """Pytrees of equal structure (e.g. problems that differ only in their arrays) stacked on a new
-    leading axis of every leaf: the batch that ``vmap`` and :func:`take` work on."""
+    leading axis of every leaf: the batch that ``vmap`` and `take` work on."""
     return jax.tree_util.tree_map(lambda *leaves: jnp.stack(leaves), *trees)
 
 
@@ -105,7 +105,7 @@ def take(tree, j: int):
 def monte_carlo(plant: Problem, policy: Policy, n_trials: int, seed: int, substeps: int = 1,
                 disturbance=None) -> Trials:
     """Runs ``policy`` ``n_trials`` times on ``plant`` (with the disturbance W [K, n] added to every
-    trial's state update, if given) and judges the final states (:class:`Trials`)."""
+    trial's state update, if given) and judges the final states (`Trials`)."""
     runs = simulate(plant, policy, n_trials, seed=seed, substeps=substeps, disturbance=disturbance)
     final = np.asarray(runs.x[:, -1], dtype=np.float64)
     return Trials(runs, _positions(plant, final), endpoint_error(plant, final))
@@ -117,7 +117,7 @@ def _positions(problem: Problem, x) -> Optional[np.ndarray]:
 
 
 def endpoint_description(problem: Problem) -> tuple[str, str]:
-    """(label, unit) of :func:`endpoint_error` for this problem."""
+    """(label, unit) of `endpoint_error` for this problem."""
     task = task_space(problem)
     if task is None or task_target(problem) is None:
         return "final cost", ""

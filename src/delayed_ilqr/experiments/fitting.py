@@ -1,10 +1,10 @@
 """Inverse optimal control: fit a model's cost weights and noise level to measured reaches by
 gradient-based minimisation through the solver, and its delay by a profile over whole steps
-(``docs/fitting.md``; issue 24).
+(``docs/fitting.md``).
 
 The data of one condition c (a reach target, say) are the mean task-space path m_c [K+1, m] of the
 trials and the covariance C_c [m, m] of their endpoints. The model with parameters theta predicts
-both from its optimal policy (:mod:`delayed_ilqr.prediction`: the nominal's path and the exact
+both from its optimal policy ([`delayed_ilqr.prediction`][delayed_ilqr.prediction]: the nominal's path and the exact
 second moments of the linearised closed loop), and the fit minimises
 
     loss(theta) = sum_c  |m_c - m_c(theta)|^2 / ((K+1) s^2)  +  KL(C_c, C_c(theta))
@@ -13,14 +13,14 @@ second moments of the linearised closed loop), and the fit minimises
 (KL: the divergence of the Gaussian N(0, C') from N(0, C), zero only where C' = C, and blind to
 the units of the task space; s, ``mean_scale``, is the precision of a mean path, e.g. its standard
 error) by SciPy's L-BFGS-B over log theta, the gradient by reverse mode through
-:func:`delayed_ilqr.solve` (implicit differentiation, ``docs/derivation.md`` §16). All conditions
+[`delayed_ilqr.solve`][delayed_ilqr.solve] (implicit differentiation, ``docs/derivation.md`` §16). All conditions
 are solved in one vectorised call.
 
 Only ratios of the cost weights are identifiable from behaviour: scaling every weight by one factor
 leaves the optimal policy, and so every prediction, unchanged. Fix one weight (the examples fix the
 final position weight w_p) and fit the others relative to it.
 
-The delay is a whole number of steps, a static size of the problem: :func:`profile_delay` fits
+The delay is a whole number of steps, a static size of the problem: [`profile_delay`][delayed_ilqr.experiments.fitting.profile_delay] fits
 theta at each candidate delay (one compilation each) and takes the delay of the smallest loss.
 """
 from __future__ import annotations
@@ -54,7 +54,7 @@ class ReachData(NamedTuple):
 
 
 class Fit(NamedTuple):
-    """The outcome of :func:`fit`.
+    """The outcome of [`fit`][delayed_ilqr.experiments.fitting.fit].
 
     Attributes:
         params: the fitted parameters, by name (floats).
@@ -75,7 +75,7 @@ class Fit(NamedTuple):
 
 def predicted_reach(problem: Problem, solution) -> tuple:
     """(mean task-space path [K+1, m], endpoint covariance [m, m]) that ``solution`` predicts on
-    ``problem`` (:func:`delayed_ilqr.prediction.task_prediction`); differentiable."""
+    ``problem`` ([`delayed_ilqr.prediction.task_prediction`][delayed_ilqr.prediction.task_prediction]); differentiable."""
     task = task_prediction(problem, predict(problem, solution))
     return task.mean, task.cov[-1]
 
@@ -126,10 +126,10 @@ _value_and_grad = jax.jit(jax.value_and_grad(_total, has_aux=True), static_argna
 
 @dataclass(frozen=True)
 class AtDelay:
-    """``make_problem(params, condition, delay)`` at a fixed delay (seconds), as :func:`fit` takes
+    """``make_problem(params, condition, delay)`` at a fixed delay (seconds), as [`fit`][delayed_ilqr.experiments.fitting.fit] takes
     it; equal (and hashed) by value, so that fits at the same delay share a compilation. With
-    ``delay_frame`` L its problems get that frame (:func:`profile_delay`: the fits of every delay
-    then share one compilation, each passing its own delay to :func:`fit` as data)."""
+    ``delay_frame`` L its problems get that frame ([`profile_delay`][delayed_ilqr.experiments.fitting.profile_delay]: the fits of every delay
+    then share one compilation, each passing its own delay to [`fit`][delayed_ilqr.experiments.fitting.fit] as data)."""
 
     make_problem: Callable
     delay: float
@@ -151,28 +151,28 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
             ``params0`` to a traced scalar, ``condition`` is one slice of ``conditions``. Every
             condition's problem must have the same shapes (delay, horizon).
         conditions: a pytree of arrays with a leading axis C (e.g. targets [C, 2]).
-        data: the :class:`ReachData` of the C conditions, in the same order.
+        data: the [`ReachData`][delayed_ilqr.experiments.fitting.ReachData] of the C conditions, in the same order.
         params0: the starting values (positive floats), by name.
         u_init: [K, d] initial commands of every solve; default the model's
-            (:func:`~delayed_ilqr.models.metadata.default_u_init`).
+            ([`default_u_init`][delayed_ilqr.models.metadata.default_u_init]).
         mean_scale: s, the precision of the mean paths in task units (e.g. their standard error).
-        options: the solver's :class:`~delayed_ilqr.Options`.
+        options: the solver's [`Options`][delayed_ilqr.Options].
         gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
         max_iterations: L-BFGS-B's iteration limit.
         delay_steps: None, or the delay in steps at which to fit when ``make_problem``'s problems
             have a ``delay_frame``: it replaces their delay and reaches the compiled loss as
-            data, so fits at different delays share one compilation (:func:`profile_delay`).
+            data, so fits at different delays share one compilation ([`profile_delay`][delayed_ilqr.experiments.fitting.profile_delay]).
         on_evaluation: optional ``on_evaluation(count, loss)`` after each evaluation of the loss
             (a progress display).
 
     Returns:
-        A :class:`Fit`. An evaluation where a solve did not converge counts as an infinite loss
+        A [`Fit`][delayed_ilqr.experiments.fitting.Fit]. An evaluation where a solve did not converge counts as an infinite loss
         (its gradient is NaN, ``docs/derivation.md`` §16), so the line search steps back; a fit
         whose final loss is not finite has not converged.
 
     Raises:
         ValueError: naming the argument, for non-positive starting values or ``mean_scale``, and
-            for data that do not fit the model (:func:`check_reach_data`).
+            for data that do not fit the model ([`check_reach_data`][delayed_ilqr.experiments.fitting.check_reach_data]).
     """
     from scipy.optimize import minimize
 
@@ -259,7 +259,7 @@ def check_reach_data(problem: Problem, count: int, data: ReachData) -> ReachData
 def profile_delay(make_problem: Callable[[dict, object, float], Problem], delays: Sequence[float], conditions,
                   data: ReachData, params0: dict, delay_frame: bool = True, progress: bool = False,
                   **kwargs) -> tuple:
-    """Fits theta at each candidate delay (:func:`fit`; ``make_problem(params, condition, delay)``,
+    """Fits theta at each candidate delay ([`fit`][delayed_ilqr.experiments.fitting.fit]; ``make_problem(params, condition, delay)``,
     the delay in seconds) and returns (the delay of the smallest final loss, [Fit per delay]).
 
     With ``delay_frame`` (the default) the problems are built at the longest delay and put in a
@@ -312,21 +312,21 @@ def _common_frame(make_problem, delays: Sequence[float], conditions, params0: di
     return float(delays[longest]), [int(p.delay_steps) for p in problems]
 
 
-#: The arrays of a data file (:func:`save_reach_data`), by name.
+#: The arrays of a data file ([`save_reach_data`][delayed_ilqr.experiments.fitting.save_reach_data]), by name.
 DATA_ARRAYS = ("conditions", "mean", "endpoint_cov")
 
 
 def save_reach_data(path, conditions, data: ReachData) -> None:
     """Writes the data of C conditions, atomically, as the NPZ file ``path`` (that name) that
-    :func:`load_reach_data` and ``delayed-ilqr fit`` read: ``conditions`` [C, ...] (e.g. the
+    [`load_reach_data`][delayed_ilqr.experiments.fitting.load_reach_data] and ``delayed-ilqr fit`` read: ``conditions`` [C, ...] (e.g. the
     targets), ``mean`` [C, K+1, m] and ``endpoint_cov`` [C, m, m] (e.g. from
-    :func:`observed_reach` of each condition's trials)."""
+    [`observed_reach`][delayed_ilqr.experiments.fitting.observed_reach] of each condition's trials)."""
     _files.savez(path, dict(conditions=np.asarray(conditions), mean=np.asarray(data.mean),
                             endpoint_cov=np.asarray(data.endpoint_cov)))
 
 
 def load_reach_data(path) -> tuple:
-    """(conditions [C, ...], :class:`ReachData`) from a file of :func:`save_reach_data`.
+    """(conditions [C, ...], [`ReachData`][delayed_ilqr.experiments.fitting.ReachData]) from a file of [`save_reach_data`][delayed_ilqr.experiments.fitting.save_reach_data].
 
     Raises:
         ValueError: naming the file and the array, when an array is missing, the shapes do not

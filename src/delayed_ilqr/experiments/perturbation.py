@@ -1,8 +1,8 @@
-"""Perturbation experiments (issue 20, item 5): a lateral kick of the hand during a reach, and the
+"""Perturbation experiments: a lateral kick of the hand during a reach, and the
 mean corrective response against the sensory delay.
 
 Per sensory delay l_s the model gets its default sensors (``sensory_delay=``), the controller and
-the delayed filter are designed (:func:`~delayed_ilqr.solve`), and the same trials are run twice
+the delayed filter are designed ([`solve`][delayed_ilqr.solve]), and the same trials are run twice
 with the same seed (common motor and sensory noise): without and with the disturbance W, a change
 ``kick`` (m/s) of the task point's velocity at ``pulse_time``, perpendicular to the nominal movement
 there (``simulate(..., disturbance=W)``). The mean of (perturbed - unperturbed) over the trials is
@@ -34,7 +34,7 @@ class PerturbationResult(NamedTuple):
     Attributes:
         problem: the plant with its sensors; sensory_delay: l_s dt in seconds; solution: the
         observed solve; disturbance: W [K, n];
-        pulse_step: kp (W_kp enters x_{kp+1}); base, perturbed: :class:`~delayed_ilqr.Runs` with
+        pulse_step: kp (W_kp enters x_{kp+1}); base, perturbed: [`Runs`][delayed_ilqr.Runs] with
         the same seed; latency_steps: first k at which some trial's command differs (None if none);
         half_steps: first k at which the mean command response reaches half its peak (None if none).
     """
@@ -107,5 +107,5 @@ def perturbation_study(model: str, sensory_delays: Sequence[float], delay: float
 
 
 PERTURB_MODELS = ("point_mass", "arm2", "arm2_muscle6")
-"""The models :func:`lateral_kick` can perturb (a task map on x[0:2], velocities x[2:4]) and whose
+"""The models `lateral_kick` can perturb (a task map on x[0:2], velocities x[2:4]) and whose
 factories accept ``sensory_delay``."""

@@ -1,4 +1,4 @@
-"""The record of a problem that every output file carries: :func:`problem_record`.
+"""The record of a problem that every output file carries: `problem_record`.
 
 A result is only reproducible with the full problem it came from, so the command line writes this
 record into its ``manifest.json``, the JSON of each study and the header of every saved solution
@@ -23,7 +23,7 @@ _MAX_DEPTH = 6
 
 
 def problem_record(problem) -> dict:
-    """A JSON-ready dict of everything that defines ``problem`` (:class:`~delayed_ilqr.Problem`).
+    """A JSON-ready dict of everything that defines ``problem`` ([`Problem`][delayed_ilqr.Problem]).
 
     Keys: ``name``; ``dt`` (s), ``horizon`` K and ``final_time`` = K dt (s); ``delay`` (s) and
     ``delay_steps``; ``sensory_delay`` (s) and ``sensory_delay_steps`` (None without sensors);

@@ -1,8 +1,8 @@
 """The report writer: JSON records, NPZ arrays, markdown documents and figures on disk.
 
 Everything a command writes into its ``--out`` folder is built here from the engine's results and
-the strings of :mod:`.tables`; the figures come from :mod:`delayed_ilqr.plot` (made by the
-caller, saved by :func:`save_figures`).
+the strings of `tables`; the figures come from [`delayed_ilqr.plot`][delayed_ilqr.plot] (made by the
+caller, saved by `save_figures`).
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
 
 def policy_arrays(sol) -> dict:
     """The nominal, the gains and the solver trace of a solution, by NPZ name (with sensors also
-    the filter: ``estimator_<field>`` for each array of :class:`~delayed_ilqr.Estimator` and
+    the filter: ``estimator_<field>`` for each array of [`Estimator`][delayed_ilqr.Estimator] and
     ``estimator_sensory_delay``)."""
     p, t = sol.policy, sol.trace
     n = int(sol.iterations) + 1
@@ -100,10 +100,10 @@ def center_out_records(results: Sequence) -> list[dict]:
 
 def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, endpoint) -> list[str]:
     """The ``solve`` command's solution.json (settings, status, costs, endpoint error, timing, the
-    problem's record, :func:`.records.problem_record`) and solution.npz (the
-    :class:`~delayed_ilqr.Solution`: trajectory, gains, trace, in the format of
-    :mod:`delayed_ilqr.saving`, so that ``delayed_ilqr.load`` reads it; the record is in its
-    header's ``info``); ``timed`` and ``endpoint`` as in :func:`.tables.solve_summary`."""
+    problem's record, `records.problem_record`) and solution.npz (the
+    [`Solution`][delayed_ilqr.Solution]: trajectory, gains, trace, in the format of
+    [`delayed_ilqr.saving`][delayed_ilqr.saving], so that ``delayed_ilqr.load`` reads it; the record is in its
+    header's ``info``); ``timed`` and ``endpoint`` as in `tables.solve_summary`."""
     sol, solve_time, first = timed
     status = Status(int(sol.status))
     label, unit, value = endpoint
@@ -243,7 +243,7 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
 
 
 def _caption(file_name: str) -> str:
-    """The caption of a center-out figure (:data:`delayed_ilqr.plot.CAPTIONS`, by name or prefix)."""
+    """The caption of a center-out figure (`delayed_ilqr.plot.CAPTIONS`, by name or prefix)."""
     from ..plot import CAPTIONS
     for key, caption in CAPTIONS.items():
         if file_name == key or file_name.startswith(key + "_"):

@@ -1,4 +1,4 @@
-"""The sensory-delay study (issue 20, item 6): expected cost, endpoint spread and correction latency
+"""The sensory-delay study: expected cost, endpoint spread and correction latency
 against the sensory delay at a fixed motor delay, for the estimator-based design and for one that
 ignores the sensory delay.
 
@@ -6,13 +6,13 @@ Per sensory delay l_s the plant is the model with its default sensors l_s late
 (``sensory_delay=``). Both designs share iLQG's controller (the full-state design at the same
 nominal); they differ in the filter:
 
-* ``aware``: the delayed Kalman filter designed for l_s (:func:`~delayed_ilqr.solve` on the plant);
+* ``aware``: the delayed Kalman filter designed for l_s ([`solve`][delayed_ilqr.solve] on the plant);
   its ``expected_cost`` is exact on the linearisation;
 * ``ignorant``: the Kalman filter designed for l_s = 0, run on the delayed sensors, so that it
   takes y_k for a measurement of x_k (no exact cost: only the Monte Carlo).
 
 Both run the same trials (same seed: common motor and sensory noise) with and without a lateral
-kick of the hand (:mod:`.perturbation`), which gives the latency of the first command that
+kick of the hand (`perturbation`), which gives the latency of the first command that
 responds and of the half-peak of the mean command response. (The first command that *can* respond
 is u_{kp+1+l_s} for both designs; with the muscles' limits 0 <= u <= 1 a response that every trial
 clips away shows up later.)

@@ -1,8 +1,8 @@
 """Tables of the studies and of single solves, as strings: every row is built here, once.
 
-A table is a header and rows of strings (:func:`delay_study_rows`, :func:`center_out_rows`),
-formatted as aligned plain text (:func:`text_table`) or GitHub markdown (:func:`markdown_table`);
-the ``solve`` and ``simulate`` commands print two-column summaries (:func:`pairs`).
+A table is a header and rows of strings (`delay_study_rows`, `center_out_rows`),
+formatted as aligned plain text (`text_table`) or GitHub markdown (`markdown_table`);
+the ``solve`` and ``simulate`` commands print two-column summaries (`pairs`).
 
 Every study table reports the Monte Carlo cost as its mean with the bootstrap 95 % interval and its
 median (`delayed_ilqr.statistics`), beside the local (linearised) prediction
@@ -71,7 +71,7 @@ def mc_record(st, prefix: str = "MC J") -> dict:
 def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
     """One row per controller and delay: convergence, solve time, predicted and Monte Carlo costs
     (mean over the trials that did not diverge with its bootstrap 95 % interval; median and
-    inter-quartile range), diverged trials (one definition, :mod:`delayed_ilqr.statistics`) and
+    inter-quartile range), diverged trials (one definition, [`delayed_ilqr.statistics`][delayed_ilqr.statistics]) and
     the endpoint error likewise."""
     scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
     label = results[0].endpoint_label if results else "endpoint error"
@@ -116,7 +116,7 @@ def _center_out_row(r) -> list[str]:
 
 
 def center_out_rows(results: Sequence) -> Table:
-    """One row per delay and design of the center-out study (:class:`.center_out.DelayResult`):
+    """One row per delay and design of the center-out study ([`center_out.DelayResult`][delayed_ilqr.experiments.center_out.DelayResult]):
     the local (linearised) prediction averaged over the targets; the Monte Carlo cost and hand
     error over all trials of all targets (mean over the trials that did not diverge with its
     bootstrap 95 % interval, median over all); how many diverged; the spread per target."""
@@ -131,7 +131,7 @@ def records_table(records: Sequence[dict]) -> Table:
 
 
 def sweep_rows(ds) -> Table:
-    """One row per cell of a sweep's Dataset (:func:`delayed_ilqr.sweep`): its grid values, the
+    """One row per cell of a sweep's Dataset ([`delayed_ilqr.sweep`][delayed_ilqr.sweeps.sweep]): its grid values, the
     solve (status, iterations, the local (linearised) prediction E[J]) and the Monte Carlo over the
     seeds: the mean cost with its 95 % interval (one seed: its bootstrap interval; several: the
     mean of the seeds' means +/- 1.96 standard errors across seeds), the median cost and the median

@@ -13,13 +13,13 @@ Here J is minimised over the box by Bertsekas' (1982) projected Newton method, f
 
 1. the epsilon-active set A at du: commands within ``eps`` of a bound whose gradient points out;
 2. the Newton point N: the minimiser of J with the commands of A held at their bound (one backward
-   pass with :func:`~delayed_ilqr.lqg.gains.clamped_gains`, then its linear plan, :func:`linear_plan`);
+   pass with `clamped_gains`, then its linear plan, `linear_plan`);
 3. du <- the best of clip(du + s (N - du)) over the step sizes s (J is cheap: one linear rollout);
 4. stop when N lies in the box, the full step was the best and A did not change: du is then the
    minimiser over the box (KKT of the QP), and the law of step 2 has it as its plan.
 
 The law returned has the feedback of the backward pass at the final A and the feedforward that
-makes its linear plan du (:func:`plan_feedforward`): its plan lies in the box for every step size
+makes its linear plan du (`plan_feedforward`): its plan lies in the box for every step size
 alpha in [0, 1] (alpha du, as the box contains 0), so clipping in the forward pass is a second-order
 effect of the nonlinearity, and the line search's model is the model of a feasible plan.
 """

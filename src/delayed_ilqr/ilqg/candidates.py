@@ -1,5 +1,5 @@
 """The line search's candidates: the nonlinear plant in closed loop around the nominal, under the
-delayed law with the feedforward scaled by the step size alpha (``closed_loop.closed_loop_step``)::
+delayed law with the feedforward scaled by the step size alpha (``closed_loop.closed_loop_step``):
 
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 
@@ -34,7 +34,7 @@ class NominalRow(NamedTuple):
 
 
 class StepValues(NamedTuple):
-    """One step of :func:`nonlinear_step`: the state before it, the command sent and the one acting
+    """One step of `nonlinear_step`: the state before it, the command sent and the one acting
     (u_{k-l}), and the new state."""
 
     x: jax.Array
@@ -44,7 +44,7 @@ class StepValues(NamedTuple):
 
 
 def nominal_rows(problem: Problem, xs_bar, us_bar, gains: SlotGains) -> NominalRow:
-    """The :class:`NominalRow` of every step k = 0..K-1 (time-major)."""
+    """The `NominalRow` of every step k = 0..K-1 (time-major)."""
     K, nd = us_bar.shape
     return NominalRow(slot_offsets(K, problem.frame_steps, nd), xs_bar[:-1], us_bar,
                       delayed_commands(problem, us_bar), gains, problem.step_times(us_bar.dtype))
@@ -58,7 +58,7 @@ def initial_frame(problem: Problem, dtype):
 def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
     """One step of the nonlinear plant under u = clip(u_bar + du), du by the law with feedforward
     alpha I; the frame keeps the clipped deviation u - u_bar, and the plant acts on
-    u_{k-l} = u_bar_{k-l} + pending slot. Returns (y_{k+1}, :class:`StepValues`)."""
+    u_{k-l} = u_bar_{k-l} + pending slot. Returns (y_{k+1}, `StepValues`)."""
     framed = problem.delay_frame is not None
 
     def plant(x, du, du_delayed):

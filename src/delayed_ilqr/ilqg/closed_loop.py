@@ -1,25 +1,25 @@
-"""The closed loop under the delayed feedback law (eq. 6), written once::
+"""The closed loop under the delayed feedback law (eq. 6), written once:
 
     du_k = I_k + L_k dx_k + sum_i M_k^i du_{k+i-l}
 
-:func:`delayed_law` is the law on the augmented deviation z_k = [dx_k; pending_k], whose pending
+`delayed_law` is the law on the augmented deviation z_k = [dx_k; pending_k], whose pending
 part lists the commands already sent but not yet acting in the order of the feedback's columns;
 the law itself does not know that order. Two orders are in use:
 
-* the slot frame of the backward recursion (:class:`~delayed_ilqr.lqg.frame.SlotGains`): du_j sits in
+* the slot frame of the backward recursion (`SlotGains`): du_j sits in
   slot j mod l of the flat [l d] pending vector. Step k reads slot k mod l (du_{k-l}, the command
   that starts acting) and writes du_k into it, so a closed loop never shifts a buffer;
-* time order (:class:`~delayed_ilqr.lqg.Gains` and the augmented state of ``lqg.augment``):
-  pending = [du_{k-l}, ..., du_{k-1}]; :func:`augmented_feedback` lays [L, M] out in that order.
+* time order ([`Gains`][delayed_ilqr.lqg.Gains] and the augmented state of ``lqg.augment``):
+  pending = [du_{k-l}, ..., du_{k-1}]; `augmented_feedback` lays [L, M] out in that order.
 
-:func:`closed_loop_step` advances y = [x, pending] one step in the slot frame, with the plant
+`closed_loop_step` advances y = [x, pending] one step in the slot frame, with the plant
 given as a function of the command deviation. It is the step of the solver's rollouts and line
 search (``candidates.nonlinear_step``: the nonlinear plant around a nominal) and of the line
 search's model (``line_search.predicted_change``: the LQG's linear dynamics). The Monte Carlo
 ``delayed_ilqr.simulate`` runs a policy whose delay may differ from the plant's, with the pending
-commands in time order (faster under its vmap over trials): it applies :func:`delayed_law` with
-:func:`augmented_feedback`. The exact policy cost propagates moments of z instead of samples: it
-uses the law's affine form (:func:`augmented_feedback`, :func:`closed_loop_affine`).
+commands in time order (faster under its vmap over trials): it applies `delayed_law` with
+`augmented_feedback`. The exact policy cost propagates moments of z instead of samples: it
+uses the law's affine form (`augmented_feedback`, `closed_loop_affine`).
 
 This module depends on nothing but the fused products and the slot frame, so that the LQG layer can use it.
 """
@@ -74,7 +74,7 @@ def closed_loop_step(y, slot, gains: SlotGains, plant: Callable, n_states: int, 
             du_{k-l} is read at slot (k - l) mod L and du_k written at ``slot`` = (k mod L) d;
             None: du_{k-l} is at ``slot``. For a framed l = 0 the slot read holds a command that
             has acted: the plant must use du instead.
-        gains: row k of :class:`~delayed_ilqr.lqg.frame.SlotGains`: feedforward [d], feedback [d, n + l d].
+        gains: row k of `SlotGains`: feedforward [d], feedback [d, n + l d].
         plant: ``plant(x, du, du_delayed) -> (x_new, du_sent, out)``, the plant's step under the
             command deviation du_k, with du_delayed = du_{k-l} [d] (None for l = 0); du_sent is the
             deviation the frame keeps for step k (after clipping, say); ``out`` comes back as is.

@@ -4,17 +4,17 @@ A bounded solve is local, and on a swing-up whose limit forces the plant to be p
 from rest can stop at a partial swing, a true local minimum of the bounded problem (derivation
 §15). Two continuations on the limits lead elsewhere:
 
-- :func:`augmented_lagrangian_start`: the box is lifted and replaced by an augmented-Lagrangian
+- [`augmented_lagrangian_start`][delayed_ilqr.augmented_lagrangian_start]: the box is lifted and replaced by an augmented-Lagrangian
   term on the commands (Powell-Hestenes-Rockafellar), whose penalty rises over a few outer
   iterations; the first ones let the swing use commands outside the box, the later ones bring it
   back in, along a path a feasible method started at rest never sees. Its commands, clipped into
   the box, are a start for the bounded solve.
-- :func:`solve_from_starts`: the bounded problem solved at once (one ``vmap``, one compilation)
+- [`solve_from_starts`][delayed_ilqr.solve_from_starts]: the bounded problem solved at once (one ``vmap``, one compilation)
   from ``u_init``, from the solutions of looser problems clipped into the box, and from the
   augmented-Lagrangian start; the cheapest is kept.
 
 The augmented Lagrangian of the box g(u) = [u - u_max, u_min - u] <= 0 with multipliers
-nu >= 0 and penalty rho, per step and command component::
+nu >= 0 and penalty rho, per step and command component:
 
     phi(u; nu, rho) = (max(0, nu + rho g(u))^2 - nu^2) / (2 rho)
     nu <- max(0, nu + rho g(u))  after each outer iteration,   rho <- growth * rho
@@ -80,12 +80,12 @@ def lifted_problem(problem: Problem, upper, lower, rho) -> Problem:
     """``problem`` without its limits, its running cost plus the augmented-Lagrangian term phi.
 
     Args:
-        problem: a :class:`~delayed_ilqr.Problem` (any cost; with or without delay and noise).
+        problem: a [`Problem`][delayed_ilqr.Problem] (any cost; with or without delay and noise).
         upper, lower: [K, d] multipliers (>= 0) of u_k - u_max <= 0 and u_min - u_k <= 0.
         rho: the penalty (> 0), a scalar.
 
     Returns:
-        The lifted problem. Its cost is a time-dependent :class:`~delayed_ilqr.GeneralCost` whose
+        The lifted problem. Its cost is a time-dependent [`GeneralCost`][delayed_ilqr.GeneralCost] whose
         ``params`` hold ``problem.cost``, the multipliers, the penalty and the limits, so lifted
         problems that differ in these share one compiled solver.
     """
@@ -96,7 +96,7 @@ def lifted_problem(problem: Problem, upper, lower, rho) -> Problem:
 
 
 class Continuation(NamedTuple):
-    """What :func:`augmented_lagrangian_start` returns.
+    """What [`augmented_lagrangian_start`][delayed_ilqr.augmented_lagrangian_start] returns.
 
     Attributes:
         u: [K, d] the last outer iteration's commands clipped into the box: the start.
@@ -115,7 +115,7 @@ def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options |
                                outer_iterations: int = 6) -> Continuation:
     """A start for the bounded solve of ``problem``: an augmented-Lagrangian continuation on its limits.
 
-    Each outer iteration solves :func:`lifted_problem` (the box replaced by the term phi of the
+    Each outer iteration solves `lifted_problem` (the box replaced by the term phi of the
     module docstring) from the previous one's commands, then updates the multipliers
     nu <- max(0, nu + rho g(u)) and raises the penalty rho <- ``penalty_growth`` * rho. The first
     outer iteration's penalty is ``penalty``, so its swing may use commands outside the box; the
@@ -123,19 +123,19 @@ def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options |
     (penalty 1, times 10). All outer iterations run one compiled solver.
 
     Args:
-        problem: a :class:`~delayed_ilqr.Problem` with limits (any cost, delay and noise).
+        problem: a [`Problem`][delayed_ilqr.Problem] with limits (any cost, delay and noise).
         u_init: [K, d] the first outer iteration's start (default zeros; it is not clipped: the
             lifted problem has no box).
-        options: :class:`~delayed_ilqr.Options` of every inner solve (default ``Options()``).
+        options: [`Options`][delayed_ilqr.Options] of every inner solve (default ``Options()``).
         penalty: rho of the first outer iteration (> 0), in the cost's unit per squared command
             unit: small lets the first solve leave the box far, large keeps it near the box.
         penalty_growth: the factor (>= 1) that raises rho after each outer iteration.
         outer_iterations: the number of outer iterations (>= 1).
 
     Returns:
-        :class:`Continuation`: ``u`` [K, d], the last outer iteration's commands clipped into the
+        [`Continuation`][delayed_ilqr.Continuation]: ``u`` [K, d], the last outer iteration's commands clipped into the
         box, is the start to polish with ``solve(problem, u, options)`` (or one of
-        :func:`solve_from_starts`' starts); with each outer iteration's inner iterations and box
+        [`solve_from_starts`][delayed_ilqr.solve_from_starts]' starts); with each outer iteration's inner iterations and box
         violation. The number of outer iterations is fixed (no early stop, so that it runs under
         ``vmap`` over problems as it does alone); once the box holds, an outer iteration costs one
         or two inner iterations.
@@ -162,12 +162,12 @@ def augmented_lagrangian_start(problem: Problem, u_init=None, options: Options |
 
 
 class Starts(NamedTuple):
-    """What :func:`solve_from_starts` returns.
+    """What [`solve_from_starts`][delayed_ilqr.solve_from_starts] returns.
 
     Attributes:
-        solution: the cheapest :class:`~delayed_ilqr.Solution` (the batch's member ``best``):
+        solution: the cheapest [`Solution`][delayed_ilqr.Solution] (the batch's member ``best``):
             lowest ``cost``, or with noise lowest ``expected_cost``, the cost the solver minimises.
-        solutions: every start's solution, a batched :class:`~delayed_ilqr.Solution` (leading axis S).
+        solutions: every start's solution, a batched [`Solution`][delayed_ilqr.Solution] (leading axis S).
         names: S names of the starts ("u_init", "looser x2", "unbounded", "augmented Lagrangian").
         best: the index of the cheapest finite (expected) cost (an int outside ``jit`` and ``vmap``).
     """
@@ -185,23 +185,23 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
 
     The starts: ``u_init`` (default zeros: rest); for each factor s of ``looser``, the solution
     from ``u_init`` of the problem with looser limits, clipped into the box (a continuation on the
-    limit); and, with ``augmented_lagrangian``, :func:`augmented_lagrangian_start` from ``u_init``.
+    limit); and, with ``augmented_lagrangian``, [`augmented_lagrangian_start`][delayed_ilqr.augmented_lagrangian_start] from ``u_init``.
     The looser problems are solved under one ``vmap`` (their limits are data), and so are the
     bounded solves from the starts; the bounded solver is compiled once for both, the lifted one
     once for the continuation.
 
     Args:
-        problem: a :class:`~delayed_ilqr.Problem` with limits.
-        options: :class:`~delayed_ilqr.Options` of every solve (default ``Options()``).
+        problem: a [`Problem`][delayed_ilqr.Problem] with limits.
+        options: [`Options`][delayed_ilqr.Options] of every solve (default ``Options()``).
         u_init: [K, d] the first start (default zeros).
         looser: factors s > 1: the box widened s times about its centre, each two-sided component
             (components with an infinite side keep their limits); ``math.inf``: no limits at all.
-        augmented_lagrangian: add :func:`augmented_lagrangian_start` as a start.
+        augmented_lagrangian: add [`augmented_lagrangian_start`][delayed_ilqr.augmented_lagrangian_start] as a start.
         **continuation: ``penalty``, ``penalty_growth``, ``outer_iterations`` of
-            :func:`augmented_lagrangian_start`.
+            [`augmented_lagrangian_start`][delayed_ilqr.augmented_lagrangian_start].
 
     Returns:
-        :class:`Starts`: the cheapest solution, all of them, the starts' names and the winner's index.
+        [`Starts`][delayed_ilqr.Starts]: the cheapest solution, all of them, the starts' names and the winner's index.
     """
     _check_bounded(problem, "solve_from_starts")
     shape = (problem.horizon, problem.n_controls)

@@ -1,4 +1,4 @@
-"""The estimator of an observed problem, designed at the solver's returned nominal (issue 20).
+"""The estimator of an observed problem, designed at the solver's returned nominal.
 
 iLQG designs the controller with the full state, as without sensors. At the returned nominal the
 plant is linearised (eq. 3) and so are the sensors (``observation.linearized_observation``); the
@@ -38,7 +38,7 @@ def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: i
     (linearised model).
 
     Returns:
-        (:class:`~delayed_ilqr.Estimator`, the law :class:`~delayed_ilqr.lqg.Gains`, expected cost []).
+        ([`Estimator`][delayed_ilqr.Estimator], the law [`Gains`][delayed_ilqr.lqg.Gains], expected cost []).
     """
     lqg = linearize(problem, xs, us)
     obs, y_nominal = linearized_observation(problem.observation, xs)
@@ -108,7 +108,7 @@ def with_estimator(problem: Problem, sol: Solution, options: Options) -> Solutio
     """``sol`` (the full-state solve of ``problem``) with the estimator of ``problem.observation``
     in its policy (and, with signal-dependent noise, the feedback of Todorov's alternation) and
     the exact output-feedback cost as ``expected_cost``; the status is kept, unless the filter
-    came out non-finite (``Status.NON_FINITE_FILTER``, with the stand-in of :func:`_without_updates`)."""
+    came out non-finite (``Status.NON_FINITE_FILTER``, with the stand-in of `_without_updates`)."""
     status = sol.status
     out, finite = _with_estimator(problem, sol._replace(status=jnp.asarray(status)), options.max_alternations,
                                   options.tol_cost)

@@ -2,17 +2,17 @@
 of the optimality conditions at the solution (docs/derivation.md §16).
 
 The solver's nominal u* [K, d] is a root of the stationarity conditions ``F(u, theta) = 0``
-(:func:`stationarity`), theta being the problem's leaves (x0, the cost's arrays or ``params``, the
+(`stationarity`), theta being the problem's leaves (x0, the cost's arrays or ``params``, the
 limits, the fields of a dynamics or noise callable registered as a pytree, e.g. the models' noise
 scale ``sigma_u``). The tangent of u* solves
 
     dF/du du = -dF/dtheta dtheta                                                    (16.1)
 
 by GMRES on exact products with dF/du, preconditioned by the Gauss-Newton delayed LQ solve at the
-solution (:func:`preconditioner`: the structured backward pass of Theorem 1 on the linearisation,
+solution (`preconditioner`: the structured backward pass of Theorem 1 on the linearisation,
 and the linear closed loop forward). Everything else the solve returns (x, cost, the policy's
 gains, expected_cost) is a differentiable function of (u*, theta). F and these outputs are
-linearised together, once (``jax.linearize`` of :func:`_at_solution`: one rollout and one
+linearised together, once (``jax.linearize`` of `_at_solution`: one rollout and one
 differentiated backward pass), and that one linear map gives (16.1)'s right-hand side, its
 products and the outputs' tangent. Reverse mode transposes this (the Krylov solve through
 ``jax.lax.custom_linear_solve``), so a gradient costs a few backward passes, not the iterations of
@@ -24,7 +24,7 @@ leaves out). With noise, the nominal is the fixed point of "minimise cost +
 noise cost with the value Hessians S frozen" (derivation §12), F is the gradient of that merit
 with S = S(u, theta) from the backward pass at u, and dF/du is not symmetric. Commands
 at a limit with the gradient pushing outward (within the solver's margin of it, by the KKT
-conditions: :func:`fixed_commands`) are fixed there: their derivative is that of the limit.
+conditions: `fixed_commands`) are fixed there: their derivative is that of the limit.
 """
 from __future__ import annotations
 
@@ -83,9 +83,9 @@ def _effort_curvature(problem: Problem, us):
 def _held_sides(problem: Problem, us, margin: float):
     """([K, d] bool at_lo, [K, d] bool at_hi): the commands the optimality conditions (KKT) at u
     hold at their lower, resp. upper, limit. Distance alone does not decide it. A command within
-    the margin is held when the gradient G of the solver's objective (:func:`_cost_gradient`)
+    the margin is held when the gradient G of the solver's objective (`_cost_gradient`)
     pushes it outward by at least what its distance to the limit accounts for: G_out >= h dist,
-    with h the effort's curvature (:func:`_effort_curvature`). At the limit (dist = 0) that is a
+    with h the effort's curvature (`_effort_curvature`). At the limit (dist = 0) that is a
     multiplier G_out >= 0. The others are free: an interior optimum (G = 0) that merely lies
     close to a limit solves (16.1) like any other free command (derivation §16: such commands
     made the six-muscle arm's tangent wrong at 50 ms while they were held)."""
@@ -110,7 +110,7 @@ def _limit_values(problem: Problem, at_lo, at_hi):
 
 def fixed_commands(problem: Problem, us, margin: float):
     """([K, d] bool fixed, [K, d] bound): the commands held at a limit by the optimality conditions
-    at u (:func:`_held_sides`: within ``margin`` of the limit and pushed outward by the gradient),
+    at u (`_held_sides`: within ``margin`` of the limit and pushed outward by the gradient),
     and the limit's value (0 where free). These have the derivative of the limit; the others solve
     (16.1)."""
     at_lo, at_hi = _held_sides(problem, us, margin)
@@ -162,7 +162,7 @@ def _cost_gradient(problem: Problem, us, margin: float):
 
 
 def _merit_gradient(problem: Problem, xs, us, S):
-    """:func:`_cost_gradient` given u's rollout xs and the value Hessians S at u (None without noise)."""
+    """`_cost_gradient` given u's rollout xs and the value Hessians S at u (None without noise)."""
     if problem.noise is None:
         return jax.grad(lambda v: trajectory_cost(problem, rollout(problem, v), v))(us)
     merit = lambda v: trajectory_cost(problem, rollout(problem, v), v) + noise_cost(problem, xs, v, S)
@@ -170,7 +170,7 @@ def _merit_gradient(problem: Problem, xs, us, S):
 
 
 def stationarity(problem: Problem, us, fixed, bound, margin: float):
-    """F(u, theta) [K, d], zero at the solution: G (of :func:`_cost_gradient`) on the free commands,
+    """F(u, theta) [K, d], zero at the solution: G (of `_cost_gradient`) on the free commands,
     evaluated with the fixed ones at their limits, and u - limit on the fixed ones. Written so that
     dF/du is symmetric where the Hessian is: v -> [v_fixed; H_ff v_free]."""
     bound = jnp.where(fixed, bound, 0.0)
@@ -204,7 +204,7 @@ def _linear_closed_loop(lqg, gains: SlotGains):
 
 def preconditioner(lqg, fixed):
     """r [K, d] -> the Gauss-Newton solve: on the free commands the open-loop minimiser of the
-    delayed LQ model ``lqg`` at the nominal (:func:`linearize`) with linear terms -r (eq. 4:
+    delayed LQ model ``lqg`` at the nominal (`linearize`) with linear terms -r (eq. 4:
     e = -r / 2, d = 0, no noise columns c), i.e. H_GN^{-1} r over the free commands with the fixed
     ones held; r itself on the fixed ones. One structured backward pass and one linear closed loop
     per application."""
@@ -272,8 +272,8 @@ def gmres(A, b, tol: float, maxiter: int):
 def implicit_tangent(lqg, fixed, rhs, matvec, symmetric: bool):
     """du* [K, d] solving (16.1), dF/du du* = -rhs, with ``rhs`` = dF/dtheta dtheta [K, d] and
     ``matvec`` v -> dF/du v (linear), preconditioned by the Gauss-Newton solve of the model ``lqg``
-    at the nominal (:func:`preconditioner`), ``fixed`` [K, d] the held commands; NaN where the
-    Krylov solve missed :data:`RESIDUAL_CHECK`. Linear in ``rhs`` and transposable (reverse mode)."""
+    at the nominal (`preconditioner`), ``fixed`` [K, d] the held commands; NaN where the
+    Krylov solve missed `RESIDUAL_CHECK`. Linear in ``rhs`` and transposable (reverse mode)."""
     precondition = preconditioner(lqg, fixed)
 
     def checked(solved):
@@ -306,7 +306,7 @@ def implicit_tangent(lqg, fixed, rhs, matvec, symmetric: bool):
 
 def _at_solution(problem: Problem, us, at_lo, at_hi, margin: float):
     """(F [K, d], outputs) as functions of (theta, u*), linearised once for (16.1) and the outputs'
-    tangent together: F of :func:`stationarity`, and the outputs (x, cost, expected_cost, the
+    tangent together: F of `stationarity`, and the outputs (x, cost, expected_cost, the
     Policy's gains), what the tangent of a solution is the tangent of. Without limits F's rollout
     and backward pass (S) are the outputs' (u_held = u), computed once."""
     xs = rollout(problem, us)

@@ -1,7 +1,7 @@
 """The line search: candidate step sizes scored on the nonlinear plant, the merit they minimise,
 and the LQG's prediction of its change.
 
-The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear plant)::
+The candidate commands for a step size alpha are (eq. 6 applied to the nonlinear plant):
 
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 
@@ -30,16 +30,16 @@ __all__ = ["candidate_scores", "noise_cost", "merit", "predicted_change", "LineS
 
 
 def candidate_scores(problem: Problem, xs_bar, us_bar, gains: SlotGains, alphas, S):
-    """:func:`merit` of the closed-loop rollout (``candidates.closed_loop_rollout``) for every
+    """`merit` of the closed-loop rollout (``candidates.closed_loop_rollout``) for every
     alpha [A], scored as the rollouts run: (cost [A], merit [A], finite [A]), finite when every
     state stayed finite. ``S``: [K+1, n, n] value Hessians of the backward pass (None without noise).
 
     One scan carries all A loops (the step is vmapped, not the scan) and stores no trajectory:
-    each step adds its running cost (and, with noise, its term c'S c of :func:`noise_cost`) to its
+    each step adds its running cost (and, with noise, its term c'S c of `noise_cost`) to its
     loop's sums. Storing the candidates would hold A (n + d) numbers per step, several times the
     gains, and scoring them afterwards would copy them once more
     (docs/performance.md#candidates-scored-as-they-run-candidate_scores); the line
-    search rolls the best step size out again instead (:func:`line_search`).
+    search rolls the best step size out again instead (`line_search`).
     """
     noisy = problem.noise is not None
     dt = problem.dt
@@ -83,7 +83,7 @@ def merit(problem: Problem, xs, us, S, xs_bar):
     The noise columns F(x, u, ud) are evaluated at the states ``xs_bar`` of the nominal the LQG was
     built on, not at ``xs``: the model (3) freezes F's dependence on x (it has no state-dependent
     noise term), so its feedforward descends this merit, and the first-order prediction of
-    :func:`predicted_change` is exact for it. Evaluated at the candidate's own states the merit has
+    `predicted_change` is exact for it. Evaluated at the candidate's own states the merit has
     a gradient term (through dF/dx) that no step of the model accounts for; on the noisy arm the
     line search then rejected every step near the solution and the regularisation ran away
     (derivation §12).
@@ -152,8 +152,8 @@ def line_search(problem: Problem, gains: SlotGains, S, xs, us, merit_now, alphas
     """Tassa's parallel line search: all alphas at once, keep the best, accept on actual/expected > z_min.
 
     ``predicted``: the model's (a, b) of the backward pass (``lqg.structured.structured_slot_scan`` with
-    ``predict=True``, or :func:`predicted_change`). The candidates are scored as they run
-    (:func:`candidate_scores`) and the best one is rolled out again: the line search stores one
+    ``predict=True``, or `predicted_change`). The candidates are scored as they run
+    (`candidate_scores`) and the best one is rolled out again: the line search stores one
     trajectory, not one per alpha.
     """
     alphas = jnp.asarray(alphas)

@@ -1,6 +1,6 @@
-"""Eq. (3)-(4): the LQG approximation of a :class:`~delayed_ilqr.Problem` around a nominal trajectory.
+"""Eq. (3)-(4): the LQG approximation of a [`Problem`][delayed_ilqr.Problem] around a nominal trajectory.
 
-One step's model comes from JAX autodiff (reverse mode for f, forward mode for F) at (x_k, u_k, u_{k-l})::
+One step's model comes from JAX autodiff (reverse mode for f, forward mode for F) at (x_k, u_k, u_{k-l}):
 
     A = I + dt f_x,  B0 = dt f_u,  B1 = dt f_ud,  c = sqrt(dt) F,  C0 = sqrt(dt) F_u,  C1 = sqrt(dt) F_ud
 
@@ -11,7 +11,7 @@ commands only; its dependence on x is evaluated on the nominal (erratum N14). Th
 is expanded to second order in the factor-2 convention of eq. (4): d = dt l_x / 2, D = dt l_xx / 2,
 e = dt l_u / 2, E = dt l_uu / 2, N = dt l_ux / 2 for the running cost l, and the final cost alike.
 
-:func:`linearize` stores the model of every step (``vmap``); :func:`step_models` hands the solver's
+`linearize` stores the model of every step (``vmap``); `step_models` hands the solver's
 structured pass the nominal instead, and the pass linearises each step as it reaches it.
 """
 from __future__ import annotations
@@ -63,13 +63,13 @@ def noise_columns(problem: Problem, xs, us):
 
 
 def _rows(problem: Problem, xs, us):
-    """The rows (x_k, u_k, u_{k-l}, t_k) of :func:`_step` (t_k None for a time-independent problem)."""
+    """The rows (x_k, u_k, u_{k-l}, t_k) of `_step` (t_k None for a time-independent problem)."""
     return xs[:-1], us, delayed_commands(problem, us), problem.step_times(us.dtype)
 
 
 def _step(problem: Problem, row):
     """Eq. (3)-(4) at one step k < K: (A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, N) from
-    row = (x_k, u_k, u_{k-l}, t_k), shaped as one time step of :class:`~delayed_ilqr.lqg.DelayedLQG`."""
+    row = (x_k, u_k, u_{k-l}, t_k), shaped as one time step of [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG]."""
     x, u, ud, t = row
     dt, nx, nd = problem.dt, problem.n_states, problem.n_controls
     # reverse mode: f has n outputs and n + 2 d inputs, so n vector-Jacobian products instead of
@@ -110,7 +110,7 @@ def step_models(problem: Problem, xs, us) -> StepModels:
 
 def linearize(problem: Problem, xs, us) -> DelayedLQG:
     """The delayed LQG (3)-(4) around the nominal (xs [K+1, n], us [K, d]), stored: every step of
-    :func:`step_models` at once (``vmap``)."""
+    `step_models` at once (``vmap``)."""
     A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, N = jax.vmap(partial(_step, problem))(_rows(problem, xs, us))
     final = _terminal(problem, xs[-1])
     return DelayedLQG.from_traced(

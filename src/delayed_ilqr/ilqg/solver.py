@@ -11,18 +11,18 @@ One iteration, at the nominal (x_bar, u_bar) with regularisation lambda:
 4. otherwise roll out the delayed feedback law for every alpha in parallel, keep the best (scored
    as the rollouts run, then rolled out again), accept
    when actual / expected reduction > z_min; lower lambda on success, raise it on failure (Tassa's
-   schedule); stop when the best reduction is below tol_cost (relative) and :func:`first_order`
+   schedule); stop when the best reduction is below tol_cost (relative) and `first_order`
    certifies the nominal (lambda < 1e-5 and the Newton step's promise below tol_cost; met under a
    larger lambda, the next pass runs at lambda = 0 to confirm it); without noise that last
    step is not taken, and the line search is not run when the model predicts less than that.
 
 With noise and limits, commands whose feedback keeps switching on and off while the merit stalls
-in a cycle lose their feedback for good (the latch, :data:`LATCH_STALL`); with noise, a stop without
+in a cycle lose their feedback for good (the latch, `LATCH_STALL`); with noise, a stop without
 convergence returns the nominal of lowest merit seen (derivation §12).
 
 No returned policy holds NaN: when the backward pass at the final nominal gives non-finite gains,
 the last nominal whose gains were finite is returned with them (``Status.NON_FINITE_GAINS``). Under
-``jit`` or ``vmap`` the rules a concrete :class:`~delayed_ilqr.Problem` is checked against when it
+``jit`` or ``vmap`` the rules a concrete [`Problem`][delayed_ilqr.Problem] is checked against when it
 is built (a non-empty command box, a framed delay within its frame) are checked in the compiled
 solve instead, which does not run when one is broken (``Status.INVALID_TRACED_INPUT``).
 
@@ -148,7 +148,7 @@ LATCH_RECUR = 1e-2
 
 
 def first_order(o: Options, bp: BackwardPass, reg, merit_now):
-    """The first-order certificate every convergence status requires (issue 22, item 8).
+    """The first-order certificate every convergence status requires.
 
     With lambda < NEWTON_REG the feedforward is the (box-projected) Newton step of the LQG model,
     and its full step (alpha = 1) promises the merit reduction -(a + b) = g' H^-1 g / 2 (the
@@ -197,11 +197,11 @@ class _Search(NamedTuple):
 
 def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_now, may_search,
             certified, beyond_roundoff) -> _Search:
-    """The line search, where ``may_search`` and the model predicts enough; else :func:`no_step`.
+    """The line search, where ``may_search`` and the model predicts enough; else `no_step`.
 
     Without noise, a model that promises less than tol_cost |cost| for every alpha ends the solve
-    before the line search (crocoddyl's stopping test) when :func:`first_order` certifies it: the
-    step it would find is one the solver does not take (``small`` in :func:`_iteration`;
+    before the line search (crocoddyl's stopping test) when `first_order` certifies it: the
+    step it would find is one the solver does not take (``small`` in `_iteration`;
     docs/performance.md#tol_cost).
     """
     alphas = jnp.asarray(o.alphas)
@@ -220,7 +220,7 @@ def _search(problem: Problem, o: Options, bp: BackwardPass, st: _State, merit_no
 
 
 def _stop_status(o: Options, converged, small, accept, reg, all_non_finite, pd, it):
-    """The stop test: the :class:`Status` the solve ends with after this iteration, or _RUNNING."""
+    """The stop test: the [`Status`][delayed_ilqr.Status] the solve ends with after this iteration, or _RUNNING."""
     return jnp.select(
         [converged, small, ~accept & (reg > o.reg_max) & all_non_finite & pd,
          ~accept & (reg > o.reg_max), it >= o.max_iterations],
@@ -309,7 +309,7 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
 
 
 def broken_traced_rules(problem: Problem):
-    """Whether a traced field of ``problem`` breaks a rule that :class:`~delayed_ilqr.Problem`
+    """Whether a traced field of ``problem`` breaks a rule that [`Problem`][delayed_ilqr.Problem]
     checks when it is concrete (then this is a constant False): limits with u_min >= u_max (or
     NaN) in some component, a framed delay outside 0..min(L, K - 1). The solve then does not run
     (``Status.INVALID_TRACED_INPUT``)."""
@@ -323,7 +323,7 @@ def broken_traced_rules(problem: Problem):
 
 
 def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
-    """The solve that is compiled: the rollout of u_init, then :func:`_iteration` until the stop."""
+    """The solve that is compiled: the rollout of u_init, then `_iteration` until the stop."""
     invalid = broken_traced_rules(problem)
     u_init = jnp.asarray(u_init, jnp.float64)
     # (limits that break the rules would make the clipped commands NaN)
@@ -372,7 +372,7 @@ _solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_optio
 
 
 def compiled_solver(problem: Problem):
-    """The jitted ``(problem, u_init, options) -> Solution`` that :func:`solve` calls for ``problem``
+    """The jitted ``(problem, u_init, options) -> Solution`` that [`solve`][delayed_ilqr.solve] calls for ``problem``
     outside JAX transformations. A framed problem's pass keeps R whole (no deferred blocks), so it
     never needs the large products' compilation."""
     return _solve_large if problem.delay_frame is None and problem.delay_steps * problem.n_controls >= DEFER_MIN_LD \
@@ -382,7 +382,7 @@ def compiled_solver(problem: Problem):
 @cache
 def _one_after_another(options: Options):
     """``_solve`` with ``options`` as a function of (problem, u_init) whose ``vmap`` solves the
-    problems one after another (:func:`~delayed_ilqr.ilqg.batching.one_after_another`), the faster
+    problems one after another (`one_after_another`), the faster
     way on CPU. Elsewhere (GPU) ``solve`` keeps JAX's own batching."""
     return one_after_another(lambda problem, u_init: _solve(problem, u_init, options))
 
@@ -391,12 +391,12 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     """Locally-optimal delayed feedback control of ``problem`` by iLQG with input delay.
 
     Args:
-        problem: the :class:`~delayed_ilqr.Problem`.
+        problem: the [`Problem`][delayed_ilqr.Problem].
         u_init: [K, d] initial commands (default zeros, clipped to the limits).
-        options: :class:`~delayed_ilqr.Options` (default ``Options()``).
+        options: [`Options`][delayed_ilqr.Options] (default ``Options()``).
 
     Returns:
-        A :class:`~delayed_ilqr.Solution`. Failures (no descent, blow-up, iteration limit) are
+        A [`Solution`][delayed_ilqr.Solution]. Failures (no descent, blow-up, iteration limit) are
         reported in ``status`` / ``message``, never raised; a converged status is certified
         first-order (``first_order``), and a noisy solve that does not converge returns the
         nominal of lowest merit it met, with that nominal's policy (derivation §12). Works under ``jax.vmap`` over problems

@@ -1,24 +1,24 @@
-"""Signal-dependent noise with delayed sensors: Todorov's alternation, with both delays (issue 20, item 4).
+"""Signal-dependent noise with delayed sensors: Todorov's alternation, with both delays.
 
 With motor noise that grows with the command (C0, C1 != 0) the separation design of
-:mod:`.output_feedback` is not optimal: its filter assumes the noise of the nominal commands, and
+`output_feedback` is not optimal: its filter assumes the noise of the nominal commands, and
 its controller charges the noise its commands add at the full-state value function, as if the
 controller saw it at once, while an estimator sees it l_s steps late and only through noisy
 sensors. Todorov (2005) alternates between the controller for a fixed filter and the filter for a
 fixed controller. Here both delays are handled without augmenting the state, and every step is
 measured by the exact expected cost of the pair (the joint second moments of
-:func:`.output_feedback_cost`), so the cost never increases (``docs/derivation.md`` §14):
+[`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost]), so the cost never increases (``docs/derivation.md`` §14):
 
-* :func:`controller_sweep`: for a fixed filter, a backward pass of the value function of the joint
+* [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]: for a fixed filter, a backward pass of the value function of the joint
   system zeta = (a, x_hat, eps, pending) (quadratic, exact under any law). The noise a command adds
   is charged at W_k, the curvature of the cost-to-go along a disturbance the loop has not seen: the
   state cost of the l_s steps before any sensor sees it, then the value function's eps block when
   it reaches the filter. Each step's law is Todorov's: the minimiser of that step's Q-function for
   each value of what the controller knows (x_hat, pending), taking a = x_hat and E[eps | x_hat,
   pending] = 0. The pass returns the new law's exact cost (its value at time 0).
-* :func:`filter_step`: the delayed Kalman filter for the motor noise the loop actually has, E[w_k w_k']
+* [`filter_step`][delayed_ilqr.lqg.filter_step]: the delayed Kalman filter for the motor noise the loop actually has, E[w_k w_k']
   under the current pair (Todorov's filter for a fixed controller).
-* :func:`alternate`: both in turn from a starting pair (the separation design); a step is kept
+* [`alternate`][delayed_ilqr.lqg.alternate]: both in turn from a starting pair (the separation design); a step is kept
   only when the exact cost does not rise, and the alternation stops when one lowers it by less
   than ``tol`` (relative).
 
@@ -178,7 +178,8 @@ def controller_sweep(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fga
     """Todorov's controller for the fixed filter ``fgains``: one backward pass (module docstring).
 
     Args:
-        lqg, obs: the plant and its delayed sensors.
+        lqg: the plant.
+        obs: its delayed sensors.
         gains: the current law (its feedforward is kept).
         fgains: the filter, held fixed.
         free: [K, d] bool, the commands whose feedback may change (default all); the others keep
@@ -186,7 +187,7 @@ def controller_sweep(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fga
 
     Returns:
         (the new law, its exact expected cost [] as the pass computes it: the value of the joint
-        system at time 0, which equals :func:`.output_feedback_cost` of the new pair).
+        system at time 0, which equals [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost] of the new pair).
     """
     _precision.require_x64("lqg.controller_sweep")
     gains = checked_gains(lqg, gains)
@@ -252,7 +253,7 @@ def _result(s: _Loop) -> Alternation:
 @partial(jax.custom_jvp, nondiff_argnums=(5,))
 def _alternate_differentiable(lqg, obs, gains, fgains, free, max_alternations: int, tol, run):
     """The alternation as a ``while_loop`` (it stops when done); its derivative is that of the same
-    iterations as a ``scan`` (:func:`_alternate_unrolled`), which reverse mode can transpose."""
+    iterations as a ``scan`` (`_alternate_unrolled`), which reverse mode can transpose."""
     body, init = _alternation(lqg, obs, free, max_alternations, tol)
     return _result(jax.lax.while_loop(lambda s: ~s.done, body, init(gains, fgains, run)))
 
@@ -282,10 +283,10 @@ def alternate(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: Fi
               max_alternations: int = 20, tol: float = 1e-9) -> Alternation:
     """Todorov's alternation from the pair (``gains``, ``fgains``), usually the separation design.
 
-    Each alternation runs :func:`filter_step` (kept if the exact cost falls) and then
-    :func:`controller_sweep`; it stops when an alternation lowers the exact cost by less than
+    Each alternation runs [`filter_step`][delayed_ilqr.lqg.filter_step] (kept if the exact cost falls) and then
+    [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]; it stops when an alternation lowers the exact cost by less than
     ``tol`` times its value, or after ``max_alternations``. The exact cost never increases.
-    ``free`` as in :func:`controller_sweep`.
+    ``free`` as in [`controller_sweep`][delayed_ilqr.lqg.controller_sweep].
     """
     _precision.require_x64("lqg.alternate")
     gains = checked_gains(lqg, gains)

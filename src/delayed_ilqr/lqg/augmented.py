@@ -1,7 +1,7 @@
 """The independent reference: an ordinary Riccati recursion on the augmented (undelayed) state
 z_k = [dx_k, du_{k-l}, ..., du_{k-1}], per step O((n + l d)^3).
 
-Same problem and same return types as :func:`.structured.backward_pass`; the tests hold the two
+Same problem and same return types as [`structured.backward_pass`][delayed_ilqr.lqg.backward_pass]; the tests hold the two
 equal, and ``Options(method="augmented")`` solves with it. With a frame (``delay_frame`` L, the
 delay l as data) the buffer holds du_{k-L}, ..., du_{k-1} and B1, C1 read its entry L - l.
 """
@@ -81,7 +81,7 @@ def _augmented_step(carry, data, *, reg, gains_fn):
 
 
 def augmented_backward_pass(lqg: DelayedLQG, reg=0.0) -> tuple[Gains, Value]:
-    """The state-augmentation reference: same problem, same return types as :func:`backward_pass`."""
+    """The state-augmentation reference: same problem, same return types as [`backward_pass`][delayed_ilqr.lqg.backward_pass]."""
     return _augmented_backward_pass(lqg, checked_entry(lqg, reg, "lqg.augmented_backward_pass"))
 
 
@@ -93,7 +93,7 @@ def _augmented_backward_pass(lqg: DelayedLQG, reg):
 
 def augmented_scan(lqg: DelayedLQG, reg=0.0, gains_fn=unconstrained_gains, bounds=None):
     """Riccati recursion on z = [dx, du_{k-l}, ..., du_{k-1}]; ``gains_fn``/``bounds`` as in
-    :func:`.structured.structured_scan`."""
+    `structured.structured_scan`."""
     nx, nd, l = lqg.n_states, lqg.n_controls, lqg.frame_steps
     aug = augment(lqg)
     data = (aug["Az"], aug["Bz"], aug["cz"], aug["Cz"], aug["Cu"], lqg.d_tilde[:-1], aug["dz"][:-1],

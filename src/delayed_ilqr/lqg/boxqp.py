@@ -1,6 +1,6 @@
 """Box-constrained quadratic programming by projected Newton, in pure JAX.
 
-Solves::
+Solves:
 
     minimise    0.5 x' H x + g' x
     subject to  lower <= x <= upper          (elementwise; bounds may be -inf / +inf)
@@ -34,7 +34,7 @@ Fixed shapes: the free set is a boolean mask, never a gather. The "free Hessian"
 ``where(free_i & free_j, H, I)`` -- block-diagonal (after a permutation) with the free block
 and an identity on the clamped dimensions -- so its Cholesky factor always exists when
 ``H_ff`` is PD and solves against it are masked. Both loops are ``jax.lax.while_loop``, so
-:func:`box_qp` can be jitted, vmapped (batched while loops), and called inside ``lax.scan``.
+`box_qp` can be jitted, vmapped (batched while loops), and called inside ``lax.scan``.
 
 Differences from ``boxQP.m`` (all deliberate, none affecting the minimiser):
 
@@ -47,7 +47,7 @@ Differences from ``boxQP.m`` (all deliberate, none affecting the minimiser):
   on the last allowed iteration with 1).
 * Non-finite entries of the clipped ``x_init`` are replaced by ``clip(0, lower, upper)``.
 
-The factor itself is not returned: use :func:`free_solve` with the returned ``free`` mask to
+The factor itself is not returned: use `free_solve` with the returned ``free`` mask to
 get ``-H_ff^{-1} rhs_f`` (e.g. the feedback gains of control-limited DDP).
 """
 from __future__ import annotations
@@ -67,7 +67,7 @@ __all__ = [
     "STATUS_MESSAGES",
 ]
 
-#: Human-readable meaning of :attr:`BoxQPResult.status` (the codes of ``boxQP.m``).
+#: Human-readable meaning of `BoxQPResult.status` (the codes of ``boxQP.m``).
 STATUS_MESSAGES = {
     -1: "Hessian is not positive definite",
     0: "No descent direction found",
@@ -81,18 +81,18 @@ STATUS_MESSAGES = {
 
 
 class BoxQPResult(NamedTuple):
-    """Result of :func:`box_qp` (batched leading axes under ``vmap``).
+    """Result of `box_qp` (batched leading axes under ``vmap``).
 
     Attributes:
         x: ``[d]`` the minimiser of ``0.5 x'Hx + g'x`` subject to ``lower <= x <= upper``.
         free: ``[d]`` bool, True where no bound is active at ``x`` (i.e. NOT
             ``(x == lower & grad > 0) | (x == upper & grad < 0)``); these are the feedback rows
-            a control-limited DDP caller keeps (see :func:`free_solve`).
+            a control-limited DDP caller keeps (see `free_solve`).
         status: int scalar, as ``boxQP.m``: -1 Hessian not PD on the free set, 0 no descent
             direction, 1 max iterations, 2 max line-search steps, 3 no finite bounds (exact
             Newton point), 4 improvement below tolerance, 5 free gradient below tolerance,
             6 all dimensions clamped. 3-6 are successful terminations. See
-            :data:`STATUS_MESSAGES`.
+            `STATUS_MESSAGES`.
         iterations: int scalar, number of accepted projected-Newton steps.
     """
 
@@ -129,7 +129,7 @@ def free_solve(H: jax.Array, free: jax.Array, rhs: jax.Array) -> jax.Array:
 
     Args:
         H: ``[d, d]`` symmetric matrix, positive definite on the free block.
-        free: ``[d]`` bool mask (e.g. :attr:`BoxQPResult.free`).
+        free: ``[d]`` bool mask (e.g. `BoxQPResult.free`).
         rhs: ``[d]`` or ``[d, m]``; its clamped rows are ignored.
 
     Returns:
@@ -283,7 +283,7 @@ def box_qp(
         armijo: fraction of the linear decrease the line search requires (0.1).
 
     Returns:
-        :class:`BoxQPResult` ``(x, free, status, iterations)``. With status -1 (``H`` not PD on
+        `BoxQPResult` ``(x, free, status, iterations)``. With status -1 (``H`` not PD on
         the free set) ``x`` is the last iterate (finite; the clipped ``x_init`` when no bound
         is finite) and no exception is raised.
     """

@@ -1,9 +1,9 @@
-"""The delayed Kalman filter, structured like the controller: no state augmentation (issue 20, item 1).
+"""The delayed Kalman filter, structured like the controller: no state augmentation.
 
 The information for du_k is dy_{l_s..k} (measurements of dx_0..dx_{k-l_s}), the commands already
 sent and dx_0 = 0. So the filter is an ordinary Kalman filter *in delayed time* j = k - l_s, whose
 estimate E[dx_{k-l_s} | I_k] is carried forward l_s steps with the linearised dynamics and the
-commands already sent (``docs/derivation.md`` §14)::
+commands already sent (``docs/derivation.md`` §14):
 
     x_tilde_k = A_{k-l_s-1} x_del_{k-1} + B0 du_{k-l_s-1} + B1 du_{k-l_s-1-l}    predicted dx_{k-l_s}
     e_k       = dy_k - H_k x_tilde_k                                             innovation
@@ -161,7 +161,7 @@ def delayed_kalman(lqg: DelayedLQG, obs: DelayedObservation, process_cov=None,
         measurement_cov: [K, m, m] covariance of the sensory noise; default G G'.
 
     Returns:
-        (:class:`FilterGains`, :class:`FilterCovariances`).
+        ([`FilterGains`][delayed_ilqr.lqg.FilterGains], [`FilterCovariances`][delayed_ilqr.lqg.FilterCovariances]).
     """
     _precision.require_x64("lqg.delayed_kalman")
     Q = _process_cov(lqg) if process_cov is None else jnp.asarray(process_cov)

@@ -1,8 +1,8 @@
 """The exact expected cost of any affine delayed policy, and Monte Carlo of the linear system.
 
-:func:`policy_cost` propagates the mean and second moment of the augmented state z_k (no sampling):
-the reference that every backward pass's J(0) is checked against; :func:`closed_loop_moments`
-returns those moments. :func:`simulate_lqg` estimates
+[`policy_cost`][delayed_ilqr.lqg.policy_cost] propagates the mean and second moment of the augmented state z_k (no sampling):
+the reference that every backward pass's J(0) is checked against; [`closed_loop_moments`][delayed_ilqr.lqg.closed_loop_moments]
+returns those moments. [`simulate_lqg`][delayed_ilqr.lqg.simulate_lqg] estimates
 the same expectation by sampling the noise.
 """
 from __future__ import annotations
@@ -93,8 +93,8 @@ def _policy_cost(lqg: DelayedLQG, gains: Gains):
 
 
 def closed_loop_moments(lqg: DelayedLQG, gains: Gains) -> Moments:
-    """The exact :class:`Moments` of the augmented state under the affine delayed policy ``gains``
-    on ``lqg`` (the propagation of :func:`policy_cost`, control-dependent noise included), from
+    """The exact [`Moments`][delayed_ilqr.lqg.Moments] of the augmented state under the affine delayed policy ``gains``
+    on ``lqg`` (the propagation of [`policy_cost`][delayed_ilqr.lqg.policy_cost], control-dependent noise included), from
     z_0 = 0. Differentiable (a scan); not validated, for use inside traced code
     (``delayed_ilqr.prediction``)."""
     return _moments_and_cost(lqg, gains)[0]

@@ -9,12 +9,12 @@ and a rollout writes one slot per step instead of shifting a buffer.
 
 With a frame of L >= l slots and the delay l as data (``delay_frame``, docs/derivation.md §17),
 du_j lives in slot j mod L and the command acting at step k, du_{k-l}, in slot (k - l) mod L
-(:func:`acting_offset`); the other L - l slots hold commands that have acted, with zero blocks
+(`acting_offset`); the other L - l slots hold commands that have acted, with zero blocks
 and zero gains, and for l = L the two slots coincide as above.
 
-Eq. (6)'s order and the slot order differ by a rotation that depends on k: :func:`pending_order`
-gives the permutation, :func:`to_slots` / :func:`from_slots` convert gains and
-:func:`value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
+Eq. (6)'s order and the slot order differ by a rotation that depends on k: `pending_order`
+gives the permutation, `to_slots` / `from_slots` convert gains and
+`value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
 slot offset is 0.
 """
 from __future__ import annotations
@@ -76,7 +76,7 @@ def pending_order(k, l: int, nd: int):
 
 
 def to_slots(gains: Gains) -> SlotGains:
-    """:class:`Gains` -> :class:`SlotGains`: M_k^i multiplies du_{k+i-l}, which is in slot (k+i) mod l."""
+    """[`Gains`][delayed_ilqr.lqg.Gains] -> `SlotGains`: M_k^i multiplies du_{k+i-l}, which is in slot (k+i) mod l."""
     I, L, M = gains
     K, l, nd = M.shape[:3]
     i_of_slot = (jnp.arange(l)[None, :] - jnp.arange(K)[:, None]) % l           # [K, l]
@@ -85,7 +85,7 @@ def to_slots(gains: Gains) -> SlotGains:
 
 
 def from_slots(gains: SlotGains, n_states: int) -> Gains:
-    """:class:`SlotGains` -> :class:`Gains` (one gather over all steps)."""
+    """`SlotGains` -> [`Gains`][delayed_ilqr.lqg.Gains] (one gather over all steps)."""
     I, F = gains
     K, nd = I.shape
     l = (F.shape[2] - n_states) // nd

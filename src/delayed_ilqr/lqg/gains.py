@@ -1,6 +1,6 @@
 """Gain rules: how one step of a backward pass turns its quadratic in du into the law's gains.
 
-Every backward pass (structured, augmented, the readable :mod:`.stage`) minimises, at each step,
+Every backward pass (structured, augmented, the readable `stage`) minimises, at each step,
 
     du'H du + 2 du'(g + G y)        over du,   y = the step's other variables ([dx; pending])
 
@@ -43,7 +43,7 @@ def boxed_gains(H, reg, g, G, bounds, warm, margin=0.0):
     clamped commands.
 
     Commands whose nominal lies at a bound, or within ``margin * (upper - lower)`` of one (lower or
-    upper within that distance of du = 0; :func:`margin_width`), get no feedback either, even when the QP frees them to
+    upper within that distance of du = 0; `margin_width`), get no feedback either, even when the QP frees them to
     move inward (an epsilon-active set, as in Bertsekas' projected Newton method). Their feedback would
     push them outside as often as inside, the forward pass clips it, and the steps upstream, which
     were planned on that feedback, then miss: the first-order prediction fails for every step

@@ -1,8 +1,8 @@
-"""The delayed LQG problem of eq. (3)-(4), as a whole (:class:`DelayedLQG`) and step by step
-(:class:`Stage`, :class:`StepModels`), and the two results of solving it (:class:`Gains`,
-:class:`Value`).
+"""The delayed LQG problem of eq. (3)-(4), as a whole ([`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG]) and step by step
+(`Stage`, `StepModels`), and the two results of solving it ([`Gains`][delayed_ilqr.lqg.Gains],
+[`Value`][delayed_ilqr.lqg.Value]).
 
-The system, in deviations from a nominal trajectory (time-major arrays, k = 0..K-1)::
+The system, in deviations from a nominal trajectory (time-major arrays, k = 0..K-1):
 
     dx_{k+1} = A_k dx_k + B0_k du_k + B1_k du_{k-l} + sum_j xi_{k,j} (c_{k,j} + C0_{k,j} du_k + C1_{k,j} du_{k-l})
     cost_k   = d_tilde_k + 2 dx_k'd_k + dx_k'D_k dx_k + 2 du_k'e_k + du_k'E_k du_k          (eq. 4)
@@ -27,7 +27,7 @@ __all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models
 
 
 class Stage(NamedTuple):
-    """One step k < K of the delayed LQG, eq. (3)-(4): the fields of :class:`DelayedLQG` at row k.
+    """One step k < K of the delayed LQG, eq. (3)-(4): the fields of [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG] at row k.
 
     Attributes:
         A: [n, n]; B0, B1: [n, d]; c: [p, n]; C0, C1: [p, n, d]; d_tilde: []; d: [n]; D: [n, n];
@@ -250,9 +250,9 @@ def stacked_dynamics(lqg: DelayedLQG):
 class StepModels(NamedTuple):
     """The delayed LQG given step by step, for the structured pass to build as it goes.
 
-    ``model(row)`` returns step k's :class:`Stage` (or the same twelve arrays as a plain tuple),
+    ``model(row)`` returns step k's `Stage` (or the same twelve arrays as a plain tuple),
     from row k of ``rows`` (a time-major pytree of K rows); ``terminal`` is (d_tilde_K, d_K, D_K).
-    :func:`stored_models` makes one from a :class:`DelayedLQG` (its rows are the model's arrays);
+    `stored_models` makes one from a [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG] (its rows are the model's arrays);
     ``ilqg.linearize.step_models`` makes one whose rows are the nominal (x_k, u_k, u_{k-l}), linearised
     inside the pass, so that the solver never stores the model (docs/performance.md#stepmodels).
     """
@@ -279,7 +279,7 @@ class StepModels(NamedTuple):
 
 
 def stored_models(lqg: DelayedLQG) -> StepModels:
-    """:class:`StepModels` of a stored :class:`DelayedLQG`: row k is its :class:`Stage` k."""
+    """`StepModels` of a stored [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG]: row k is its `Stage` k."""
     rows = Stage(lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e,
                  lqg.E, lqg.N)
     return StepModels(lambda row: row, rows, (lqg.d_tilde[-1], lqg.d[-1], lqg.D[-1]), lqg.delay_steps,
@@ -295,7 +295,7 @@ def idle_stage(stage: Stage) -> Stage:
 
 
 def checked_entry(lqg, reg, where: str):
-    """The checks of the public LQG entry points: ``lqg`` a :class:`DelayedLQG`, ``reg`` a finite
+    """The checks of the public LQG entry points: ``lqg`` a [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG], ``reg`` a finite
     lambda >= 0 (a traced one passes as it is); returns ``reg``."""
     if not isinstance(lqg, DelayedLQG):
         raise TypeError(f"{where}: lqg must be a delayed_ilqr.lqg.DelayedLQG; got {type(lqg).__name__}")

@@ -1,4 +1,4 @@
-"""The linear delayed observation model of the sensorimotor loop (issue 20), in deviations::
+"""The linear delayed observation model of the sensorimotor loop, in deviations:
 
     dy_k = H_k dx_{k-l_s} + G_k v_k,    v_k ~ N(0, I_q),    k = l_s..K-1
 

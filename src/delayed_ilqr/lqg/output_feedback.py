@@ -1,13 +1,13 @@
-"""Output feedback for the delayed LQG with delayed, noisy sensors (issue 20, items 2-3).
+"""Output feedback for the delayed LQG with delayed, noisy sensors.
 
-The policy is Theorem 1's law acting on the delayed filter's estimate::
+The policy is Theorem 1's law acting on the delayed filter's estimate:
 
     du_k = I_k + L_k x_hat_k + sum_i M_k^i du_{k+i-l},      x_hat_k = E[dx_k | I_k]  (.estimator)
 
-* :func:`separation_design`: the law of :func:`.backward_pass` plus :func:`.delayed_kalman`. With
+* [`separation_design`][delayed_ilqr.lqg.separation_design]: the law of [`backward_pass`][delayed_ilqr.lqg.backward_pass] plus [`delayed_kalman`][delayed_ilqr.lqg.delayed_kalman]. With
   additive noise this is the optimal causal policy (separation), and its expected cost is
-  J(0) + sum_k tr(L_k' H_k L_k Sigma_k) (:func:`separation_cost`; ``docs/derivation.md`` §14).
-* :func:`output_feedback_cost`: the exact expected cost of *any* controller-estimator pair, by the
+  J(0) + sum_k tr(L_k' H_k L_k Sigma_k) ([`separation_cost`][delayed_ilqr.lqg.separation_cost]; ``docs/derivation.md`` §14).
+* [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost]: the exact expected cost of *any* controller-estimator pair, by the
   second moments of the joint system zeta_k = (a_k, x_hat_k, eps_k, pending commands), 3n + l d
   entries, whatever l_s (§14): a_k is the filter's own prediction Phi_k x_del_k + (commands in
   flight), eps_k = dx_{k-l_s} - x_del_k, and dx_k = a_k + Phi_k eps_k + eta_k with eta_k, the noise
@@ -43,10 +43,10 @@ class OutputFeedback(NamedTuple):
     """A controller-estimator pair and what it costs.
 
     Attributes:
-        gains: the law (6) on the estimate (:class:`~.model.Gains`).
-        filter_gains: the delayed filter (:class:`~.estimator.FilterGains`).
-        value: the full-state cost-to-go of ``gains`` (:class:`~.model.Value`).
-        covariances: the filter's error covariances (:class:`~.estimator.FilterCovariances`).
+        gains: the law (6) on the estimate ([`Gains`][delayed_ilqr.lqg.Gains]).
+        filter_gains: the delayed filter ([`FilterGains`][delayed_ilqr.lqg.FilterGains]).
+        value: the full-state cost-to-go of ``gains`` ([`Value`][delayed_ilqr.lqg.Value]).
+        covariances: the filter's error covariances ([`FilterCovariances`][delayed_ilqr.lqg.FilterCovariances]).
         expected_cost: [] the exact expected cost of the closed loop (controller plus estimator).
     """
 
@@ -59,7 +59,7 @@ class OutputFeedback(NamedTuple):
 
 def separation_design(lqg: DelayedLQG, obs: DelayedObservation) -> OutputFeedback:
     """Theorem 1's controller on the delayed Kalman filter's estimate, and its exact expected cost
-    (the joint second moments, :func:`output_feedback_cost`). Optimal among causal policies when
+    (the joint second moments, [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost]). Optimal among causal policies when
     the noise is additive (C0 = C1 = 0)."""
     gains, value = backward_pass(lqg)
     fgains, cov = delayed_kalman(lqg, obs)
@@ -79,7 +79,7 @@ def _separation_cost(lqg: DelayedLQG, value: Value, gains: Gains, current):
 
 def separation_cost(lqg: DelayedLQG, value: Value, gains: Gains, cov: FilterCovariances) -> jax.Array:
     """J(0) + sum_k tr(L_k' H_k L_k Sigma_k): the expected cost of the optimal full-state law
-    (``gains``, ``value`` of :func:`.backward_pass` without regularisation) acting on the optimal
+    (``gains``, ``value`` of [`backward_pass`][delayed_ilqr.lqg.backward_pass] without regularisation) acting on the optimal
     delayed filter's estimate, whose error covariance is ``cov.current``. Exact for additive
     noise; O(K (n^3 + l n^2 d + l^2 d^3)), against O(K (3n + l d)^3) for the joint moments."""
     return _separation_cost(lqg, value, gains, cov.current)
@@ -185,7 +185,7 @@ def _joint_step(carry, data, *, blocks, sensory_delay):
 
 
 class JointMoments(NamedTuple):
-    """The closed loop of a controller-estimator pair, step by step (:func:`joint_moments`).
+    """The closed loop of a controller-estimator pair, step by step (`joint_moments`).
 
     Attributes:
         mean: [K, 3n + l d] E[zeta_k] after the measurement dy_k, before du_k.
@@ -195,7 +195,7 @@ class JointMoments(NamedTuple):
             the Kalman filter's Sigma_k (14.3) when the filter is the optimal one.
         motor_cov: [K, n, n] E[w_k w_k'], the covariance of the motor noise of step k under the loop
             (signal-dependent noise included).
-        expected_cost: [] the exact expected cost, as :func:`output_feedback_cost`.
+        expected_cost: [] the exact expected cost, as [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost].
     """
 
     mean: jax.Array

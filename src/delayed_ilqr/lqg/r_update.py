@@ -1,7 +1,7 @@
 """The update of R, the [l d, l d] block of the value (7) that couples the pending commands: the hot
 spot of the structured pass (everything else in a step is O(l d^2)).
 
-Exactly, one step k+1 -> k (pending blocks in the slot frame of :mod:`.frame`, slot sigma = k mod l)
+Exactly, one step k+1 -> k (pending blocks in the slot frame of `frame`, slot sigma = k mod l)
 replaces slot sigma's rows by ``row`` (du_{k-l} against the pending commands), its columns by row',
 and adds M'W + W'M, with M, W [d, l d] the delay feedback and W = H Kfb / 2 + G at the pending
 columns (docs/derivation.md §4).
@@ -11,10 +11,10 @@ exact as of the step that last replaced it, and its column block stale. Slots ar
 cyclic order, so the slot read next (k - 1 mod l) is the one replaced longest ago, and its exact
 values are in its *columns*, which every newer row wrote. Each update therefore returns, besides
 the stored R, the exact rows ``R_next`` [d, l d] of the slot the next step eliminates, and
-:func:`exact` rebuilds the symmetric R from the stored one.
+`exact` rebuilds the symmetric R from the stored one.
 
-Three strategies, one interface (:class:`RStrategy` picks; :func:`update`, :func:`flush` and
-:func:`exact` act on R and its ``factors``):
+Three strategies, one interface (`RStrategy` picks; `update`, `flush` and
+`exact` act on R and its ``factors``):
 
 * dense, ``factors = ()``: M'W + W'M is added at once, one loop over R that XLA fuses and runs
   in place (per step it reads and writes R: memory-bound for large l d);
@@ -22,7 +22,7 @@ Three strategies, one interface (:class:`RStrategy` picks; :func:`update`, :func
   copies out W and Kfb, and M, W are read from that copy (a change in the fused step only);
 * deferred blocks (l d >= ``DEFER_MIN_LD``, block q = ``DEFER_BLOCK``), ``factors = (F,)``, F
   [2 q d, l d]: the factors M_p, W_p of the steps p of the block so far are kept (step p at rows
-  2 p d), the exact R being R + sum_p M_p'W_p + W_p'M_p, and :func:`flush` adds them with one
+  2 p d), the exact R being R + sum_p M_p'W_p + W_p'M_p, and `flush` adds them with one
   matrix product per block. A step then only corrects the rows it writes and the column block it
   reads by products with the factors, O(q d^2 l d) instead of O((l d)^2).
 """

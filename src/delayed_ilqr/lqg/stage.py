@@ -2,7 +2,7 @@
 
 This is the readable statement of the recursion: the pending commands in eq. (6)'s order
 (w_i = du_{k+i-l}, i = 0..l-1), one block per formula, no slot frame, no fused products, no
-kernels. The library runs the fused form (:mod:`.structured`); tests/test_stage.py holds the two
+kernels. The library runs the fused form (`structured`); tests/test_stage.py holds the two
 equal, step by step, and this step equal to the augmented-state reference.
 
 At step k the variables are dx_k, the pending commands w_0..w_{l-1} and the new command du_k. One
@@ -21,8 +21,8 @@ blocks of J(k+1) as s_tilde', s', S', r'^i, Rt'^i, R'^ij (last = l - 1):
     G_0 = B0'S'B1 + <C0, C1> + Rt'^{last}'B1              (w_0 acts now, through B1)
     G_i = B0'Rt'^{i-1} + R'^{last,i-1}                     (i >= 1: w_i is pending at k+1)
 
-and the blocks of q0, q_y, Q_yy listed in :func:`_free_quadratic`. For l = 0 there is no w, and
-B1, C1 act on du_k (they are folded into B0, C0). A gain rule (:mod:`.gains`) returns
+and the blocks of q0, q_y, Q_yy listed in `_free_quadratic`. For l = 0 there is no w, and
+B1, C1 act on du_k (they are folded into B0, C0). A gain rule (`gains`) returns
 du = I + Kfb y, Kfb = [L, M^0, ..., M^{l-1}]; the value J(k) is the exact cost-to-go under those
 gains (derivation §4), with W = H Kfb / 2 + G:
 
@@ -119,10 +119,10 @@ def stage_step(stage: Stage, J: CostToGo, reg=0.0, gains_fn=unconstrained_gains,
         stage: step k's model (eq. 3-4).
         J: J(k+1), with l pending blocks (l = ``J.r.shape[0]``).
         reg: the Levenberg-Marquardt shift of the gains (H + reg I).
-        gains_fn, bounds, warm: the gain rule and its per-step data (see :mod:`.gains`).
+        gains_fn, bounds, warm: the gain rule and its per-step data (see `gains`).
 
     Returns:
-        (:class:`StageGains`, J(k) as a :class:`CostToGo`).
+        (`StageGains`, J(k) as a `CostToGo`).
     """
     l, (n, nd) = J.r.shape[0], stage.B0.shape
     if l == 0:
@@ -150,6 +150,6 @@ def stage_step(stage: Stage, J: CostToGo, reg=0.0, gains_fn=unconstrained_gains,
 
 
 def _free_state_part(stage: Stage, J: CostToGo):
-    """:func:`_free_quadratic` for l = 0: no pending command."""
+    """`_free_quadratic` for l = 0: no pending command."""
     q0 = stage.d_tilde + J.s_tilde + _noise(J.S, stage.c, stage.c)
     return q0, (stage.d + stage.A.T @ J.s, None), (stage.D + stage.A.T @ J.S @ stage.A, None, None)

@@ -1,22 +1,22 @@
 """Theorem 1 (eq. 6-8) as the library runs it: the structured reverse scan, one fused step per k.
 
 Per step it costs O(l^2 d^3 + l n^2 d + n^3), against (n + l d)^3 for augmentation. The mathematics
-of one step is :func:`.stage.stage_step`, written in eq. (6)'s order of the pending commands; the step
+of one step is `stage.stage_step`, written in eq. (6)'s order of the pending commands; the step
 here computes the same numbers (tests/test_stage.py) arranged for speed:
 
-* the pending blocks r, Rt, R live in the circular slot frame of :mod:`.frame`, so the command
+* the pending blocks r, Rt, R live in the circular slot frame of `frame`, so the command
   eliminated at step k (du_k) and the one that becomes pending (du_{k-l}) share slot k mod l and
   no block moves;
 * products with the same operand are fused into one ([S, s, Rt] through Z = [A, B0, B1]; the whole
   value update in one product), since per-operation overhead, not arithmetic, dominates at the
-  sizes of motor-control problems (the kernels of :mod:`delayed_ilqr._kernels`);
-* R is updated by a strategy of :mod:`.r_update` (dense, copied factors, deferred blocks).
+  sizes of motor-control problems (the kernels of `delayed_ilqr._kernels`);
+* R is updated by a strategy of `r_update` (dense, copied factors, deferred blocks).
 
 With a frame (``delay_frame`` L >= l, the delay l as data; docs/derivation.md §17) the command
 acting at step k, du_{k-l}, sits in slot alpha = (k - l) mod L, not in slot sigma = k mod L of the
 command eliminated: the step clears slot sigma (at k it holds du_{k-L}, which has acted) and writes
 du_{k-l}'s blocks into slot alpha (zero at k+1, where du_{k-l} has acted), which is the step above
-when alpha = sigma (l = L). R is then kept whole and symmetric (:func:`.r_update.update_framed`).
+when alpha = sigma (l = L). R is then kept whole and symmetric (`r_update.update_framed`).
 
 The value update is the exact cost-to-go of the quadratic model under whatever gains the gain rule
 returns (regularised, or clamped by control limits; docs/derivation.md §4), so J(0) is always the
@@ -47,11 +47,11 @@ class ValueCarry(NamedTuple):
 
     Attributes:
         s_tilde: []; s: [n]; S: [n, n]; r: [l d]; Rt: [n, l d].
-        R: [l d, l d], stored with stale columns (see :mod:`.r_update`).
+        R: [l d, l d], stored with stale columns (see `r_update`).
         R_next: [d, l d] the exact rows of the slot step k eliminates.
         ok: [] bool, every step so far had a positive definite H.
         warm: [d] the feedforward of step k+1 (the box QP's warm start).
-        factors: () or (F,), the deferred R updates (see :mod:`.r_update`).
+        factors: () or (F,), the deferred R updates (see `r_update`).
     """
 
     s_tilde: jax.Array
@@ -83,7 +83,7 @@ class Prediction(NamedTuple):
 
 
 class StepData(NamedTuple):
-    """Per-step inputs of the reverse scan, time-major (see :func:`_step_data`)."""
+    """Per-step inputs of the reverse scan, time-major (see `_step_data`)."""
 
     k: jax.Array
     slot: jax.Array              # (k mod l) d: slot sigma in the flat pending axis
@@ -121,7 +121,7 @@ class Noise(NamedTuple):
 
 
 def _step_data(models: StepModels, bounds, steps: int, block: int) -> StepData:
-    """:class:`StepData` for k = 0..steps-1 (the horizon and any padding, see :func:`_padded_rows`);
+    """`StepData` for k = 0..steps-1 (the horizon and any padding, see `_padded_rows`);
     the offsets are computed here, once, rather than in every step."""
     k = jnp.arange(steps)
     frame, nd = models.frame_steps, models.n_controls
@@ -133,7 +133,7 @@ def _step_data(models: StepModels, bounds, steps: int, block: int) -> StepData:
 
 def _padded_rows(rows, bounds, steps: int):
     """``rows`` and ``bounds`` with ``steps`` rows appended, copies of the last (any row will do:
-    the recursion replaces the model of these steps by :func:`.model.idle_stage`, and their bounds
+    the recursion replaces the model of these steps by `model.idle_stage`, and their bounds
     are +-1), so that blocked passes can run on a horizon that is a multiple of their block."""
     if steps == 0:
         return rows, bounds
@@ -154,7 +154,7 @@ def _sym(M):
 # ---------------------------------------------------------------------------------------------
 
 def _step_stage(model, row, live, current):
-    """Step k's (Z = [A, B0, B1], :class:`Stage`): the idle stage for padding (``live`` False), and
+    """Step k's (Z = [A, B0, B1], `Stage`): the idle stage for padding (``live`` False), and
     B1, C1 folded into B0, C0 where ``current`` (l = 0: the delayed command is the current one;
     a Python bool for a static l, a traced one with a frame)."""
     stage = Stage(*model(row))
@@ -207,7 +207,7 @@ def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, 
     """The quadratic in du_k: H [d, d], g [d] (g0 with r0), G = [G_x, G_w] [d, n + l d], and Z'Rt.
 
     Slot sigma's blocks of J(k+1) are those of du_k; in G_w the same slot is du_{k-l}, via B1 (with a
-    frame, slot alpha = ``acting`` is, and slot sigma is cleared: see :func:`_moved`)."""
+    frame, slot alpha = ``acting`` is, and slot sigma is cleared: see `_moved`)."""
     nd = stage.e.shape[0]
     u0, u1 = slice(0, nd), slice(nd, 2 * nd)
     H = stage.E + dyn.ZSZ[z.u, z.u] + noise.CSC[u0, u0]
@@ -244,7 +244,7 @@ def _value_product(H, g, g0, G, I, Kfb, nx: int, copy_factors: bool):
     """One product for the whole update of S, Rt (L'W + Wx'Kfb), of s, r (Kfb'(H I + g) + G'I:
     through G rather than W = H Kfb / 2 + G, whose terms would cancel) and of s0, r0 (Kfb'g0).
 
-    Returns (update, rows, W, HIK, HIg): the product, its :class:`UpdateRows`, W [d, n + l d],
+    Returns (update, rows, W, HIK, HIg): the product, its `UpdateRows`, W [d, n + l d],
     HIK = H [I, Kfb] [d, 1 + n + l d] and HIg = H I + g."""
     nd = H.shape[0]
     L = Kfb[:, :nx]
@@ -303,15 +303,15 @@ def _predicted(prediction: Prediction, z: ZColumns, dyn: Propagated, noise: Nois
 def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, store_S: bool, gains_fn, model,
                      copy_factors: bool, delay=None):
     """Step k+1 -> k of the corrected recursion (eq. 8 with the corrections of docs/derivation.md):
-    the fused form of :func:`.stage.stage_step`.
+    the fused form of `stage.stage_step`.
 
-    ``carry = (value, prediction)``: J(k+1) as a :class:`ValueCarry`, and a :class:`Prediction`
+    ``carry = (value, prediction)``: J(k+1) as a `ValueCarry`, and a `Prediction`
     or () without ``predict``. The command eliminated here, du_k, occupies slot sigma = k mod l at
     k+1; at k the same slot holds du_{k-l}, the command acting through B1_k. Every other block
-    keeps its place. ``model`` gives the step's :class:`Stage` from ``data.row``. ``l`` is the
+    keeps its place. ``model`` gives the step's `Stage` from ``data.row``. ``l`` is the
     number of slots: with a frame, L, and ``delay`` the traced l, which places du_{k-l} in slot
     (k - l) mod L (computed here from the slot, not read from a per-step input: see
-    :func:`.frame.acting_offset`).
+    `frame.acting_offset`).
 
     Returns the carry at k and the outputs (I, Kfb = [L, M by slot], s_tilde (, s, S) (, r, Rt, R
     in eq. 7's order)).
@@ -362,7 +362,7 @@ def _terminal(models: StepModels, strategy: r_update.RStrategy) -> ValueCarry:
 
 
 def _flush(carry):
-    """End of a block of the deferred strategy (see :func:`.r_update.flush`)."""
+    """End of a block of the deferred strategy (see `r_update.flush`)."""
     value, prediction = carry
     R, factors = r_update.flush(value.R, value.factors, value.R_next.shape[0])
     return value._replace(R=R, factors=factors), prediction
@@ -378,11 +378,11 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
         store_value: False keeps only s_tilde, s, S per step (memory O(K (n^2 + l d^2)) instead of
             O(K l^2 d^2)); the solver uses it.
         gains_fn: the gain rule ``(H, reg, g, G, bounds_k, warm) -> (ok, I, Kfb)`` (see
-            :mod:`.gains`; default: unconstrained, Cholesky of H + reg I). The control-limited
+            `gains`; default: unconstrained, Cholesky of H + reg I). The control-limited
             solver passes a box-QP version; ``warm`` is the feedforward of the step after.
         bounds: per-step data for ``gains_fn``, time-major (e.g. [K, 2, d] limits on du_k).
         block: q > 1 defers the O((l d)^2) part of each step to one matrix product per block of q
-            steps (see :mod:`.r_update`); the horizon is padded to a multiple of q with steps
+            steps (see `r_update`); the horizon is padded to a multiple of q with steps
             that change nothing. Default: ``r_update.DEFER_BLOCK`` from l d >= ``DEFER_MIN_LD``,
             else 1 (no deferral).
     """
@@ -392,14 +392,14 @@ def structured_scan(lqg: DelayedLQG, reg=0.0, store_value: bool = True, gains_fn
 
 def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: bool = True, gains_fn=unconstrained_gains,
                          bounds=None, block: int | None = None, predict: bool = False, store_S: bool = True):
-    """:func:`structured_scan` with the gains as :class:`.frame.SlotGains`, as the recursion makes
-    them, on a stored :class:`DelayedLQG` or on :class:`StepModels` (the solver's, linearised in
+    """`structured_scan` with the gains as `frame.SlotGains`, as the recursion makes
+    them, on a stored [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG] or on `StepModels` (the solver's, linearised in
     the pass).
 
     ``store_S=False`` leaves s and S out of the outputs (s_tilde only, with ``store_value=False``):
     the solver needs S only with noise, and at l = 1 they are more numbers per step than the gains.
 
-    ``predict=True`` also returns (a, b) of :class:`Prediction`: under the LQG, the expected cost
+    ``predict=True`` also returns (a, b) of `Prediction`: under the LQG, the expected cost
     of the returned policy with its feedforward scaled by alpha, minus that at alpha = 0, is
     alpha a + alpha^2 b. That is the line search's model, which ``ilqg.line_search.predicted_change``
     computes by a forward pass; here it costs two columns in products the step makes anyway.

@@ -1,24 +1,24 @@
-"""Model zoo: factories that return a ready :class:`~delayed_ilqr.Problem`.
+"""Model zoo: factories that return a ready [`Problem`][delayed_ilqr.Problem].
 
 Every factory takes ``delay`` in seconds (a whole number of steps of ``dt``, checked by
-:func:`delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
+`delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
 over dt). Dynamics and noise callables are frozen dataclasses compared and hashed by value, so two
 problems built with the same arguments share one compiled solver. Each factory attaches a
-:class:`ModelMetadata` (``Problem.metadata``: state and control labels with units, the task space
+[`ModelMetadata`][delayed_ilqr.models.metadata.ModelMetadata] (``Problem.metadata``: state and control labels with units, the task space
 such as the hand position, the default initial commands), which studies and figures read; the
 equations, parameters and their sources are in ``docs/models.md``. Noise is a continuous-time
-diffusion (``sqrt(dt) F xi`` per step); :func:`per_step_noise_to_diffusion` converts the per-step
-sigma of Todorov's and Li's discrete-time code (:mod:`.noise`).
+diffusion (``sqrt(dt) F xi`` per step); [`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion] converts the per-step
+sigma of Todorov's and Li's discrete-time code (`noise`).
 
-=============  ==========================================================================
-point_mass     P1 / P1-noisy / P4 of ``docs/models.md`` (damped planar point mass)
-arm2           P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters)
-arm2_muscle6   the same arm driven by six muscles through delayed excitations u in [0, 1]^6
-               (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching)
-pendulum       torque-limited pendulum swing-up
-cart_pole      cart-pole swing-up (Florian's frictionless equations)
-acrobot        acrobot swing-up with a limited elbow torque (trajax's test problem, Spong's equations)
-=============  ==========================================================================
+| factory | model |
+|---|---|
+| point_mass | P1 / P1-noisy / P4 of ``docs/models.md`` (damped planar point mass) |
+| arm2 | P2 / P2-noisy / P3 (torque-driven two-link arm, Li & Todorov 2004 parameters) |
+| arm2_muscle6 | the same arm driven by six muscles through delayed excitations u in [0, 1]^6 (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching) |
+| pendulum | torque-limited pendulum swing-up |
+| cart_pole | cart-pole swing-up (Florian's frictionless equations) |
+| acrobot | acrobot swing-up with a limited elbow torque (trajax's test problem, Spong's equations) |
+
 """
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ which writes Gym's Acrobot (the "book" dynamics of Sutton & Barto's Reinforcemen
 Spong 1995, "The swing up control problem for the Acrobot", IEEE Control Systems 15(1)). Here the
 same equations are written in Spong's manipulator form (Tedrake, Underactuated Robotics, chapter
 "Acrobots, Cart-Poles, and Quadrotors"), with I1, I2 the links' inertias about their centres of
-mass::
+mass:
 
     x = [theta1, theta2, dtheta1, dtheta2]   theta1 = 0 hanging down, theta2 relative to link 1
     M(q) ddq + C(q, dq) + G(q) = [0, ud]       ud = elbow torque (N m), acting l dt after it is sent
@@ -18,32 +18,27 @@ mass::
 
 Parameters (borrowed from trajax, which has Gym's values; chosen: the rest):
 
-=============  ==================  ====================================================
-m1, m2         1 kg, 1 kg          link masses
-l1             1 m                 length of link 1 (link 2's length does not enter)
-lc1, lc2       0.5 m, 0.5 m        joint to centre of mass
-I1, I2         1 kg m^2            inertias about the centres of mass
-g              9.8 m/s^2
-u_max          5 N m               trajax's ``testConstrainedAcrobotSolve`` (|u| <= 5); the
-                                   unbounded optimum peaks at 8.6 N m, so the limit binds;
-                                   ``limits=False`` drops it
-dt             0.1 s               Euler steps, as in trajax's ``testAcrobotSolve``
-tf             5 s                 horizon K = 50
-cost           trajax's            running (x - x*)'P (x - x*) + u'Q u per unit time with
-                                   P = 0.5 I, Q = 0.05 (trajax's 0.5 * 0.1 |x - x*|^2 +
-                                   0.5 * 0.01 u^2 per step of 0.1 s), final 500 |x - x*|^2
-x0, target     [0, 0, 0, 0] -> [pi, 0, 0, 0]
-noise (opt.)   chosen              F = sigma_u ud * d f / d ud (p = 1), sigma_u = 0.1:
-                                   signal-dependent torque noise
-=============  ==================  ====================================================
+| parameter | value | source or note |
+|---|---|---|
+| m1, m2 | 1 kg, 1 kg | link masses |
+| l1 | 1 m | length of link 1 (link 2's length does not enter) |
+| lc1, lc2 | 0.5 m, 0.5 m | joint to centre of mass |
+| I1, I2 | 1 kg m^2 | inertias about the centres of mass |
+| g | 9.8 m/s^2 |  |
+| u_max | 5 N m | trajax's ``testConstrainedAcrobotSolve`` (&#124;u&#124; <= 5); the unbounded optimum peaks at 8.6 N m, so the limit binds; ``limits=False`` drops it |
+| dt | 0.1 s | Euler steps, as in trajax's ``testAcrobotSolve`` |
+| tf | 5 s | horizon K = 50 |
+| cost | trajax's | running (x - x*)'P (x - x*) + u'Q u per unit time with P = 0.5 I, Q = 0.05 (trajax's 0.5 * 0.1 &#124;x - x*&#124;^2 + 0.5 * 0.01 u^2 per step of 0.1 s), final 500 &#124;x - x*&#124;^2 |
+| x0, target | [0, 0, 0, 0] -> [pi, 0, 0, 0] |  |
+| noise (opt.) | chosen | F = sigma_u ud * d f / d ud (p = 1), sigma_u = 0.1: signal-dependent torque noise |
 
-The cost is a :class:`~delayed_ilqr.GeneralCost` (its running term tracks the target, which a
-:class:`~delayed_ilqr.QuadraticCost` cannot); its weights and target are ``cost.params``, data.
+The cost is a [`GeneralCost`][delayed_ilqr.GeneralCost] (its running term tracks the target, which a
+[`QuadraticCost`][delayed_ilqr.QuadraticCost] cannot); its weights and target are ``cost.params``, data.
 Check of the transcription: the cost of u = 0 is 4959.476212, trajax's pinned value, and the
 unbounded optimum from rest is 44.513 (trajax asserts below 51). x0 = 0 with u = 0 is an
 equilibrium; the running cost's gradient starts the swing. With elbow limits of 2.4 N m and less
 the swing-up from rest stops at a poor local minimum, and at 3 N m at one 1.1 % above the best
-known (``docs/derivation.md`` §15: several starts, :func:`~delayed_ilqr.solve_from_starts`).
+known (``docs/derivation.md`` §15: several starts, [`solve_from_starts`][delayed_ilqr.solve_from_starts]).
 """
 from __future__ import annotations
 
@@ -189,8 +184,8 @@ def acrobot(delay=0.0, noise=False, dt=0.1, horizon=None, limits=True, u_max=U_M
         x_target: [4] target of the running and final cost (default upright at rest).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"acrobot"`` with a
-        :class:`~delayed_ilqr.GeneralCost` whose ``params`` are x_target, P, Q and P_final.
+        A [`Problem`][delayed_ilqr.Problem] named ``"acrobot"`` with a
+        [`GeneralCost`][delayed_ilqr.GeneralCost] whose ``params`` are x_target, P, Q and P_final.
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")

@@ -1,6 +1,6 @@
 """P2: the planar two-link arm driven by delayed joint torques (``docs/models.md`` §2, P2 and P3).
 
-Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``)::
+Rigid-body dynamics (``docs/models.md`` §3, Todorov's ``arm_dyn.m``):
 
     M(q) ddq + C(q, dq) + B dq = tau
     M(q) = [[a1 + 2 a2 cos q2, a3 + a2 cos q2], [a3 + a2 cos q2, a3]]
@@ -13,29 +13,29 @@ P_f = diag(1e3, 1e3, 1e1, 1e1); x0 = [pi/4, pi/2, 0, 0], target [pi/2, pi/3, 0, 
 P2-noisy (``noise="benchmark"``): F(x, u, ud) = [0_{2x2}; M(q)^{-1} sigma_u diag(ud)], p = 2,
 sigma_u = 0.2. P3 is ``arm2(dt=0.002, delay=0.1)`` (K = 250, l = 50).
 
-Noise presets (``noise=``). F is a continuous-time diffusion (:mod:`delayed_ilqr.models.noise`):
+Noise presets (``noise=``). F is a continuous-time diffusion (`delayed_ilqr.models.noise`):
 the torque acting is ud (1 + sigma_u w) with w white noise, signal-dependent motor noise in the
 sense of Harris & Wolpert 1998 and van Beers, Haggard & Wolpert 2004 (SD proportional to the mean
 torque, a constant coefficient of variation).
 
-- ``noise=True`` or ``"human"``: :data:`SIGMA_U_HUMAN` = 0.01, human force variability
+- ``noise=True`` or ``"human"``: `SIGMA_U_HUMAN` = 0.01, human force variability
   (``docs/models.md`` §4.5). White noise has no finite CV; the CV refers to the torque of a held
   command low-pass filtered at the muscles' activation time constant t (a muscle turns its
   neural command into force at that bandwidth), whose stationary SD is sigma_u ud / sqrt(2 t):
-  :data:`HUMAN_TORQUE_CV` = 3.2 % at t = 50 ms (2.8 % at 66 ms), equivalently the CV of the mean
+  [`HUMAN_TORQUE_CV`][delayed_ilqr.models.arm2.HUMAN_TORQUE_CV] = 3.2 % at t = 50 ms (2.8 % at 66 ms), equivalently the CV of the mean
   torque over a window of 2 t = 100 ms. Isometric force and joint torque vary by a few per cent
   of the mean (Jones, Hamilton & Wolpert 2002; Hamilton, Jones & Wolpert 2004; sources and their
   tags in ``docs/models.md`` §4.5).
-- ``noise="benchmark"``: :data:`SIGMA_U` = 0.2, P2-noisy exactly (the CV above would be 63 %; the
+- ``noise="benchmark"``: `SIGMA_U` = 0.2, P2-noisy exactly (the CV above would be 63 %; the
   per-step relative noise sigma_u / sqrt(dt) is 2.0 at dt = 10 ms): a numerical stress test, not a
   human level.
 - ``noise=True, sigma_u=s``: any other level (``"custom"``);
-  :func:`~delayed_ilqr.models.noise.per_step_noise_to_diffusion` converts a per-step sigma.
+  [`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion] converts a per-step sigma.
 
 The preset's name is in ``problem.metadata.noise``.
 
-The functions :func:`mass_matrix`, :func:`mass_matrix_inverse`, :func:`coriolis`,
-:func:`joint_acceleration`, :func:`hand_position`, :func:`hand_jacobian` and :func:`hand_velocity`
+The functions [`mass_matrix`][delayed_ilqr.models.mass_matrix], [`mass_matrix_inverse`][delayed_ilqr.models.mass_matrix_inverse], [`coriolis`][delayed_ilqr.models.coriolis],
+[`joint_acceleration`][delayed_ilqr.models.joint_acceleration], [`hand_position`][delayed_ilqr.models.hand_position], [`hand_jacobian`][delayed_ilqr.models.hand_jacobian] and [`hand_velocity`][delayed_ilqr.models.hand_velocity]
 are pure ``jax.numpy`` functions of (q, dq, params) for reuse by other arm models (e.g. the
 six-muscle arm); they accept leading batch axes on q, dq, tau ([..., 2]).
 """
@@ -66,7 +66,7 @@ SIGMA_U_HUMAN = 0.01  # torque noise calibrated to human force variability (modu
 ACTIVATION_TIME = T_ACT  # s, the muscles' activation time constant the CV refers to (docs/models.md §4.2)
 HUMAN_TORQUE_CV = SIGMA_U_HUMAN / math.sqrt(2 * ACTIVATION_TIME)
 """Coefficient of variation of a held torque under the ``"human"`` preset, 0.032: the torque
-low-pass filtered at :data:`ACTIVATION_TIME` (module docstring)."""
+low-pass filtered at `ACTIVATION_TIME` (module docstring)."""
 NOISE_PRESETS = {"human": SIGMA_U_HUMAN, "benchmark": SIGMA_U}
 """The torque arm's noise presets, name -> sigma_u; ``noise=True`` is ``"human"``."""
 
@@ -254,21 +254,21 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
     Args:
         delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P2).
         noise: False (P2), True or ``"human"`` (signal-dependent torque noise at the human level,
-            :data:`SIGMA_U_HUMAN`), or ``"benchmark"`` (P2-noisy, sigma_u = 0.2): the presets of
+            `SIGMA_U_HUMAN`), or ``"benchmark"`` (P2-noisy, sigma_u = 0.2): the presets of
             the module docstring, F = [0; M(q)^{-1} sigma_u diag(ud)], p = 2.
         dt: time step in seconds (0.01 in P2, 0.002 in P3).
         horizon: K; default ``round(0.5 / dt)`` (50 at dt = 0.01, 250 at dt = 0.002).
         x0: [4] initial state [q1, q2, dq1, dq2].
         x_target: [4] final target state.
-        params: arm parameters; P2 uses :data:`ARM2_PARAMS`.
+        params: arm parameters; P2 uses [`ARM2_PARAMS`][delayed_ilqr.models.ARM2_PARAMS].
         sigma_u: None (the preset's level) or the diffusion scale of the torque noise, with
             ``noise=True`` (a ``"custom"`` level).
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
-            velocities seen that late through additive noise (:func:`.sensors.joint_sensors`).
+            velocities seen that late through additive noise (`sensors.joint_sensors`).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"arm2"``; its metadata's task space is the hand
+        A [`Problem`][delayed_ilqr.Problem] named ``"arm2"``; its metadata's task space is the hand
         position (target: the hand at ``x_target``).
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)

@@ -1,7 +1,7 @@
 """The two-link arm driven by six muscles through delayed neural excitations (Li & Todorov 2004).
 
-``docs/models.md`` §4 (the muscle model is in :mod:`delayed_ilqr.models.muscle`), rigid body of §3
-(:mod:`delayed_ilqr.models.arm2`, P2's parameters :data:`~delayed_ilqr.models.arm2.ARM2_PARAMS`)::
+``docs/models.md`` §4 (the muscle model is in `delayed_ilqr.models.muscle`), rigid body of §3
+([`delayed_ilqr.models.arm2`][delayed_ilqr.models.arm2], P2's parameters [`ARM2_PARAMS`][delayed_ilqr.models.ARM2_PARAMS]):
 
     x = [q1, q2, dq1, dq2, a1..a6] (10),   u = neural excitations in [0, 1]^6 (6)
     f(x, u, ud) = [dq,  M(q)^{-1} (tau - C(q, dq) - B dq),  (ud - a) / t(ud, a)]
@@ -16,12 +16,12 @@ control-dependent F; "acts multiplicatively on the muscle excitations" is [R]). 
 acting on muscle i is ud_i (1 + sigma_u w_i) with white w_i, filtered by the activation dynamics at
 the time constant of the noise-free command, so F [10, 6] is zero except
 F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i). F is a continuous-time diffusion
-(:mod:`delayed_ilqr.models.noise`; a per-step sigma of Todorov's convention is
+(`delayed_ilqr.models.noise`; a per-step sigma of Todorov's convention is
 ``per_step_noise_to_diffusion(sigma, dt)``).
 
 Noise level, calibrated to human data (``docs/models.md`` §4.5): a held excitation gives an
 activation whose stationary coefficient of variation is sigma_u / sqrt(2 t) = 2.8 to 3.2 sigma_u
-(t = 66 to 50 ms). The default :data:`SIGMA_U` = 0.01 makes it 2.8-3.2 %, the few per cent of
+(t = 66 to 50 ms). The default `SIGMA_U` = 0.01 makes it 2.8-3.2 %, the few per cent of
 isometric force variability in humans, whose standard deviation grows in proportion to the mean
 force (signal-dependent noise: Jones, Hamilton & Wolpert 2002 [V abstract]; the per-cent size [R];
 the coefficient of variation of joint torque falls with strength, Hamilton, Jones & Wolpert 2004
@@ -36,8 +36,8 @@ range where the linearisation holds (Monte Carlo mean 150x the prediction, half 
 reaches unconverged). The former default 0.1 (Li's torque-arm value, §4.5 [V2]) gave activations a
 28-32 % coefficient of variation. Other levels: the ``sigma_u`` argument.
 
-Cost (a :class:`~delayed_ilqr.GeneralCost`; the running cost is multiplied by dt, the final cost
-is not, as in Todorov's ``ilqg_det.m``, §4.6 [V])::
+Cost (a [`GeneralCost`][delayed_ilqr.GeneralCost]; the running cost is multiplied by dt, the final cost
+is not, as in Todorov's ``ilqg_det.m``, §4.6 [V]):
 
     running(x, u) = r |u|^2
     final(x)      = w_p |e(q) - e*|^2 + w_v |de/dt(q, dq)|^2 + w_a |a|^2
@@ -45,31 +45,25 @@ is not, as in Todorov's ``ilqg_det.m``, §4.6 [V])::
 with e the hand position. ``cost.params = {"target", "w_p", "w_v", "w_a", "r"}`` (arrays): problems
 with different targets or weights share one compiled solver (``jax.vmap`` over targets works).
 
-=============  =====================  ==========================================================
-parameter      default                source
-=============  =====================  ==========================================================
-arm            ARM2_PARAMS            §3 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg,
-                                      B = [[0.05, 0.025], [0.025, 0.05]]), as P2
-muscles        muscle.py              §4.1-4.3 [V2]; geometry variant B (default) or A
-t_act/t_deact  50 / 66 ms             §4.2 [V2 x4]
-dt             0.01 s                 §4.6 Li 2006 thesis reaching task [V2]
-final time     0.5 s (K = 50)         §4.6 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s
-x0             q = (pi/4, pi/2),      §4.6 Li 2006 thesis x0 [V2]; the rest activation is [D],
-               dq = 0, a = A_REST     see below
-target         (0.05, 0.5) m          §4.6 Li 2006 thesis hand target e* [V2] (9.0 cm from the
-                                      start hand position (-0.021, 0.446) m)
-r              1e-4                   [D] within §4.6's range (1e-3 thesis torque arm, 1e-4 [R]
-                                      Li & Todorov 2004); excitations are O(0.1-1)
-w_p            1 (1/m^2)              §4.6 Li 2006 thesis final position weight [V2]
-w_v            0.1 (s^2/m^2)          [D] (thesis: 1e-2 on a torque arm); 0.1 stops the hand
-w_a            0                      [D] optional final activation penalty
-sigma_u        0.01                   §4.5, calibrated to human force variability (see above)
-=============  =====================  ==========================================================
+| parameter | default | source |
+|---|---|---|
+| arm | ARM2_PARAMS | §3 Li & Todorov 2004 / Li 2006 thesis [V2] (m2 = 1.1 kg, B = [[0.05, 0.025], [0.025, 0.05]]), as P2 |
+| muscles | muscle.py | §4.1-4.3 [V2]; geometry variant B (default) or A |
+| t_act/t_deact | 50 / 66 ms | §4.2 [V2 x4] |
+| dt | 0.01 s | §4.6 Li 2006 thesis reaching task [V2] |
+| final time | 0.5 s (K = 50) | §4.6 [R] "T ~ 0.5 s"; Ueyama uses 0.4 s |
+| x0 | q = (pi/4, pi/2), dq = 0, a = A_REST | §4.6 Li 2006 thesis x0 [V2]; the rest activation is [D], see below |
+| target | (0.05, 0.5) m | §4.6 Li 2006 thesis hand target e* [V2] (9.0 cm from the start hand position (-0.021, 0.446) m) |
+| r | 1e-4 | [D] within §4.6's range (1e-3 thesis torque arm, 1e-4 [R] Li & Todorov 2004); excitations are O(0.1-1) |
+| w_p | 1 (1/m^2) | §4.6 Li 2006 thesis final position weight [V2] |
+| w_v | 0.1 (s^2/m^2) | [D] (thesis: 1e-2 on a torque arm); 0.1 stops the hand |
+| w_a | 0 | [D] optional final activation penalty |
+| sigma_u | 0.01 | §4.5, calibrated to human force variability (see above) |
 
-Rest activation (:data:`A_REST` = 0.05, [D]): the force A(a, l) ~ (a / (0.56 N_f))^N_f has zero
+Rest activation (`A_REST` = 0.05, [D]): the force A(a, l) ~ (a / (0.56 N_f))^N_f has zero
 slope at a = 0 (N_f > 1 over the joint range), so at a = u = 0 the linearised dynamics have no path
 from the commands to the arm and iLQG's first step is zero. Starting from a small activation level
-(and warm-starting the solver with ``u_init = A_REST`` everywhere, :func:`rest_commands`, the
+(and warm-starting the solver with ``u_init = A_REST`` everywhere, [`rest_commands`][delayed_ilqr.models.rest_commands], the
 equilibrium of the activation dynamics; Ueyama's replication starts from u0 = 0.1, §4.6) avoids this.
 At a = A_REST the muscles' net torques at the start posture are not exactly zero, so the arm drifts
 slightly if the command is held; the reach cost corrects this.
@@ -177,7 +171,7 @@ class ReachFinalCost:
 
 def _metadata(arm: Arm2Params) -> ModelMetadata:
     """Labels (activations and excitations are fractions of the maximum), the hand task with the
-    target of ``cost.params``, and the warm start :func:`rest_commands`."""
+    target of ``cost.params``, and the warm start [`rest_commands`][delayed_ilqr.models.rest_commands]."""
     return ModelMetadata(
         state_labels=ARM_STATE_LABELS + tuple(f"activation a{i} [-]" for i in range(1, 7)),
         control_labels=tuple(f"excitation u{i} [-]" for i in range(1, 7)),
@@ -233,14 +227,14 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     Args:
         delay: input delay tau in seconds (a whole number of steps of ``dt``): the excitation sent at
             t reaches the muscles' activation dynamics at t + tau.
-        target: [2] hand target in metres (shoulder at the origin); see :func:`center_out_targets`.
+        target: [2] hand target in metres (shoulder at the origin); see [`center_out_targets`][delayed_ilqr.models.center_out_targets].
         noise: add signal-dependent excitation noise (F [10, 6], see the module docstring): True
             or ``"human"`` (its one preset, at ``sigma_u``), or False.
         dt: time step in seconds.
         horizon: K; default ``round(final_time / dt)``.
         final_time: movement time in seconds when ``horizon`` is None.
         geometry: "angle_dependent" (variant B, default), "constant" (variant A) or a geometry object
-            from :mod:`delayed_ilqr.models.muscle`.
+            from `delayed_ilqr.models.muscle`.
         x0: [10] initial state; default q = (pi/4, pi/2), dq = 0, a = A_REST (0.05) for all muscles.
         sigma_u: excitation noise, a diffusion scale (used when ``noise``); default 0.01, calibrated
             to human force variability (module docstring).
@@ -248,16 +242,16 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
         w_p: final hand position weight.
         w_v: final hand velocity weight.
         w_a: final activation weight.
-        arm: rigid-body parameters (:class:`~delayed_ilqr.models.arm2.Arm2Params`).
+        arm: rigid-body parameters ([`Arm2Params`][delayed_ilqr.models.Arm2Params]).
         t_act: activation time constant in seconds.
         t_deact: deactivation time constant in seconds.
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
-            velocities seen that late through additive noise (:func:`.sensors.joint_sensors`);
+            velocities seen that late through additive noise (`sensors.joint_sensors`);
             the activations are not sensed.
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
+        A [`Problem`][delayed_ilqr.Problem] named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
         with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST), the warm start
         its metadata names; the metadata's task space is the hand position (target: ``target``).
     """

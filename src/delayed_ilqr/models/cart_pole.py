@@ -6,7 +6,7 @@ in anassinator/ilqr (``docs/models.md`` §5). The pole is a uniform rod of lengt
 m_p l^2 / 3 about its centre) comes from. Florian writes the angle phi from upright; here the
 angle is theta = pi - phi, measured from hanging DOWN, counter-clockwise positive (the pole's
 centre of mass is at (x + l sin theta, -l cos theta)), so that theta = 0 is the rest state and
-theta = pi the upright target, as for :mod:`.pendulum`. With this change of variables::
+theta = pi the upright target, as for [`pendulum`][delayed_ilqr.models.pendulum]. With this change of variables:
 
     x = [x, theta, dx, dtheta],  u = horizontal force on the cart (N), acting after the delay
     tmp      = (ud + m_p l dtheta^2 sin theta) / (m_c + m_p)
@@ -15,19 +15,18 @@ theta = pi the upright target, as for :mod:`.pendulum`. With this change of vari
 
 Parameters (borrowed: m_c, m_p, l, g from anassinator/ilqr; chosen: the rest):
 
-=============  =============  =========================================================
-m_c, m_p       1.0, 0.1 kg    cart and pole masses
-l              1.0 m          pole half-length (the pole is 2 m long)
-g              9.80665 m/s^2
-friction       none           (Florian's frictionless case)
-u_max          10 N           the classic +-10 N of Barto, Sutton & Anderson (1983);
-                              anassinator's +-1 N needs a 25 s horizon. ``limits=False`` drops it
-dt             0.02 s
-tf             3 s            horizon K = 150 (about 1.3 periods of the hanging pole)
-cost           P = 0, Q = 1e-2, P_f = diag(10, 100, 10, 10) on (x, theta - pi, dx, dtheta)
-x0, target     [0, 0, 0, 0] -> [0, pi, 0, 0]
-noise (opt.)   F = sigma_u ud * d f / d ud (p = 1), sigma_u = 0.1: signal-dependent force noise
-=============  =============  =========================================================
+| parameter | value | source or note |
+|---|---|---|
+| m_c, m_p | 1.0, 0.1 kg | cart and pole masses |
+| l | 1.0 m | pole half-length (the pole is 2 m long) |
+| g | 9.80665 m/s^2 |  |
+| friction | none | (Florian's frictionless case) |
+| u_max | 10 N | the classic +-10 N of Barto, Sutton & Anderson (1983); anassinator's +-1 N needs a 25 s horizon. ``limits=False`` drops it |
+| dt | 0.02 s |  |
+| tf | 3 s | horizon K = 150 (about 1.3 periods of the hanging pole) |
+| cost | P = 0, Q = 1e-2, P_f = diag(10, 100, 10, 10) on (x, theta - pi, dx, dtheta) |  |
+| x0, target | [0, 0, 0, 0] -> [0, pi, 0, 0] |  |
+| noise (opt.) | F = sigma_u ud | * d f / d ud (p = 1), sigma_u = 0.1: signal-dependent force noise |
 
 Check of the choice (single shooting with L-BFGS-B from zero and random initial guesses): the
 swing-up reaches theta_K = 3.13-3.14 (cost about 0.9-1.05) with the limit, with and without a 0.1 s
@@ -135,7 +134,7 @@ def cart_pole(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=
         x_target: [4] final target (default upright at rest at x = 0).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"cart_pole"``.
+        A [`Problem`][delayed_ilqr.Problem] named ``"cart_pole"``.
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")

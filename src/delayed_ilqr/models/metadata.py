@@ -1,4 +1,4 @@
-"""What a model tells studies, reports and figures about itself: :class:`ModelMetadata`.
+"""What a model tells studies, reports and figures about itself: [`ModelMetadata`][delayed_ilqr.models.metadata.ModelMetadata].
 
 A factory attaches one to the problem it returns (``Problem.metadata``), so that the delay study,
 the center-out study and the figures read labels, units, the task space and the warm start from
@@ -51,7 +51,7 @@ class TaskSpace:
         unit: the unit of every component, e.g. "m".
         point: the point the map locates, named on figure axes ("hand" gives "hand x [m]").
         target: ``target(problem) -> [m]``, the task's goal; None: ``map(problem.cost.x_target)``
-            (a :class:`~delayed_ilqr.QuadraticCost`).
+            (a [`QuadraticCost`][delayed_ilqr.QuadraticCost]).
         paths: whether paths in this space get a figure of their own (``plot.plot_hand_paths``):
             true where they are not already drawn as states (the arms' hand, not the point mass's
             position).
@@ -72,7 +72,7 @@ class ModelMetadata:
     Attributes:
         state_labels: [n] names with units, e.g. "shoulder angle q1 [rad]".
         control_labels: [d] names with units, e.g. "shoulder torque u1 [N m]".
-        task: the :class:`TaskSpace` the endpoint error is measured in, or None (the studies then
+        task: the [`TaskSpace`][delayed_ilqr.models.metadata.TaskSpace] the endpoint error is measured in, or None (the studies then
             report the final cost instead of a distance over states of mixed units).
         u_init: ``u_init(problem) -> [K, d]``, the recommended initial commands of a solve, or None
             (zeros).
@@ -110,7 +110,7 @@ def labels(problem) -> tuple[list[str], list[str]]:
 
 
 def task_space(problem) -> Optional[TaskSpace]:
-    """The problem's :class:`TaskSpace`, or None."""
+    """The problem's [`TaskSpace`][delayed_ilqr.models.metadata.TaskSpace], or None."""
     meta = getattr(problem, "metadata", None)
     return None if meta is None else meta.task
 
@@ -124,7 +124,7 @@ def task_position(problem, x) -> Optional[np.ndarray]:
 
 
 def task_target(problem) -> Optional[np.ndarray]:
-    """The task's goal [m] (see :attr:`TaskSpace.target`), or None when there is none to read."""
+    """The task's goal [m] (see `TaskSpace.target`), or None when there is none to read."""
     task = task_space(problem)
     if task is None:
         return None

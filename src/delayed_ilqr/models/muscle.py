@@ -5,7 +5,7 @@ Brown, Cheng & Loeb "virtual muscle" model as used by Li & Todorov (2004) and in
 as written in ``docs/models.md`` §4.
 
 Force (§4.1, [V2 x6]); l is the fibre length normalised by its optimal length L0, v = dl/dt in
-L0 / s, a in [0, 1] the activation::
+L0 / s, a in [0, 1] the activation:
 
     T(a, l, v) = A(a, l) (F_L(l) F_V(l, v) + F_P(l))
     A(a, l)    = 1 - exp(-(a / (0.56 N_f(l)))^N_f(l)),     N_f(l) = 2.11 + 4.16 (1/l - 1)
@@ -14,29 +14,29 @@ L0 / s, a in [0, 1] the activation::
                = (0.62 - (-3.12 + 4.21 l - 2.67 l^2) v) / (0.62 + v)       v > 0 (lengthening)
     F_P(l)     = -0.02 exp(13.8 - 18.7 l)       (13.8 as in five of six sources, not feedbax's 14.77)
 
-Activation (§4.2, [V2 x4])::
+Activation (§4.2, [V2 x4]):
 
     da/dt = (u - a) / t(u, a),   t = t_deact + u (t_act - t_deact) if u > a else t_deact,
     t_act = 50 ms, t_deact = 66 ms.
 
 Maximal force (§4.3, [V2 x3]): F_max = 31.8 N/cm^2 x PCSA, PCSA = [18, 14, 22, 12, 5, 10] cm^2,
-i.e. :data:`F_MAX` = [572.4, 445.2, 699.6, 381.6, 159, 318] N.
+i.e. `F_MAX` = [572.4, 445.2, 699.6, 381.6, 159, 318] N.
 
-Muscle order everywhere (:data:`MUSCLES`): brachialis (elbow flexor), lateral triceps (elbow
+Muscle order everywhere (`MUSCLES`): brachialis (elbow flexor), lateral triceps (elbow
 extensor), anterior deltoid (shoulder flexor), posterior deltoid (shoulder extensor), biceps
 (bi-articular flexor), long triceps (bi-articular extensor). Joint angles q = (shoulder, elbow),
-flexion positive (counter-clockwise, as in :mod:`delayed_ilqr.models.arm2`).
+flexion positive (counter-clockwise, as in [`delayed_ilqr.models.arm2`][delayed_ilqr.models.arm2]).
 
 Geometry (§4.4), two variants, each a frozen dataclass (hashable by value) with
 ``moment_arms(q) -> [..., 2, 6]`` (metres), ``lengths(q) -> [..., 6]`` (normalised) and
 ``velocities(q, dq) -> [..., 6]`` (L0 / s):
 
-* :class:`AngleDependentGeometry` (variant B, the default, :data:`ANGLE_DEPENDENT`): Van Wouwe et
+* `AngleDependentGeometry` (variant B, the default, `ANGLE_DEPENDENT`): Van Wouwe et
   al. 2022 / bioptim ``leuven_arm_model.py``, said there to be "from Li & Todorov 2004" [V2]:
   d_ji(q_j) = a_ji + b_ji cos(c_ji q_j),
   l_i = l_base_i + l_mult_i sum_j [a_ji q_j + b_ji sin(c_ji q_j) / c_ji],
   v_i = l_mult_i sum_j d_ji(q_j) dq_j.
-* :class:`ConstantGeometry` (variant A, :data:`CONSTANT`): constant moment arms D of Li's 2006 thesis
+* `ConstantGeometry` (variant A, `CONSTANT`): constant moment arms D of Li's 2006 thesis
   (via jeremiedecock/pyarm) [V2], l_i = 1 - sum_j D_ji (q_j - q_ref_j) / L0_i,
   v_i = -sum_j D_ji dq_j / L0_i.
 
@@ -57,17 +57,17 @@ Non-smooth points and guards (so that jax derivatives stay finite; document-leve
 the formulas, all outside or at the edge of the physiological range):
 
 * ``activation_rate``'s time constant switches from activation to deactivation at u = a; the
-  published switch (a kink in the rate) is smoothed by a logistic over :data:`SWITCH_WIDTH` = 1e-2
+  published switch (a kink in the rate) is smoothed by a logistic over `SWITCH_WIDTH` = 1e-2
   in u - a, so that optima with the activation held at the excitation are stationary points and
   the noise amplitude sigma_u u / t(u, a) has no near-kink curvature there (derivation §12). ``t`` uses u clipped to [0, 1] so that an out-of-range command cannot make
   t <= 0 (identical for u in [0, 1]; the clip's derivative at 0 and 1 is the inward one).
 * ``force_velocity`` has a continuous value but a kink (different one-sided slopes) at v = 0; each
   branch is evaluated on v clipped to its own side, so the unused branch can never divide by zero.
 * ``|x|^1.87`` in F_L is evaluated as ``(x^2)^0.935`` behind a ``where`` (derivative 0 at x = 0).
-* ``A(a, l)`` is 0 for a <= :data:`A_EPS` (the value there is below 1e-16), computed through
+* ``A(a, l)`` is 0 for a <= `A_EPS` (the value there is below 1e-16), computed through
   ``exp(N_f log(a / (0.56 N_f)))`` with a safe argument, so that derivatives in a and in l (through
   N_f in the exponent) are finite at a = 0.
-* N_f(l) uses l clipped to [:data:`L_MIN`, :data:`L_MAX_NF`] (N_f would reach 0 at l = 2.03 and 1/l
+* N_f(l) uses l clipped to [`L_MIN`, `L_MAX_NF`] (N_f would reach 0 at l = 2.03 and 1/l
   is singular at 0), and F_L uses l >= L_MIN (l^1.93 is undefined for l < 0). Variant B stays in
   l in [0.6, 1.25] over the joint range [0, pi]^2.
 """
@@ -117,7 +117,7 @@ L_MAX_NF = 1.6
 # ------------------------------------------------------------------------------------------------
 def activation_time_constant(u, a, t_act=T_ACT, t_deact=T_DEACT):
     """t(u, a) = t_deact + u (t_act - t_deact) if u > a else t_deact (u clipped to [0, 1] inside),
-    the switch at u = a smoothed over :data:`SWITCH_WIDTH`:
+    the switch at u = a smoothed over `SWITCH_WIDTH`:
     t = t_deact + s((u - a) / SWITCH_WIDTH) u (t_act - t_deact) with the logistic s.
 
     Li & Todorov's switch gives the activation rate (u - a) / t a kink at u = a, and optimal
@@ -143,7 +143,7 @@ def activation_time_constant(u, a, t_act=T_ACT, t_deact=T_DEACT):
 def activation_rate(u, a, t_act=T_ACT, t_deact=T_DEACT):
     """da/dt = (u - a) / t(u, a): faster activation (50 ms at u = 1) than deactivation (66 ms).
 
-    The time constant switches smoothly at u = a (:func:`activation_time_constant`).
+    The time constant switches smoothly at u = a (`activation_time_constant`).
     """
     return (u - a) / activation_time_constant(u, a, t_act, t_deact)
 
@@ -215,7 +215,7 @@ def _rows(value, name, shape):
 class AngleDependentGeometry:
     """Variant B (§4.4, [V2]: Van Wouwe et al. 2022 / bioptim ``leuven_arm_model.py``).
 
-    Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
+    Attributes (rows: shoulder, elbow; columns: `MUSCLES`):
         a, b: [2][6] moment-arm coefficients in metres, d_ji(q_j) = a_ji + b_ji cos(c_ji q_j).
         c: [2][6] (1/rad); 1.0 is stored where b = 0 (the term is then exactly 0).
         l_base: [6] normalised fibre length at q = 0.
@@ -257,10 +257,10 @@ class AngleDependentGeometry:
 class ConstantGeometry:
     """Variant A (§4.4, [V2]: Li 2006 thesis via jeremiedecock/pyarm): constant moment arms.
 
-    Attributes (rows: shoulder, elbow; columns: :data:`MUSCLES`):
+    Attributes (rows: shoulder, elbow; columns: `MUSCLES`):
         D: [2][6] moment arms in metres. The thesis matrix (columns sh.flex, sh.ext, el.flex,
             el.ext, bi.flex, bi.ext; cm) [[4, -4, 0, 0, 2.8, -3.5], [0, 0, 2.5, -2.5, 2.8, -3.5]]
-            reordered to :data:`MUSCLES`.
+            reordered to `MUSCLES`.
         L0: [6] optimal fibre lengths in metres; default -1 / l_mult of variant B ([D], a choice:
             the thesis value was not retrieved).
         q_ref: [2] posture where every l_i = 1; default the start posture (pi/4, pi/2) ([D]).

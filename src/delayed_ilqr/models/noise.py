@@ -12,7 +12,7 @@ scale the command's effect on one step by ``1 + sigma eps``, eps ~ N(0, 1), i.e.
 ``x_{k+1} = x_k + dt (f + G u_k) + dt G sigma diag(u_k) eps_k``: sigma is per step and the
 per-step covariance is ``dt^2 sigma^2 G diag(u)^2 G'``. (Li's thesis torque arm, as reimplemented
 in ``nioc``, already writes ``sqrt(dt) G sigma_u diag(u) xi``, this package's convention.) The two agree when
-``sigma_u = sigma sqrt(dt)``: :func:`per_step_noise_to_diffusion`. Entering a per-step sigma as
+``sigma_u = sigma sqrt(dt)``: [`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion]. Entering a per-step sigma as
 ``sigma_u`` multiplies the noise's standard deviation by ``1 / sqrt(dt)`` (10 at dt = 10 ms):
 Todorov's sigma = 0.5 is sigma_u = 0.05 here, not 0.5.
 """
@@ -41,5 +41,5 @@ def per_step_noise_to_diffusion(sigma, dt) -> float:
 
 
 def diffusion_to_per_step(sigma_u, dt) -> float:
-    """The inverse of :func:`per_step_noise_to_diffusion`: sigma = sigma_u / sqrt(dt)."""
+    """The inverse of [`per_step_noise_to_diffusion`][delayed_ilqr.models.per_step_noise_to_diffusion]: sigma = sigma_u / sqrt(dt)."""
     return _common.non_negative(sigma_u, "sigma_u") / math.sqrt(_common.positive(dt, "dt"))

@@ -1,6 +1,6 @@
 """Torque-limited pendulum swing-up with a delayed torque.
 
-A point mass m on a massless rod of length l, hinged at the top, with viscous damping b::
+A point mass m on a massless rod of length l, hinged at the top, with viscous damping b:
 
     x = [theta, dtheta]   theta = 0 hanging down, theta = pi upright (counter-clockwise positive)
     m l^2 ddtheta = ud - m g l sin(theta) - b dtheta          u = torque at the hinge (N m)
@@ -10,21 +10,17 @@ TrajectoryOptimization.jl simple pendulum (with its viscous friction coefficient
 limit in the spirit of Gym Pendulum-v1 (m = l = 1, |u| <= 2 with g = 10) and of Todorov & Li's (2005)
 "limited-torque inverted pendulum", whose parameters were not retrieved. Chosen here:
 
-=============  ===========  ==============================================================
-m, l           1 kg, 1 m    point mass on a massless rod (inertia m l^2 = 1 kg m^2)
-g              9.81 m/s^2
-b              0.01         viscous damping, N m s / rad
-u_max          4 N m        0.41 m g l, close to Gym Pendulum-v1's ratio of largest torque
-                            to largest gravity torque (6 / 15 = 0.4 in its rod model): the
-                            pendulum cannot be lifted directly and must be swung;
-                            ``limits=False`` drops the limit (the unconstrained optimum peaks
-                            near 5.7 N m, so the limit binds)
-dt             0.02 s
-tf             3 s          horizon K = 150 steps
-cost           P = 0, Q = 1e-2, P_f = diag(100, 10) on (theta - pi, dtheta)
-x0, target     [0, 0] -> [pi, 0]
-noise (opt.)   F = [0; sigma_u ud / (m l^2)] (p = 1), sigma_u = 0.1: signal-dependent torque noise
-=============  ===========  ==============================================================
+| parameter | value | source or note |
+|---|---|---|
+| m, l | 1 kg, 1 m | point mass on a massless rod (inertia m l^2 = 1 kg m^2) |
+| g | 9.81 m/s^2 |  |
+| b | 0.01 | viscous damping, N m s / rad |
+| u_max | 4 N m | 0.41 m g l, close to Gym Pendulum-v1's ratio of largest torque to largest gravity torque (6 / 15 = 0.4 in its rod model): the pendulum cannot be lifted directly and must be swung; ``limits=False`` drops the limit (the unconstrained optimum peaks near 5.7 N m, so the limit binds) |
+| dt | 0.02 s |  |
+| tf | 3 s | horizon K = 150 steps |
+| cost | P = 0, Q = 1e-2, P_f = diag(100, 10) on (theta - pi, dtheta) |  |
+| x0, target | [0, 0] -> [pi, 0] |  |
+| noise (opt.) | F = [0; sigma_u ud / (m l^2)] (p = 1), sigma_u = 0.1: signal-dependent torque noise |  |
 
 The torque that acts now is the command sent tau = l dt earlier (``ud``); ``u`` does not enter the
 plant. Note that x0 = [0, 0] with u = 0 is an equilibrium, so the swing-up must come from the
@@ -112,7 +108,7 @@ def pendulum(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=U
         x_target: [2] final target (default upright at rest).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"pendulum"``.
+        A [`Problem`][delayed_ilqr.Problem] named ``"pendulum"``.
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     noise = _common.flag(noise, "noise")

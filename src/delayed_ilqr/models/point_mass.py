@@ -81,10 +81,10 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
         x0: [4] initial state.
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): the problem gets the default sensors,
-            position and velocity seen that late through additive noise (:mod:`.sensors`).
+            position and velocity seen that late through additive noise (`sensors`).
 
     Returns:
-        A :class:`~delayed_ilqr.Problem` named ``"point_mass"``.
+        A [`Problem`][delayed_ilqr.Problem] named ``"point_mass"``.
     """
     dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, FINAL_TIME)
     preset, _ = _common.noise_setting(noise, None, {"benchmark": SIGMA_U}, "benchmark", "point_mass")

@@ -1,18 +1,17 @@
-"""The models' default sensors (issue 20): ``sensory_delay=`` of :func:`point_mass`, :func:`arm2`
-and :func:`arm2_muscle6` attaches one (``docs/models.md`` §1.1 has the levels and their sources).
+"""The models' default sensors: ``sensory_delay=`` of [`point_mass`][delayed_ilqr.models.point_mass], [`arm2`][delayed_ilqr.models.arm2]
+and [`arm2_muscle6`][delayed_ilqr.models.arm2_muscle6] attaches one (``docs/models.md`` §1.1 has the levels and their sources).
 
 The sensory noise is additive and given as a density: a component with density s has the
 per-sample standard deviation s / sqrt(dt), so that refining dt does not make the sensors more
 informative (the same convention as the motor noise's diffusion). At dt = 10 ms:
 
-=================  ==========================  ==============================================
-sensed             per-sample SD at dt = 10 ms  used by
-=================  ==========================  ==============================================
-joint angle        0.02 rad (1.15 deg)          arm2, arm2_muscle6 (proprioception)
-joint velocity     0.2 rad/s                    arm2, arm2_muscle6
-position           5 mm                         point_mass (the mass: vision of the hand)
-velocity           0.05 m/s                     point_mass
-=================  ==========================  ==============================================
+| sensed | per-sample SD at dt = 10 ms | used by |
+|---|---|---|
+| joint angle | 0.02 rad (1.15 deg) | arm2, arm2_muscle6 (proprioception) |
+| joint velocity | 0.2 rad/s | arm2, arm2_muscle6 |
+| position | 5 mm | point_mass (the mass: vision of the hand) |
+| velocity | 0.05 m/s | point_mass |
+
 """
 from __future__ import annotations
 

@@ -1,20 +1,19 @@
 """Figures for solutions, Monte Carlo runs and the studies.
 
-Every function builds a :class:`matplotlib.figure.Figure` directly (no ``pyplot``: no global
+Every function builds a `matplotlib.figure.Figure` directly (no ``pyplot``: no global
 state, no backend switch in the caller's session, never ``show()``) and returns it; save it with
 ``fig.savefig("name.png")`` (rendered by Agg). matplotlib is imported inside the functions, so
-importing :mod:`delayed_ilqr` does not import it. Labels, units and the task space (e.g. the hand
-position of the arms) come from the model's metadata (:mod:`delayed_ilqr.models.metadata`).
+importing [`delayed_ilqr`][delayed_ilqr] does not import it. Labels, units and the task space (e.g. the hand
+position of the arms) come from the model's metadata ([`delayed_ilqr.models.metadata`][delayed_ilqr.models.metadata]).
 
-==========================  ===================================================================
-:mod:`.solution`            states and commands against time; convergence of solves
-:mod:`.delay_study`         cost and endpoint error against the delay; task-space (hand) paths
-:mod:`.center_out`          center-out hand paths, speed profiles, endpoint ellipses in mm, cost
-                            and spread against the delay; excitation patterns
-:mod:`.perturbation`        mean corrective responses to a kick against the sensory delay
-:mod:`.sweep`               a sweep's Dataset: Monte Carlo cost and endpoint error against a grid axis
-`gallery`                   the gallery's experiments: kick, target jump, Fitts, minimal intervention
-==========================  ===================================================================
+|  |  |
+|---|---|
+| `solution` | states and commands against time; convergence of solves |
+| `delay_study` | cost and endpoint error against the delay; task-space (hand) paths |
+| `center_out` | center-out hand paths, speed profiles, endpoint ellipses in mm, cost and spread against the delay; excitation patterns |
+| `perturbation` | mean corrective responses to a kick against the sensory delay |
+| `sweep` | a sweep's Dataset: Monte Carlo cost and endpoint error against a grid axis |
+| `gallery` | the gallery's experiments: kick, target jump, Fitts, minimal intervention |
 
 ``delay_study_figures``, ``center_out_figures`` and ``perturbation_figures`` give a study's figures
 by file name.

@@ -2,7 +2,7 @@
 endpoint spread against the delay, and the excitation patterns.
 
 Each figure is compared with a finding of the reaching literature in the report's caption
-(:data:`CAPTIONS`): nearly straight hand paths (Morasso 1981), single-peaked, bell-shaped speed
+(`CAPTIONS`): nearly straight hand paths (Morasso 1981), single-peaked, bell-shaped speed
 profiles (Flash & Hogan 1985), endpoint ellipses of a few millimetres elongated along the movement
 (Gordon, Ghilardi & Ghez 1994; van Beers, Haggard & Wolpert 2004).
 """
@@ -106,7 +106,7 @@ def plot_center_out(results: Sequence, n_paths: int = 5):
     delay (columns) and design (rows).
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects.
+        results: [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult] objects.
         n_paths: Monte Carlo hand paths drawn per target.
 
     Returns:
@@ -146,7 +146,7 @@ def plot_speed_profiles(results: Sequence):
     """Hand speed of every nominal reach against time, one panel per delay (columns) and design (rows).
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects.
+        results: [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult] objects.
 
     Returns:
         A Figure: per target (colour) the nominal's hand speed in cm/s, from the hand displacement of
@@ -176,7 +176,7 @@ def plot_endpoints(results: Sequence):
     """Endpoints of the noisy trials relative to their targets, in mm, one panel per delay and design.
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects.
+        results: [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult] objects.
 
     Returns:
         A Figure: per target (colour) the endpoints of the trials that did not diverge minus the
@@ -225,11 +225,11 @@ def plot_center_out_vs_delay(results: Sequence):
     """Cost and endpoint spread against the delay, one series per design.
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.center_out.DelayResult` objects (several delays).
+        results: [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult] objects (several delays).
 
     Returns:
         A Figure with two axes. Left: the Monte Carlo mean cost over all targets' trials that did
-        not diverge, with its bootstrap 95 % interval (:func:`~delayed_ilqr.statistics.sample_stats`,
+        not diverge, with its bootstrap 95 % interval ([`sample_stats`][delayed_ilqr.statistics.sample_stats],
         log scale), and the mean over targets of the design's predicted E[J] (open markers,
         dashed). Right: the endpoint spread (1-sigma major axis of each target's endpoint
         covariance) in mm: mean over targets, bars from the smallest to the largest target.
@@ -271,7 +271,7 @@ def plot_excitations(result):
     """Nominal muscle excitations u_k of every target at one delay and design (one panel per target).
 
     Args:
-        result: a :class:`~delayed_ilqr.experiments.center_out.DelayResult`.
+        result: a [`DelayResult`][delayed_ilqr.experiments.center_out.DelayResult].
 
     Returns:
         A Figure with one panel per target (2 rows), the six excitations against time (the command
@@ -305,7 +305,7 @@ def plot_excitations(result):
 def center_out_figures(results: Sequence) -> dict:
     """The center-out figures by file name: center_out_hand_paths.png, center_out_speed.png,
     center_out_endpoints.png, center_out_vs_delay.png (with more than one delay) and, per delay and
-    design, center_out_excitations_<design>_<delay>ms.png (captions: :data:`CAPTIONS`), except for
+    design, center_out_excitations_<design>_<delay>ms.png (captions: `CAPTIONS`), except for
     a design whose nominal excitations are another's at that delay (the statistical design keeps
     the noise-aware nominal): that figure would repeat the other but for its title."""
     results = _nonempty(results)

@@ -16,7 +16,7 @@ __all__ = ["plot_hand_paths", "plot_delay_study", "delay_study_figures", "draws_
 
 
 def draws_paths(problem) -> bool:
-    """Whether the model's task space gets a paths figure (:func:`plot_hand_paths`; the arms)."""
+    """Whether the model's task space gets a paths figure ([`plot_hand_paths`][delayed_ilqr.plot.plot_hand_paths]; the arms)."""
     task = task_space(problem)
     return task is not None and task.paths and task_target(problem) is not None
 
@@ -113,9 +113,9 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
     endpoints, per delay and controller.
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects of a model
+        results: [`ControllerResult`][delayed_ilqr.experiments.delay_study.ControllerResult] objects of a model
             whose task space draws paths (the arms: from
-            :func:`~delayed_ilqr.experiments.delay_study.compare_delays` or ``evaluate``).
+            [`compare_delays`][delayed_ilqr.experiments.delay_study.compare_delays] or ``evaluate``).
         n_paths: Monte Carlo paths drawn per controller.
 
     Returns:
@@ -170,7 +170,7 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
 
 def _series(ax, tau, stats, scale, color, c, ci):
     """One controller's values against the delay: the mean over the trials that did not diverge with
-    its bootstrap 95 % interval, and the diverged count (:mod:`delayed_ilqr.statistics`, the same
+    its bootstrap 95 % interval, and the diverged count ([`delayed_ilqr.statistics`][delayed_ilqr.statistics], the same
     trials in both panels) written next to every point that has some."""
     ok = np.array([math.isfinite(st.mean) for st in stats])
     val = np.array([scale * st.mean for st in stats])
@@ -210,13 +210,13 @@ def plot_delay_study(results: Sequence):
     """Expected cost and endpoint error against the delay, one series per controller.
 
     Args:
-        results: :class:`~delayed_ilqr.experiments.delay_study.ControllerResult` objects (several delays).
+        results: [`ControllerResult`][delayed_ilqr.experiments.delay_study.ControllerResult] objects (several delays).
 
     Returns:
         A Figure with two axes. Left: Monte Carlo mean cost over the trials that did not diverge with
         its bootstrap 95 % interval (filled markers, log scale) and the controller's own predicted
         E[J] (open markers, dashed); the number of diverged trials (one definition,
-        :mod:`delayed_ilqr.statistics`) is written next to a point that has some. Middle: the
+        [`delayed_ilqr.statistics`][delayed_ilqr.statistics]) is written next to a point that has some. Middle: the
         endpoint error (mm for lengths in metres) over the same trials, likewise. Right, for a model
         with a task space (the arms): the endpoint spread, the 1-sigma major axis of the covariance
         of those trials' final task positions.

@@ -55,9 +55,9 @@ def plot_trajectories(problem, policy, runs=None, n_trials: int = 5, title: Opti
     """States and commands against time: the policy's nominal and a few Monte Carlo trials.
 
     Args:
-        problem: the :class:`~delayed_ilqr.Problem` (for dt, labels and the target).
-        policy: a :class:`~delayed_ilqr.Policy` or :class:`~delayed_ilqr.Solution` (its nominal is drawn).
-        runs: optional :class:`~delayed_ilqr.Runs`; its first ``n_trials`` trials are drawn thin.
+        problem: the [`Problem`][delayed_ilqr.Problem] (for dt, labels and the target).
+        policy: a [`Policy`][delayed_ilqr.Policy] or [`Solution`][delayed_ilqr.Solution] (its nominal is drawn).
+        runs: optional [`Runs`][delayed_ilqr.Runs]; its first ``n_trials`` trials are drawn thin.
         n_trials: how many trials to draw.
         title: the figure title (default: model, delay and noise).
 

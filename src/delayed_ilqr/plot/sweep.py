@@ -1,4 +1,4 @@
-"""Figures straight from a sweep's Dataset (:func:`delayed_ilqr.sweep`): the Monte Carlo cost and
+"""Figures straight from a sweep's Dataset ([`delayed_ilqr.sweep`][delayed_ilqr.sweeps.sweep]): the Monte Carlo cost and
 the endpoint error against one grid dimension, one line per value of another."""
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def plot_sweep(ds, x: Optional[str] = None, hue: Optional[str] = None, select: O
     line per value of ``hue``.
 
     Args:
-        ds: the Dataset of :func:`delayed_ilqr.sweep` (or :func:`delayed_ilqr.open_sweep`).
+        ds: the Dataset of [`delayed_ilqr.sweep`][delayed_ilqr.sweeps.sweep] (or [`delayed_ilqr.open_sweep`][delayed_ilqr.sweeps.open_sweep]).
         x: the dimension on the horizontal axis (default: the first grid dimension).
         hue: a dimension drawn as one line per value (default: the second grid dimension, if any).
         select: {dimension: index} for the other grid dimensions (default: their first value, named

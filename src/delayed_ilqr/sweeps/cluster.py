@@ -1,7 +1,7 @@
 """Batches on ``dask.distributed``: a ``LocalCluster`` of worker processes, or any scheduler.
 
 Each worker is set up once by a plugin (float64, XLA's CPU flags, the persistent compilation
-cache: :func:`.compute.prepare_process`), compiles each solver once and keeps it for every batch
+cache: `compute.prepare_process`), compiles each solver once and keeps it for every batch
 of the same structure, and returns only the batch's statistics; the process that runs the sweep
 writes them to the store as they arrive, so that a batch computed twice (its worker died after
 finishing it, and the scheduler ran it again) is written once. A worker that dies mid-batch loses
@@ -22,7 +22,7 @@ __all__ = ["client_for", "SweepWorkerSetup"]
 
 
 class SweepWorkerSetup(WorkerPlugin):
-    """A Dask worker plugin (``client.register_plugin``): :func:`.compute.prepare_process` on
+    """A Dask worker plugin (``client.register_plugin``): `compute.prepare_process` on
     each worker, once, before it computes anything."""
 
     name = "delayed-ilqr-sweep-setup"

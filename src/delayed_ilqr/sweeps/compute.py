@@ -1,10 +1,10 @@
 """One batch of a sweep, computed: the cells' problems solved by one ``vmap`` (or one plain solve
 for a batch of one), each policy run by Monte Carlo once per seed on its plant, and the statistics
-of :mod:`delayed_ilqr.statistics` (one definition of a diverged trial). Only the statistics leave
+of [`delayed_ilqr.statistics`][delayed_ilqr.statistics] (one definition of a diverged trial). Only the statistics leave
 this module: a batch's result is a few numbers per cell, cheap to send from a Dask worker.
 
 Runs wherever the batch runs: this process (which must compute in float64, as everywhere in the
-library), or a Dask worker, which :func:`prepare_process` sets up.
+library), or a Dask worker, which `prepare_process` sets up.
 """
 from __future__ import annotations
 
@@ -75,8 +75,8 @@ class Settings:
 
 def prepare_process(cache_dir=None, cache: bool = True) -> None:
     """Sets up a worker process of its own, before its first JAX computation: float64, XLA's CPU
-    flags (:func:`~delayed_ilqr.configure_cpu`) and, unless ``cache`` is False, the persistent
-    compilation cache (:func:`~delayed_ilqr.enable_compilation_cache`), so that a worker reads
+    flags ([`configure_cpu`][delayed_ilqr.configure_cpu]) and, unless ``cache`` is False, the persistent
+    compilation cache ([`enable_compilation_cache`][delayed_ilqr.enable_compilation_cache]), so that a worker reads
     the solvers another process compiled."""
     from .._cache import enable_compilation_cache
     from .._cpu import configure_cpu

@@ -105,7 +105,7 @@ def padded_size(n: int, batch_size: int) -> int:
 
 
 def batches(all_cells: Sequence[Cell], build: Callable[[Cell], Any], batch_size: int) -> list[Batch]:
-    """The grid's batches: cells grouped by :func:`structure_key` of their problem (groups in the
+    """The grid's batches: cells grouped by `structure_key` of their problem (groups in the
     order of their first cell), each group cut in grid order into chunks of ``batch_size``."""
     groups: dict[Any, list[Cell]] = {}
     for cell in all_cells:

@@ -36,10 +36,10 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
     """Solves and runs by Monte Carlo every cell of a grid over a model factory's arguments.
 
     A cell is one combination of the grid's values: ``problem = factory(**fixed, **cell)`` is the
-    plant, the design ``design`` of it is solved (:mod:`delayed_ilqr.experiments.designs`), and its
+    plant, the design ``design`` of it is solved (`delayed_ilqr.experiments.designs`), and its
     policy runs ``trials`` times on the plant for each seed. Cells whose problems share a compiled
     solver (equal static structure: same delay, sizes, callables) are solved together by one
-    ``vmap``, in batches of at most ``batch_size`` (:mod:`.grid`). With ``delay_frame`` the delay
+    ``vmap``, in batches of at most ``batch_size`` (`grid`). With ``delay_frame`` the delay
     is data (``Problem.delay_frame``): cells of different delays share one compiled solver and
     one batch.
 
@@ -52,10 +52,10 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             noise samples for a seed (common random numbers).
         trials: Monte Carlo trials per cell and seed.
         fixed: the factory's other arguments, the same in every cell (e.g. ``{"noise": True}``).
-        design: a design of :data:`delayed_ilqr.experiments.designs.REGISTRY` ("aware": Theorem 1).
+        design: a design of `delayed_ilqr.experiments.designs.REGISTRY` ("aware": Theorem 1).
         options: solver options (default ``Options()``).
         substeps: Euler-Maruyama sub-steps per control step of the Monte Carlo.
-        store: a folder for the results (:mod:`.store`): each finished batch of cells is written
+        store: a folder for the results (`store`): each finished batch of cells is written
             there with a completion marker, and a second call with the same arguments resumes,
             computing only the cells that are not finished (identical results). None: in memory.
         overwrite: replace a store that holds another sweep (else that is a ValueError).
@@ -64,20 +64,21 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             runs the batches on that cluster (docs/sweeps.md).
         n_workers: workers of the LocalCluster.
         batch_size: at most this many cells per vmapped solve.
-        cache, cache_dir: the Dask workers' persistent compilation cache
-            (:func:`~delayed_ilqr.enable_compilation_cache`); this process's cache is the caller's.
+        cache: whether the Dask workers keep a persistent compilation cache
+            ([`enable_compilation_cache`][delayed_ilqr.enable_compilation_cache]); this process's cache is the caller's.
+        cache_dir: the folder of the workers' cache (None: the default folder).
         progress: a progress bar (tqdm) over the cells.
-        units: units of further grid arguments, added to :data:`UNITS`.
+        units: units of further grid arguments, added to [`UNITS`][delayed_ilqr.sweeps.UNITS].
         delay_frame: None (each delay compiles its own solver), an int L (every cell's problem gets
             ``delay_frame=L``), or "auto": L = the longest delay of the grid in steps, when the
-            cells' delays differ, no delay has more than :data:`AUTO_FRAME_MAX_CELLS` cells and the
+            cells' delays differ, no delay has more than `AUTO_FRAME_MAX_CELLS` cells and the
             problems have no delayed sensors (no frame is available with an observation).
             Each solve then costs what one at delay L costs (docs/performance.md), and the
             results equal the unframed ones to round-off.
 
     Returns:
         An ``xarray.Dataset`` with one dimension per grid argument (coordinates: its values, with
-        units) and ``seed``; the variables of :data:`.compute.VARIABLES` (status, iterations,
+        units) and ``seed``; the variables of `compute.VARIABLES` (status, iterations,
         costs, Monte Carlo means with bootstrap intervals, medians, diverged counts, endpoint
         errors), each with ``long_name`` and ``units``.
 
@@ -140,7 +141,7 @@ AUTO_FRAME_MAX_CELLS = 1000
 
 
 def _framed(settings: Settings, problems: dict, delay_frame):
-    """``settings`` and ``problems`` in the delay frame asked for (see :func:`sweep`)."""
+    """``settings`` and ``problems`` in the delay frame asked for (see [`sweep`][delayed_ilqr.sweeps.sweep])."""
     if delay_frame == "auto":
         counts = collections.Counter(int(p.delay_steps) for p in problems.values())
         few = max(counts.values()) <= AUTO_FRAME_MAX_CELLS

@@ -42,7 +42,7 @@ _WHAT = ("a file of a sweep store (delayed_ilqr.sweep writes them); the store is
 
 
 def checksum(values: dict) -> str:
-    """SHA-256 of a cell's values, variable by variable in the order of :data:`VARIABLES`, each as
+    """SHA-256 of a cell's values, variable by variable in the order of `VARIABLES`, each as
     its dtype's little-endian bytes."""
     h = hashlib.sha256()
     for v in VARIABLES:
@@ -62,7 +62,7 @@ def _key(index) -> str:
 
 
 class Store:
-    """A sweep's store folder (see the module docstring). Open it with :meth:`open`."""
+    """A sweep's store folder (see the module docstring). Open it with `open`."""
 
     def __init__(self, path: pathlib.Path):
         self.path = pathlib.Path(path)
@@ -113,7 +113,7 @@ class Store:
 
     def check(self) -> None:
         """The store's metadata readable: results.zarr a folder whose Zarr metadata (``zarr.json``
-        of the group and of every variable) are JSON objects; else :class:`FileFormatError`
+        of the group and of every variable) are JSON objects; else `FileFormatError`
         naming the file (a damaged chunk is not an error: its cells are computed again)."""
         results = self.path / RESULTS
         if not results.is_dir():
