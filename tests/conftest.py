@@ -110,10 +110,11 @@ def _share_compilations(_compilation_cache):
 # whole files to its two workers in collection order (--dist loadfile --no-loadscope-reorder):
 # started last, a long file would leave one worker running it alone at the end.
 LONGEST_FIRST = (
-    "test_gradients_muscle.py",
     "test_center_out.py",
+    "test_gradients_muscle.py",
     "test_convergence.py",
     "test_gradients.py",
+    "test_convergence_muscle.py",
 )
 
 
