@@ -106,14 +106,22 @@ def _share_compilations(_compilation_cache):
     _link_missing(own, shared)
 
 
-# The files that take longest (seconds of `make test`), handed out first. `make test` distributes
-# whole files to its two workers in collection order (--dist loadfile --no-loadscope-reorder):
-# started last, a long file would leave one worker running it alone at the end.
+# The files that take longest, handed out first (the measurements: docs/performance.md, "Test-suite
+# time"). `make test` gives whole files to its two workers in collection order (--dist loadfile
+# --no-loadscope-reorder); a long file started last would leave one worker running it alone at the
+# end, as xdist's own order (files with the most tests first) did with these, which hold few tests.
 LONGEST_FIRST = (
     "test_center_out.py",
     "test_gradients_muscle.py",
+    "test_limits_family.py",
     "test_convergence.py",
     "test_gradients.py",
+    "test_continuation.py",
+    "test_reach_shape.py",
+    "test_time.py",
+    "test_limits.py",
+    "test_fitting.py",
+    "test_alternation.py",
     "test_convergence_muscle.py",
 )
 
