@@ -112,10 +112,10 @@ def _share_compilations(_compilation_cache):
 # end, as xdist's own order (files with the most tests first) did with these, which hold few tests.
 LONGEST_FIRST = (
     "test_center_out.py",
-    "test_gradients_muscle.py",
-    "test_limits_family.py",
     "test_convergence.py",
+    "test_limits_family.py",
     "test_gradients.py",
+    "test_gradients_muscle.py",
     "test_continuation.py",
     "test_reach_shape.py",
     "test_time.py",

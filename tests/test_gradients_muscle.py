@@ -100,7 +100,10 @@ def test_six_muscle_arm_delayed_commands_match_finite_differences():
     assert err < 1e-5, err
 
 
-@pytest.mark.slow
+# make bench (pytest -m full): the suite keeps its two parts, the noise-aware fixed point's derivative
+# against re-solves on the arm (test_gradients.py, test_arm_noisy_delayed_matches_finite_differences,
+# the same 1e-5) and the muscle arm's near-zero free excitations (the test above)
+@pytest.mark.full
 def test_six_muscle_arm_delayed_noisy_commands_match_finite_differences():
     """The six-muscle arm at 50 ms with its signal-dependent noise (the noise-aware solve's fixed
     point, derivation §16): du*/dx0 in forward mode against central differences of re-solves, within
