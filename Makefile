@@ -28,16 +28,18 @@ demo: $(STAMP)
 		--allow-unconverged --overwrite --out out/center_out
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15 tests
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests
 
 $(BENCH_STAMP): $(STAMP)
 	$(BIN)/pip install --quiet -e '.[bench]'
 	touch $(BENCH_STAMP)
 
+# last, the full-size studies whose smaller versions `make test` runs (the tests marked `full`)
 bench: $(BENCH_STAMP)
 	$(BIN)/python benchmarks/run.py
 	$(BIN)/python benchmarks/solve_p1_p2.py
 	$(BIN)/python benchmarks/bounded.py
+	$(BIN)/python -m pytest -q -m full tests
 
 # the documentation site into site/ (strict: a broken reference fails); the test extra installs
 # the docs extra, so the stamp of `make test` covers it

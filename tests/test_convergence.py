@@ -157,22 +157,6 @@ def test_a_noisy_solve_that_stops_early_returns_its_best_iterate():
         np.testing.assert_allclose(sol.x, _value(rollout, problem, sol.u), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6), (0.005, 0.15, 7)])
-def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
-    """Three reaches of the issue-19 grid (docs/results/noise_aware_convergence.md): the first cycled
-    with period 9 at lambda = 0 (a command's feedback switching on and off: the latch), the
-    second stopped "converged" under lambda = 1e5 (an excitation at its bound planned with half
-    its derivative, then optima on the activation switch's kink), the third latched 89 commands
-    while its merit still wandered over a factor 2 and then crept for 250 iterations (the latch
-    fires only on a recurring window, LATCH_RECUR)."""
-    from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
-    problem = arm2_muscle6(delay=delay, target=tuple(center_out_targets()[k]), noise=True, sigma_u=sigma_u)
-    sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=300))
-    assert sol.converged, sol.status
-    n = int(sol.iterations)
-    assert float(sol.trace.reg[n]) < 1e-5
-
-
 def _window(latch, merits, toggle):
     """The latch after one LATCH_STALL window of backward passes with the given merits, the
     feedback of command (0, 0) switching every pass when ``toggle``."""
