@@ -99,7 +99,7 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
     return xs, us, cost, diverged, diverged | fell, solver_failures, status
 
 
-@partial(jax.jit, static_argnames=("ctrl", "plant_static", "ticks", "failure", "bound", "n_trials"))
+@partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials"))
 def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, disturbance):
     plant = jax.tree_util.tree_unflatten(plant_static, plant_data)
     keys = jax.random.split(key, n_trials)

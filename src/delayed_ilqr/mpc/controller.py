@@ -19,7 +19,6 @@ tick), and :func:`~delayed_ilqr.mpc.simulate` holds it one tick before the plant
 from __future__ import annotations
 
 import dataclasses
-from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -32,7 +31,7 @@ from ..options import Options
 from ..problem import Problem
 from ..solution import Status
 from .receding import at_tick, tick_problem
-from .reference import reference as make_reference
+from .reference import Reference, reference as make_reference
 from .strategies import COMPENSATIONS, REPLAY_HISTORIES, Strategy, strategy
 
 __all__ = ["MPC", "ControllerState", "TickLaw", "Tick"]
@@ -122,7 +121,7 @@ class MPC:
     """
 
     __slots__ = ("problem", "iterations", "compensation", "charge_solve_time", "reference", "replay_history",
-                 "options", "strategy", "template", "_step")
+                 "options", "strategy", "template")
 
     def __init__(self, problem: Problem, iterations: int = 1, compensation: str = "inflight",
                  charge_solve_time: bool = False, reference=None, replay_history: str = "sent",
@@ -157,7 +156,6 @@ class MPC:
                       template=tick_problem(problem, ref, strat.model_delay))
         for name, value in values.items():
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "_step", jax.jit(partial(tick, self)))
 
     def __setattr__(self, name, value):
         raise AttributeError(f"MPC is immutable: make a new one instead of setting {name!r}")
@@ -176,12 +174,36 @@ class MPC:
 
     def step(self, state: ControllerState, x) -> tuple[ControllerState, Tick]:
         """One compiled tick from the newest state x [n] (see the module docstring)."""
-        return self._step(state, jnp.asarray(x, jnp.float64))
+        return _tick(self, state, jnp.asarray(x, jnp.float64))
 
     def __repr__(self):
         return (f"MPC({self.problem.name!r}, K={self.problem.horizon}, l={self.problem.delay_steps}, "
                 f"compensation={self.compensation!r}, iterations={self.iterations}"
                 + (", charge_solve_time=True" if self.charge_solve_time else "") + ")")
+
+
+# An MPC is a JAX pytree: its problems' arrays and the reference's samples are data, the rest static,
+# so controllers that differ only in arrays (x0, weights, a reference trajectory) share one
+# compiled tick and one compiled closed loop.
+_STATIC = ("iterations", "compensation", "charge_solve_time", "replay_history", "options", "strategy")
+
+
+def _flatten(ctrl: MPC):
+    return ((ctrl.problem, ctrl.template, ctrl.reference.samples),
+            tuple(getattr(ctrl, name) for name in _STATIC) + (ctrl.reference.lookup,))
+
+
+def _unflatten(aux, data):
+    new = object.__new__(MPC)
+    problem, template, samples = data
+    for name, value in zip(_STATIC, aux):
+        object.__setattr__(new, name, value)
+    for name, value in (("problem", problem), ("template", template), ("reference", Reference(aux[-1], samples))):
+        object.__setattr__(new, name, value)
+    return new
+
+
+jax.tree_util.register_pytree_node(MPC, _flatten, _unflatten)
 
 
 def predicted_state(ctrl: MPC, x, in_flight, plan, t0):
@@ -217,3 +239,6 @@ def tick(ctrl: MPC, state: ControllerState, x) -> tuple[ControllerState, Tick]:
     sent = jnp.concatenate([state.in_flight[1:], command[None]]) if state.in_flight.shape[0] else state.in_flight
     new = ControllerState(plan, sent, state.tick + 1)
     return new, Tick(command, law, sol.status, sol.iterations, sol.cost)
+
+
+_tick = jax.jit(tick)
