@@ -238,3 +238,22 @@ def test_bad_plant_and_reference_are_refused_word_for_word():
     with pytest.raises(ValueError) as e:
         mpc.MPC(_arm(2, horizon=10), reference=np.zeros((5, 3)))
     assert str(e.value) == "reference must have shape (*, 4); got shape (5, 3)"
+
+
+# -- the planar quadrotor -------------------------------------------------------------------------
+
+def test_planar_quadrotor_hovers_and_its_accelerations_follow_the_equations():
+    problem = di.models.planar_quadrotor()
+    f = problem.dynamics
+    np.testing.assert_allclose(f(jnp.zeros(6), jnp.zeros(2), jnp.zeros(2)), np.zeros(6), atol=1e-15)
+    m, r, inertia, g = 0.486, 0.25, 0.00383, 9.81
+    x = np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])
+    ud = np.array([0.5, -0.2])
+    total = m * g + 0.3
+    expected = [-math.sin(0.3) * total / m, math.cos(0.3) * total / m - g, r * 0.7 / inertia]
+    np.testing.assert_allclose(f(jnp.asarray(x), jnp.zeros(2), jnp.asarray(ud))[3:], expected, rtol=1e-12)
+    F = di.models.planar_quadrotor(noise=True).noise(jnp.asarray(x), jnp.zeros(2), jnp.asarray(ud))
+    # each noise column is sigma_u T_i times the response to one newton on rotor i
+    one = np.asarray(f(jnp.asarray(x), jnp.zeros(2), jnp.array([1.0, 0.0])) - f(jnp.asarray(x), jnp.zeros(2),
+                                                                                jnp.zeros(2)))
+    np.testing.assert_allclose(F[:, 0], 0.05 * (m * g / 2 + 0.5) * one, rtol=1e-12)

@@ -34,7 +34,7 @@ class ClosedLoop(NamedTuple):
     """Trials of the receding-horizon controller on a plant.
 
     Attributes:
-        x: [N, T+1, n] the plant's states (x[:, 0] = plant.x0).
+        x: [N, T+1, n] the plant's states (x[:, 0] = the initial states).
         u: [N, T, d] the commands the controller computed at each tick.
         cost: [N] the plant's cost over the T ticks, sum_k dt running(x_k, u_k, t_k) + final(x_T, t_T),
             with the plant's weights and the controller's reference (``receding``).
@@ -68,28 +68,38 @@ def _plant_step(plant: Problem, x, u, ud, xi, t):
     return x_new
 
 
-def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], bound: float, key, disturbance):
+def _acting(pending, u, lag):
+    """u_{k-lag} from the last Q commands ``pending`` [Q, d] (oldest first) and u_k; ``lag`` may be
+    traced (a plant whose delay is data, ``Problem.delay_frame``)."""
+    Q = pending.shape[0]
+    if Q == 0:
+        return u
+    return jnp.where(lag == 0, u, pending[jnp.clip(Q - lag, 0, Q - 1)])
+
+
+def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], bound: float, key, x0, disturbance):
     """One trial: (x [T+1, n], u [T, d], cost, diverged, failed, solver_failures, status [T])."""
-    nx, nd, p = plant.n_states, plant.n_controls, plant.n_noise
-    queue = plant.delay_steps + int(ctrl.charge_solve_time)          # ticks between computing and acting
+    nd, p = plant.n_controls, plant.n_noise
+    s = int(ctrl.charge_solve_time)
+    queue = plant.frame_steps + s                 # the most ticks between computing and acting
+    lag = plant.delay_steps + s                   # this plant's (traced with a frame)
     xi = jax.random.normal(key, (ticks, p))
     times = plant.dt * jnp.arange(ticks, dtype=jnp.float64)
 
     def step(carry, data):
-        state, x, pending, last = carry        # pending: the last `queue` commands, oldest first
+        state, x, pending = carry          # pending: the last `queue` commands computed, oldest first
         xi_k, t, w = data
         state, out = tick(ctrl, state, x)
         u = out.command
-        ud = pending[0] if queue else u
-        # the plant's own u argument: the command it receives now (after the solve tick, if charged)
-        received = last if ctrl.charge_solve_time else u
-        x_new = _plant_step(plant, x, received, ud, xi_k, t) + w
+        # the plant's own u argument: the command it receives now (one tick late when charged)
+        received = _acting(pending, u, s) if s else u
+        x_new = _plant_step(plant, x, received, _acting(pending, u, lag), xi_k, t) + w
         pending = jnp.concatenate([pending[1:], u[None]]) if queue else pending
-        return (state, x_new, pending, u), (x_new, u, out.status)
+        return (state, x_new, pending), (x_new, u, out.status)
 
-    init = (ctrl.init(), plant.x0, jnp.zeros((queue, nd)), jnp.zeros(nd))
+    init = (ctrl.init(), x0, jnp.zeros((queue, nd)))
     _, (xs, us, status) = jax.lax.scan(step, init, (xi, times, disturbance))
-    xs = jnp.concatenate([plant.x0[None], xs])
+    xs = jnp.concatenate([x0[None], xs])
     cost_fn = receding_cost(plant.cost, ctrl.reference)
     running = jax.vmap(cost_fn.running)(xs[:-1], us, times)
     cost = plant.dt * jnp.sum(running) + cost_fn.final(xs[-1], plant.dt * ticks)
@@ -100,11 +110,12 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
 
 
 @partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials"))
-def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, disturbance):
+def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance):
     plant = jax.tree_util.tree_unflatten(plant_static, plant_data)
     keys = jax.random.split(key, n_trials)
-    in_axes = (0, None if disturbance.ndim == 2 else 0)
-    return jax.vmap(lambda k, w: _trial(ctrl, plant, ticks, failure, bound, k, w), in_axes=in_axes)(keys, disturbance)
+    in_axes = (0, None if x0.ndim == 1 else 0, None if disturbance.ndim == 2 else 0)
+    return jax.vmap(lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w), in_axes=in_axes)(
+        keys, x0, disturbance)
 
 
 def _check_plant(ctrl: MPC, plant) -> Problem:
@@ -116,11 +127,11 @@ def _check_plant(ctrl: MPC, plant) -> Problem:
                          f"d={model.n_controls}); got n={plant.n_states}, d={plant.n_controls}")
     if not math.isclose(plant.dt, model.dt, rel_tol=1e-12):
         raise ValueError(f"plant.dt must equal the controller's tick (problem.dt={model.dt}); got {plant.dt}")
-    return plant.without_frame("mpc.simulate")
+    return plant
 
 
 def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int = 0, disturbance=None,
-             failure: Optional[Callable] = None, bound: float = math.inf) -> ClosedLoop:
+             x0=None, failure: Optional[Callable] = None, bound: float = math.inf) -> ClosedLoop:
     """Runs ``ctrl`` against ``plant`` for ``ticks`` ticks, ``n_trials`` times, in one compiled loop.
 
     Args:
@@ -129,12 +140,15 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
             its parameters, ``delay_steps`` (the true delay), ``noise``, limits and ``x0`` may differ
             from the controller's model (``plant.horizon`` is not used). Its noise is driven by
             ``jax.random.split(PRNGKey(seed), n_trials)``: two controllers run with the same seed
-            see the same noise (common random numbers).
+            see the same noise (common random numbers). Plants that differ only in arrays (a
+            dynamics registered as a pytree with its parameters as data; the delay as data with
+            ``delay_frame``) share one compiled loop.
         ticks: T, the number of ticks (positive int).
         n_trials: N (positive int).
         seed: non-negative integer.
         disturbance: optional W [T, n] (every trial) or [N, T, n] (one per trial), added to the
             plant's state update and unknown to the controller.
+        x0: optional initial states [N, n], one per trial (default ``plant.x0`` for all).
         failure: optional ``failure(x) -> bool`` on one state (jax-traceable, e.g. the pole past
             horizontal); a trial fails when it holds at any tick.
         bound: a trial diverges when a state component leaves [-bound, bound] (default: only
@@ -164,8 +178,9 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
     else:
         shape = (ticks, nx) if np.ndim(disturbance) == 2 else (n_trials, ticks, nx)
         disturbance = _validate.array(disturbance, "disturbance", shape)
+    x0 = plant.x0 if x0 is None else jnp.asarray(_validate.array(x0, "x0", (n_trials, nx)))
     data, static = jax.tree_util.tree_flatten(plant)
-    out = _run(ctrl, static, data, ticks, failure, float(bound), n_trials, jax.random.PRNGKey(seed),
+    out = _run(ctrl, static, data, ticks, failure, float(bound), n_trials, jax.random.PRNGKey(seed), x0,
                jnp.asarray(disturbance))
     times = plant.dt * jnp.arange(ticks + 1, dtype=jnp.float64)
     reference = jax.vmap(lambda t: ctrl.reference.lookup(ctrl.reference.samples, t))(times)
