@@ -3,7 +3,7 @@
 (:mod:`delayed_ilqr.experiments.report`) and the figures (:mod:`delayed_ilqr.plot`).
 
 Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``,
-``sweep`` and ``fit`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
+``sweep``, ``fit`` and ``mpc`` (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
 that cannot be created or is not empty without ``--overwrite``); 3 for any other error, reported
@@ -22,7 +22,7 @@ interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty
 
 The package: :mod:`.arguments` (parameter types and the checks made before computing),
 :mod:`.output` (the atomic ``--out`` folder), one module per group of commands (:mod:`.solve`,
-:mod:`.studies`, :mod:`.fit`, :mod:`.sweep`), and here the group that runs them.
+:mod:`.studies`, :mod:`.fit`, :mod:`.sweep`, :mod:`.mpc`), and here the group that runs them.
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import jax
 
 from .._cache import CACHE_DIR_ENV, NO_CACHE_ENV, enable_compilation_cache
 from .._cpu import configure_cpu
-from . import fit, solve, studies, sweep
+from . import fit, mpc, solve, studies, sweep
 
 __all__ = ["main", "ERROR_EXIT"]
 
@@ -90,5 +90,5 @@ def main(debug, no_cache, cache_dir):
 
 for _command in (solve.models_command, solve.solve_command, solve.simulate_command, studies.compare_command,
                  studies.demo_command, studies.center_out_command, fit.fit_command, studies.perturb_command,
-                 sweep.sweep_command):
+                 sweep.sweep_command, mpc.mpc_command):
     main.add_command(_command)

@@ -171,7 +171,7 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
     bound = _validate.positive_float(bound, "bound") if bound != math.inf else bound
     if failure is not None and not callable(failure):
         raise TypeError(f"failure must be None or callable as failure(x); got {type(failure).__name__}")
-    ctrl.reference.check_covers(ticks - 1 + ctrl.problem.horizon + ctrl.controller_delay)
+    ctrl.reference.check_covers(ticks - 1 + ctrl.problem.horizon)     # every horizon ends at t_{k+K}
     nx = plant.n_states
     if disturbance is None:
         disturbance = np.zeros((ticks, nx))

@@ -45,7 +45,8 @@ class ControllerState(NamedTuple):
     """What the controller remembers between ticks.
 
     Attributes:
-        plan: [K, d] the nominal commands, warm start of the next tick (already shifted).
+        plan: [K_t, d] the nominal commands, warm start of the next tick (already shifted); K_t is
+            the tick problem's horizon (K, or K - l_c for ``predict``).
         in_flight: [l_c, d] the commands sent and not yet acting, oldest first (u_{k-l_c}..u_{k-1}).
         tick: [] int32, k.
     """
@@ -149,11 +150,11 @@ class MPC:
                              "tick with charge_solve_time): a command must act within the horizon; got horizon="
                              f"{problem.horizon}, controller delay={l_c}")
         ref = make_reference(reference, problem)
-        strat = strategy(compensation, l_c, replay_history)
+        strat = strategy(compensation, l_c, problem.horizon, replay_history)
         values = dict(problem=problem, iterations=iterations, compensation=compensation,
                       charge_solve_time=bool(charge_solve_time), reference=ref, replay_history=replay_history,
                       options=dataclasses.replace(options, max_iterations=iterations), strategy=strat,
-                      template=tick_problem(problem, ref, strat.model_delay))
+                      template=tick_problem(problem, ref, strat.model_delay, strat.horizon))
         for name, value in values.items():
             object.__setattr__(self, name, value)
 
@@ -166,9 +167,10 @@ class MPC:
         return self.problem.delay_steps + int(self.charge_solve_time)
 
     def init(self, u_init=None) -> ControllerState:
-        """The state before the first tick: the plan ``u_init`` [K, d] (default zeros), nothing in
-        flight (commands before t = 0 are zero, as in the problem), tick 0."""
-        K, nd = self.problem.horizon, self.problem.n_controls
+        """The state before the first tick: the plan ``u_init`` [K_t, d] (default zeros; K_t the
+        tick problem's horizon, ``strategy.horizon``), nothing in flight (commands before t = 0
+        are zero, as in the problem), tick 0."""
+        K, nd = self.strategy.horizon, self.problem.n_controls
         plan = np.zeros((K, nd)) if u_init is None else _validate.array(u_init, "u_init", (K, nd))
         return ControllerState(jnp.asarray(plan), jnp.zeros((self.controller_delay, nd)), jnp.asarray(0, jnp.int32))
 
@@ -217,7 +219,8 @@ def predicted_state(ctrl: MPC, x, in_flight, plan, t0):
 
     l = in_flight.shape[0]
     times = t0 + problem.dt * jnp.arange(l, dtype=x.dtype)
-    return jax.lax.scan(one, x, (in_flight, plan[:l], times))[0]
+    sent = plan[jnp.minimum(jnp.arange(l), plan.shape[0] - 1)]
+    return jax.lax.scan(one, x, (in_flight, sent, times))[0]
 
 
 def tick(ctrl: MPC, state: ControllerState, x) -> tuple[ControllerState, Tick]:

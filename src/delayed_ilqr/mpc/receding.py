@@ -121,15 +121,17 @@ def receding_cost(cost, reference: Reference, t0=0.0) -> GeneralCost:
     return GeneralCost(shifted.running, shifted.final, (cost.params, t0), time_dependent=True)
 
 
-def tick_problem(problem: Problem, reference: Reference, delay_steps: int) -> Problem:
+def tick_problem(problem: Problem, reference: Reference, delay_steps: int, horizon: int) -> Problem:
     """The template of the tick problem (module docstring) with model delay ``delay_steps`` (0 for
-    the delay-free strategies), nothing in flight and t0 = 0; validated once, here.
+    the delay-free strategies) over ``horizon`` steps, nothing in flight and t0 = 0; validated
+    once, here.
 
     The sensors are not part of the tick problem (the controller is given the state)."""
     nd = problem.n_controls
     zeros, t0 = jnp.zeros((delay_steps, nd)), jnp.asarray(0.0)
     wrap = lambda fn: None if fn is None else InFlightDynamics(fn, problem.time_dependent, problem.dt, zeros, t0)
     return problem.replace(dynamics=wrap(problem.dynamics), noise=wrap(problem.noise), delay_steps=delay_steps,
+                           horizon=horizon,
                            cost=receding_cost(problem.cost, reference), time_dependent=True, observation=None,
                            delay_frame=None, name=f"{problem.name} (receding)")
 

@@ -50,10 +50,10 @@ class Reference:
 
     def check_covers(self, last_step: int) -> None:
         """Raises when a sampled reference ends before step ``last_step`` (the last step a tick's
-        horizon reads: the last tick plus the horizon and the prediction)."""
+        horizon reads: the last tick plus the horizon)."""
         if self.sampled and last_step > self.samples.shape[0] - 1:
             raise ValueError(f"reference must cover every step a tick's horizon reads: up to step {last_step} "
-                             f"(the last tick + horizon + delay); got {self.samples.shape[0]} samples (steps 0.."
+                             f"(the last tick + horizon); got {self.samples.shape[0]} samples (steps 0.."
                              f"{self.samples.shape[0] - 1}); lengthen the reference or run fewer ticks")
 
 
