@@ -10,7 +10,8 @@ On the two-link arm (``models.arm2``, dt = 10 ms) with a 50-step horizon:
 2. the tick's cost against the delay l in {0, 2, 5, 10, 20, 40} (closed loop, ticks per second,
    and the time per tick relative to l = 0; the structured pass grows like l^2 d^3 per step);
 3. batched rollouts: ``mpc.simulate`` of ``--trials`` seeds (default 1000) on the noisy arm,
-   ``--rollout-ticks`` ticks each, under ``vmap``: rollouts per second and trial-ticks per second.
+   ``--rollout-ticks`` ticks each, under ``vmap``: rollouts per second and trial-ticks per second,
+   with the trials one after another (what ``mpc.simulate`` does on CPU) and batched by JAX.
 
 Run ``python benchmarks/mpc_speed.py`` (about two minutes on the shared 2-core machine); numbers
 in docs/performance.md ("Receding-horizon control").
@@ -28,6 +29,7 @@ import delayed_ilqr as di
 from delayed_ilqr import mpc
 from delayed_ilqr.ilqg.solver import _solve_body
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN
+from delayed_ilqr.mpc import closed_loop
 from delayed_ilqr.mpc.receding import at_tick
 
 
@@ -86,17 +88,21 @@ def closed_loop_rate(horizon: int, l: int, ticks: int) -> float:
     return ticks / best
 
 
-def rollouts(horizon: int, l: int, ticks: int, trials: int):
-    """Rollouts per second of ``trials`` seeds on the noisy arm (compilation excluded)."""
+def rollouts(horizon: int, l: int, ticks: int, trials: int, sequential: bool):
+    """Rollouts per second of ``trials`` seeds on the noisy arm (compilation excluded), with the
+    trials one after another under the vmap (``mpc.simulate`` on CPU) or batched (JAX's rule)."""
     model = _arm(l, horizon)
     plant = di.models.arm2(delay=l * 0.01, dt=0.01, horizon=horizon, noise=True, sigma_u=SIGMA_U_HUMAN)
     ctrl = mpc.MPC(model)
-    jax.block_until_ready(mpc.simulate(ctrl, plant, ticks=ticks, n_trials=trials).x)
+    data, static = jax.tree_util.tree_flatten(plant)
+    run = lambda seed: closed_loop._run(ctrl, static, data, ticks, None, float("inf"), trials, jax.random.PRNGKey(seed),
+                                        plant.x0, jnp.zeros((ticks, 4)), sequential)
+    jax.block_until_ready(run(0)[0])
     t = time.perf_counter()
-    run = mpc.simulate(ctrl, plant, ticks=ticks, n_trials=trials, seed=1)
-    jax.block_until_ready(run.x)
+    out = run(1)
+    jax.block_until_ready(out[0])
     elapsed = time.perf_counter() - t
-    return trials / elapsed, trials * ticks / elapsed, float(np.mean(np.asarray(run.failed)))
+    return trials / elapsed, trials * ticks / elapsed, float(np.mean(np.asarray(out[4])))
 
 
 def main(argv=None):
@@ -128,9 +134,10 @@ def main(argv=None):
         base = base or rate
         print(f"| {l} | {rate:.0f} | {1e6 / rate:.0f} | {base / rate:.2f} |")
 
-    per_s, tick_trials, failed = rollouts(K, 10, args.rollout_ticks, args.trials)
-    print(f"\nbatched: {args.trials} seeds x {args.rollout_ticks} ticks (noisy arm, l = 10): {per_s:.1f} rollouts/s, "
-          f"{tick_trials:.0f} trial-ticks/s (failure rate {failed:.2f})")
+    print(f"\n{args.trials} seeds x {args.rollout_ticks} ticks (noisy arm, l = 10):")
+    for name, sequential in (("one after another (mpc.simulate on CPU)", True), ("batched by JAX's vmap", False)):
+        per_s, tick_trials, failed = rollouts(K, 10, args.rollout_ticks, args.trials, sequential)
+        print(f"  {name}: {per_s:.1f} rollouts/s, {tick_trials:.0f} trial-ticks/s (failure rate {failed:.2f})")
 
 
 if __name__ == "__main__":

@@ -267,3 +267,31 @@ def test_planar_quadrotor_hovers_and_its_accelerations_follow_the_equations():
     one = np.asarray(f(jnp.asarray(x), jnp.zeros(2), jnp.array([1.0, 0.0])) - f(jnp.asarray(x), jnp.zeros(2),
                                                                                 jnp.zeros(2)))
     np.testing.assert_allclose(F[:, 0], 0.05 * (m * g / 2 + 0.5) * one, rtol=1e-12)
+
+
+# -- the command line -----------------------------------------------------------------------------
+
+def test_mpc_command_writes_its_table_figure_and_manifest(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from delayed_ilqr import cli
+    out = tmp_path / "run"
+    result = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.05",
+                                           "--mismatch", "0.2", "--horizon", "10", "--ticks", "12",
+                                           "--compensation", "none", "--compensation", "inflight", "--out", str(out)],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "model delay 30 ms, plant delay 50 ms, actuator gain 1.2" in result.output
+    assert "| delay | plant | none | inflight |" in result.output
+    table = json.loads((out / "mpc.json").read_text())
+    assert [row["strategy"] for row in table] == ["none", "inflight"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["files"]) == {"closed_loop.png", "mpc.json", "runs.npz"}
+    assert manifest["settings"]["true_delay"] == pytest.approx(0.05)
+    runs = np.load(out / "runs.npz")
+    assert runs["x_inflight"].shape == (1, 13, 4) and runs["u_none"].shape == (1, 12, 2)
+    bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.025"])
+    assert bad.exit_code == 2
+    assert "arm2: delay must be a whole number of steps of dt=0.01 s; got 0.025 s (2.5 steps)" in bad.output

@@ -56,7 +56,7 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
         runs, rows = mpc_baselines.compare(controller_model, plant, ticks, trials, seed, iterations, strategies)
         click.echo(f"{model.name}: model delay {1e3 * controller_model.delay:g} ms, plant delay "
                    f"{1e3 * plant.delay:g} ms, actuator gain {1 + mismatch:g}, {ticks} ticks, {trials} trial(s)")
-        click.echo(mpc_baselines.markdown(rows))
+        click.echo(mpc_baselines.markdown(rows, [label for label, _, _ in strategies]))
         if out is not None:
             from .. import plot
             from ..experiments import report

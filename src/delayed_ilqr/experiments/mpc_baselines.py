@@ -195,10 +195,11 @@ def _cell(row: Row) -> str:
     return f"{cost} / {100 * row.failure_rate:.0f} % / {err}"
 
 
-def markdown(rows: list[Row]) -> str:
-    """One markdown table per scenario: a row per (model delay, plant), a column per controller,
-    each cell "median cost / failure rate / RMS tracking error"."""
-    labels = [label for label, _, _ in STRATEGIES]
+def markdown(rows: list[Row], labels=None) -> str:
+    """One markdown table per scenario: a row per (model delay, plant), a column per controller
+    (``labels``, default all of :data:`STRATEGIES`), each cell "median cost / failure rate / RMS
+    tracking error"."""
+    labels = [label for label, _, _ in STRATEGIES] if labels is None else list(labels)
     out = []
     for name in dict.fromkeys(r.scenario for r in rows):
         mine = [r for r in rows if r.scenario == name]

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _precision, _validate
+from ..ilqg.batching import one_after_another
 from ..problem import Problem
 from .controller import FAILED, MPC, tick
 from .receding import receding_cost
@@ -109,13 +110,15 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
     return xs, us, cost, diverged, diverged | fell, solver_failures, status
 
 
-@partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials"))
-def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance):
+@partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials", "sequential"))
+def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance, sequential):
     plant = jax.tree_util.tree_unflatten(plant_static, plant_data)
     keys = jax.random.split(key, n_trials)
     in_axes = (0, None if x0.ndim == 1 else 0, None if disturbance.ndim == 2 else 0)
-    return jax.vmap(lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w), in_axes=in_axes)(
-        keys, x0, disturbance)
+    trial = lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w)
+    # on CPU the trials run one after another under the vmap (the solver's CPU batching rule): each
+    # tick's solve stays a small loop instead of a batched one (docs/performance.md#receding-horizon-control)
+    return jax.vmap(one_after_another(trial) if sequential else trial, in_axes=in_axes)(keys, x0, disturbance)
 
 
 def _check_plant(ctrl: MPC, plant) -> Problem:
@@ -181,7 +184,7 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
     x0 = plant.x0 if x0 is None else jnp.asarray(_validate.array(x0, "x0", (n_trials, nx)))
     data, static = jax.tree_util.tree_flatten(plant)
     out = _run(ctrl, static, data, ticks, failure, float(bound), n_trials, jax.random.PRNGKey(seed), x0,
-               jnp.asarray(disturbance))
+               jnp.asarray(disturbance), jax.default_backend() == "cpu")
     times = plant.dt * jnp.arange(ticks + 1, dtype=jnp.float64)
     reference = jax.vmap(lambda t: ctrl.reference.lookup(ctrl.reference.samples, t))(times)
     return ClosedLoop(*out, reference=reference)
