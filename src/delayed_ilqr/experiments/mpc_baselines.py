@@ -11,6 +11,8 @@ tracking error in the model's task space (over the trials that did not fail).
 ==================  ==========================================================================
 cart_pole           balancing the pole upright (Florian's cart-pole, |u| <= 10 N), dt = 25 ms,
                     horizon 1 s, from tilts of sd 0.1 rad; a fall: the pole past 45 degrees
+cart_pole_swing_up  swinging the pole up from hanging and holding it, dt = 50 ms, horizon 2 s,
+                    8 s of ticks; a failure: the pole more than 0.5 rad off upright in the last 2 s
 arm2                the two-link arm (Li & Todorov 2004) tracking a target moving on a circle
                     in joint space (0.5 Hz), dt = 10 ms, horizon 0.3 s
 planar_quadrotor    the planar quadrotor flying to a waypoint 1 m away and holding it, dt = 10 ms,
@@ -107,11 +109,19 @@ class Scenario(NamedTuple):
     reference: Optional[Callable]
     failure: Optional[Callable]
     bound: float
+    failure_from: int = 0      # the first tick at which ``failure`` counts (a swing-up may pass through it)
 
 
 def _cart_pole(delay):
     problem = cart_pole(delay=delay, dt=0.025, horizon=40, x0=(0.0, math.pi, 0.0, 0.0))
     return problem.replace(cost=QuadraticCost(P=np.diag([1.0, 20.0, 0.1, 0.5]), Q=1e-2 * np.eye(1),
+                                              P_final=np.diag([10.0, 100.0, 10.0, 10.0]),
+                                              x_target=np.array([0.0, math.pi, 0.0, 0.0])))
+
+
+def _swing_up(delay):
+    problem = cart_pole(delay=delay, dt=0.05, horizon=40)
+    return problem.replace(cost=QuadraticCost(P=np.diag([0.5, 5.0, 0.05, 0.05]), Q=1e-2 * np.eye(1),
                                               P_final=np.diag([10.0, 100.0, 10.0, 10.0]),
                                               x_target=np.array([0.0, math.pi, 0.0, 0.0])))
 
@@ -131,6 +141,9 @@ def _quadrotor(delay):
 SCENARIOS = {
     "cart_pole": Scenario("cart_pole", _cart_pole, ScaledCartPole, (0.05, 0.1, 0.2), 120, (0.0, 0.1, 0.0, 0.1),
                           None, lambda x: jnp.abs(x[1] - jnp.pi) > jnp.pi / 4, 1e3),
+    "cart_pole_swing_up": Scenario("cart_pole_swing_up", _swing_up, ScaledCartPole, (0.1, 0.2), 160,
+                                   (0.0, 0.05, 0.0, 0.05), None, lambda x: jnp.abs(x[1] - jnp.pi) > 0.5, 1e3,
+                                   failure_from=120),
     "arm2": Scenario("arm2", _arm, ScaledArm, (0.05, 0.1, 0.15), 200, (0.05, 0.05, 0.1, 0.1), ArmTarget(), None,
                      1e3),
     "planar_quadrotor": Scenario("planar_quadrotor", _quadrotor, _scaled_quadrotor, (0.02, 0.05, 0.1), 200,
@@ -175,10 +188,14 @@ def run_scenario(scenario: Scenario, n_trials: int = 16, seed: int = 0, iteratio
         for label, compensation, history in STRATEGIES:
             ctrl = mpc.MPC(model, iterations=iterations, compensation=compensation, replay_history=history,
                            reference=scenario.reference)
+            late = scenario.failure_from > 0
             for condition, plant in plants:
                 run = mpc.simulate(ctrl, plant, ticks=scenario.ticks, n_trials=n_trials, seed=seed, x0=x0,
-                                   failure=scenario.failure, bound=scenario.bound)
+                                   failure=None if late else scenario.failure, bound=scenario.bound)
                 failed = np.asarray(run.failed)
+                if late:
+                    tail = jax.vmap(jax.vmap(scenario.failure))(run.x[:, scenario.failure_from:])
+                    failed = failed | np.asarray(jnp.any(tail, axis=1))
                 rms = _tracking_rms(model, run)
                 rows.append(Row(scenario.name, round(1e3 * delay, 6), condition, label,
                                 float(np.median(np.asarray(run.cost))), float(np.mean(failed)),
