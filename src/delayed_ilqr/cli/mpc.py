@@ -58,7 +58,6 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
                    f"{1e3 * plant.delay:g} ms, actuator gain {1 + mismatch:g}, {ticks} ticks, {trials} trial(s)")
         click.echo(mpc_baselines.markdown(rows, [label for label, _, _ in strategies]))
         if out is not None:
-            from .. import plot
             from ..experiments import report
             from ..plot.mpc import plot_closed_loop
             table = [row._asdict() for row in rows]

@@ -69,7 +69,7 @@ class PlanarQuadrotorDynamics:
     gravity: float = GRAVITY
 
     def __call__(self, x, u, ud):
-        hover = 0.5 * MASS * self.gravity              # the commands are relative to the nominal hover
+        hover = 0.5 * MASS * self.gravity      # relative to the *model's* hover: a heavier plant sinks
         thrust = 2.0 * hover + ud[0] + ud[1]
         phi = x[2]
         ddy = -jnp.sin(phi) * thrust / self.mass
@@ -125,6 +125,6 @@ def planar_quadrotor(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(0.0, 0.0
     bound = 0.5 * MASS * GRAVITY
     lo, hi = ((-bound, -bound), (bound, bound)) if limits else (None, None)
     dynamics = PlanarQuadrotorDynamics()
-    return Problem(dynamics=dynamics, x0=jnp.array(x0), dt=dt, horizon=horizon, delay_steps=delay_steps, cost=cost,
-                   noise=PlanarQuadrotorNoise(dynamics) if noise else None, u_min=lo, u_max=hi, n_controls=2, name="planar_quadrotor",
-                   metadata=METADATA)
+    return Problem(dynamics=dynamics, x0=jnp.array(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
+                   cost=cost, noise=PlanarQuadrotorNoise(dynamics) if noise else None, u_min=lo, u_max=hi,
+                   n_controls=2, name="planar_quadrotor", metadata=METADATA)
