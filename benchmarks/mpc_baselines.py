@@ -5,9 +5,10 @@ against plants that match the model, differ by +-20 % in their inertial paramete
 delay two steps off. Prints one markdown table per scenario (median cost / failure rate / RMS
 tracking error) and, with ``--out FILE``, writes them there.
 
-Run ``python benchmarks/mpc_baselines.py [--trials 16] [--scenario NAME ...] [--out FILE]``: about
-ten minutes per scenario on the shared 2-core machine (compilation is most of it: one per
-controller and model delay). The measured tables are in docs/results/mpc_baselines.md.
+Run ``python benchmarks/mpc_baselines.py [--trials 16] [--scenario NAME ...] [--out FILE]``: 5 to
+25 minutes per scenario with 12 trials on the shared 2-core machine under load (one compilation
+per controller and model delay), and over an hour for the quadrotor, whose thrust limits put the
+box-constrained solver in every tick. The measured tables are in docs/results/mpc_baselines.md.
 """
 from __future__ import annotations
 
