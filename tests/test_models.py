@@ -520,7 +520,7 @@ def test_equal_arguments_give_equal_hashable_callables_and_no_recompilation(fact
 # --------------------------------------------------------------------------------------------
 def test_registry_lists_every_model_with_a_description():
     assert set(models.REGISTRY) == {"point_mass", "arm2", "pendulum", "cart_pole", "acrobot",
-                                    "arm2_muscle6"}
+                                    "arm2_muscle6", "planar_quadrotor"}
     for name, info in models.REGISTRY.items():
         assert isinstance(info.description, str) and info.description and "\n" not in info.description
         problem = info.factory(delay=0.0, noise=False)

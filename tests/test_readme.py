@@ -7,6 +7,7 @@ import io
 import pathlib
 import re
 
+import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).parents[1]
@@ -84,3 +85,9 @@ def test_model_table_is_the_zoo():
     for name, n, d in rows:
         problem = getattr(models, name)()
         assert (problem.x0.shape[0], problem.n_controls) == (int(n), int(d)), name
+
+
+def test_mpc_reaches_the_waypoint(namespace):
+    run = namespace["run"]                  # the MPC block: the quadrotor with 80 ms of latency
+    assert not np.any(run.failed) and not np.any(run.diverged)
+    np.testing.assert_allclose(np.asarray(run.x)[:, -1, :2], [[1.0, 0.5]], atol=0.02)

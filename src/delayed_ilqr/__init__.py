@@ -35,7 +35,7 @@ single functions (see ``_cpu``); it warns when it comes too late to take effect.
 [`enable_compilation_cache`][delayed_ilqr.enable_compilation_cache] (opt-in; the command line turns it on) keeps compiled solvers on
 disk, so that the next process reads them instead of compiling again (see ``_cache``).
 """
-from . import lqg, models
+from . import lqg, models, mpc
 from ._cache import default_cache_dir, enable_compilation_cache
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
@@ -47,7 +47,7 @@ from .options import Options
 from .simulate import Runs, simulate
 from .saving import load, load_metadata
 
-__all__ = ["lqg", "models", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
+__all__ = ["lqg", "models", "mpc", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
            "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve",
            "solve_from_starts", "augmented_lagrangian_start", "Starts", "Continuation", "Solution", "Policy",
            "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]

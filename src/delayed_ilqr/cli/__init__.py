@@ -3,7 +3,7 @@
 (`delayed_ilqr.experiments.report`) and the figures ([`delayed_ilqr.plot`][delayed_ilqr.plot]).
 
 Subcommands: ``models``, ``solve``, ``simulate``, ``compare``, ``demo``, ``center-out``, ``perturb``,
-``sweep``, ``fit`` and the gallery's ``kick``, ``target-jump``, ``fitts`` and ``minimal-intervention``
+``sweep``, ``fit``, ``mpc`` and the gallery's ``kick``, ``target-jump``, ``fitts`` and ``minimal-intervention``
 (``delayed-ilqr --help``). Exit codes: 0 success; 1 when some solve did not converge (results are
 still written); 2 for bad arguments (unknown model, a delay that is not a whole number of steps or
 not below the horizon, a non-positive trial count, more trials than memory holds, an ``--out``
@@ -24,7 +24,7 @@ interrupted run leaves ``--out`` as it was. ``--overwrite`` replaces a non-empty
 
 The package: `arguments` (parameter types and the checks made before computing),
 `output` (the atomic ``--out`` folder), one module per group of commands (`solve`,
-`studies`, `fit`, `sweep`, `gallery`), and here the group that runs them.
+`studies`, `fit`, `sweep`, `gallery`, `mpc`), and here the group that runs them.
 """
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ import jax
 
 from .._cache import CACHE_DIR_ENV, NO_CACHE_ENV, enable_compilation_cache
 from .._cpu import configure_cpu
-from . import fit, gallery, interrupts, solve, studies, sweep
+from . import fit, gallery, interrupts, mpc, solve, studies, sweep
 
 __all__ = ["main", "ERROR_EXIT"]
 
@@ -115,5 +115,5 @@ def main(ctx, debug, no_cache, cache_dir):
 
 for _command in (solve.models_command, solve.solve_command, solve.simulate_command, studies.compare_command,
                  studies.demo_command, studies.center_out_command, fit.fit_command, studies.perturb_command,
-                 sweep.sweep_command, *gallery.COMMANDS):
+                 sweep.sweep_command, mpc.mpc_command, *gallery.COMMANDS):
     main.add_command(_command)

@@ -17,6 +17,7 @@ sigma of Todorov's and Li's discrete-time code (`noise`).
 | arm2_muscle6 | the same arm driven by six muscles through delayed excitations u in [0, 1]^6 (Li & Todorov 2004 muscle model; ``center_out_targets`` for 8-target reaching) |
 | pendulum | torque-limited pendulum swing-up |
 | cart_pole | cart-pole swing-up (Florian's frictionless equations) |
+| planar_quadrotor | planar quadrotor with delayed rotor thrusts (Underactuated Robotics' Quadrotor2D) |
 | acrobot | acrobot swing-up with a limited elbow torque (trajax's test problem, Spong's equations) |
 
 """
@@ -33,9 +34,10 @@ from .cart_pole import cart_pole
 from .metadata import ModelMetadata, TaskSpace
 from .noise import diffusion_to_per_step, per_step_noise_to_diffusion
 from .pendulum import pendulum
+from .planar_quadrotor import planar_quadrotor
 from .point_mass import point_mass
 
-__all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole", "acrobot",
+__all__ = ["point_mass", "arm2", "arm2_muscle6", "center_out_targets", "rest_commands", "pendulum", "cart_pole", "acrobot", "planar_quadrotor",
            "REGISTRY", "ModelInfo", "ModelMetadata", "TaskSpace", "delay_to_steps", "per_step_noise_to_diffusion",
            "diffusion_to_per_step",
            "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "mass_matrix", "mass_matrix_inverse", "coriolis",
@@ -63,4 +65,7 @@ REGISTRY = {
                                       "(Florian's equations), 4 states, 1 control, tf=3 s"),
     "acrobot": ModelInfo(acrobot, "acrobot swing-up with a delayed elbow torque limited to |u| <= 5 N m "
                                   "(trajax's test problem), 4 states, 1 control, tf=5 s"),
+    "planar_quadrotor": ModelInfo(planar_quadrotor, "planar quadrotor flying to a hover target with delayed rotor "
+                                                    "thrusts (Underactuated Robotics' Quadrotor2D parameters), "
+                                                    "6 states, 2 controls, tf=1 s"),
 }

@@ -1,0 +1,296 @@
+"""The receding-horizon controller (delayed_ilqr.mpc) against independent references: a fresh solve
+of the shifted problem, ordinary iLQG MPC written as a Python loop, the finite-horizon delayed LQR
+law of lqg.backward_pass, and the plant's timing worked out by hand."""
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import delayed_ilqr as di
+from delayed_ilqr import mpc
+from delayed_ilqr.lqg import DelayedLQG, backward_pass
+
+DT = 0.01
+# tight enough that two converged solves of arm2 (flat in u: Q = 1e-4) agree to 1e-7
+TIGHT = di.Options(tol_grad=1e-12, tol_cost=1e-15)
+
+
+def _arm(delay_steps, horizon=15, P=None):
+    """arm2 with a short horizon; P (optional) adds a running error weight on the state."""
+    problem = di.models.arm2(delay=delay_steps * DT, dt=DT, horizon=horizon)
+    if P is None:
+        return problem
+    c = problem.cost
+    return problem.replace(cost=di.QuadraticCost(P=P, Q=c.Q, P_final=c.P_final, x_target=c.x_target))
+
+
+def _euler(f, x, u, ud):
+    return x + DT * np.asarray(f(jnp.asarray(x), jnp.asarray(u), jnp.asarray(ud)))
+
+
+# -- one tick, iterated to convergence, is a fresh solve of the shifted problem ----------------
+
+def test_first_tick_converged_equals_fresh_solve():
+    problem = _arm(3)
+    ctrl = mpc.MPC(problem, iterations=100, options=TIGHT)
+    _, tick = ctrl.step(ctrl.init(), problem.x0)
+    fresh = di.solve(problem, options=TIGHT)
+    assert fresh.converged
+    np.testing.assert_allclose(tick.command, fresh.u[0], rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(tick.law.state_feedback, fresh.policy.state_feedback[0], rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(tick.law.delay_feedback, fresh.policy.delay_feedback[0], rtol=1e-6, atol=1e-8)
+
+
+def test_later_tick_converged_equals_delay_free_solve_from_the_prediction():
+    """At tick k with commands b in flight the delayed problem over K steps is, for a cost without
+    running state terms, the delay-free problem over K - l steps from the state the model reaches
+    under b (the last l commands never act and are zero at the optimum): solved independently."""
+    l, K = 3, 15
+    problem = _arm(l, horizon=K)
+    ctrl = mpc.MPC(problem, iterations=100, options=TIGHT)
+    state, x = ctrl.init(), np.asarray(problem.x0)
+    sent = [np.zeros(2)] * l
+    for _ in range(4):        # a few ticks on a perturbed plant, so that the commands in flight differ
+        state, tick = ctrl.step(state, x)
+        sent.append(np.asarray(tick.command))
+        x = _euler(problem.dynamics, x, sent[-1], sent[-1 - l]) + np.array([0.0, 0.0, 0.3, -0.2])
+    in_flight = sent[-l:]
+    np.testing.assert_allclose(state.in_flight, in_flight)
+    state, tick = ctrl.step(state, x)
+    x_hat = x
+    for b in in_flight:
+        x_hat = _euler(problem.dynamics, x_hat, b, b)
+    shifted = problem.replace(x0=x_hat, delay_steps=0, horizon=K - l)
+    fresh = di.solve(shifted, options=TIGHT)
+    assert fresh.converged and tick.status <= 1
+    np.testing.assert_allclose(tick.command, fresh.u[0], rtol=1e-6, atol=1e-8)
+    assert not np.allclose(tick.command, in_flight[-1], atol=1e-3)       # the comparison can fail
+
+
+# -- no delay: ordinary iLQG MPC, and every compensation agrees ---------------------------------
+
+def test_undelayed_controller_is_ordinary_ilqg_mpc_with_a_moving_target():
+    K, T, iterations = 12, 6, 3
+    P = np.diag([50.0, 50.0, 0.5, 0.5])
+    problem = _arm(0, horizon=K, P=P)
+    Q, P_final = np.asarray(problem.cost.Q), np.asarray(problem.cost.P_final)
+    target = np.asarray(problem.cost.x_target)
+
+    def r(t):
+        return jnp.asarray(target) + jnp.array([0.3 * jnp.sin(4.0 * t), 0.0, 1.2 * jnp.cos(4.0 * t), 0.0])
+
+    ctrl = mpc.MPC(problem, iterations=iterations, reference=r)
+    run = mpc.simulate(ctrl, problem, ticks=T)
+
+    # the same loop in Python, each tick a solve of a problem written here with the time shifted
+    def running(x, u, t0, t):
+        e = x - r(t0 + t)
+        return e @ P @ e + u @ Q @ u
+
+    def final(x, t0, t):
+        e = x - r(t0 + t)
+        return e @ P_final @ e
+
+    options = di.Options(max_iterations=iterations)
+    x, plan, xs, us, cost = np.asarray(problem.x0), np.zeros((K, 2)), [np.asarray(problem.x0)], [], 0.0
+    for k in range(T):
+        tick_problem = di.Problem(problem.dynamics, x, DT, K, 0, di.GeneralCost(running, final, k * DT, True),
+                                  n_controls=2)
+        sol = di.solve(tick_problem, u_init=plan, options=options)
+        u = np.asarray(sol.u[0])
+        cost += DT * float(running(jnp.asarray(x), jnp.asarray(u), 0.0, k * DT))
+        x = _euler(problem.dynamics, x, u, u)
+        plan = np.concatenate([sol.u[1:], sol.u[-1:]])
+        xs.append(x)
+        us.append(u)
+    cost += float(final(jnp.asarray(x), 0.0, T * DT))
+    np.testing.assert_allclose(run.x[0], np.stack(xs), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(run.u[0], np.stack(us), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(run.cost[0], cost, rtol=1e-10)
+
+
+def test_baselines_agree_without_delay():
+    problem = _arm(0, horizon=10)
+    runs = {c: mpc.simulate(mpc.MPC(problem, compensation=c), problem, ticks=8) for c in mpc.COMPENSATIONS}
+    planned = mpc.simulate(mpc.MPC(problem, compensation="replay", replay_history="planned"), problem, ticks=8)
+    for run in list(runs.values()) + [planned]:
+        np.testing.assert_allclose(run.u, runs["inflight"].u, rtol=1e-12, atol=1e-14)
+
+
+def test_converged_baselines_agree_with_delay_on_a_deterministic_model():
+    """predict, replay of the sent history and inflight solve the same problem at every tick
+    (strategies' docstring): converged, they send the same commands; none and replay of the
+    planned history do not."""
+    problem = _arm(3, horizon=10)
+    x0 = np.asarray(problem.x0)[None] + np.array([[0.0, 0.0, 0.5, -0.5]])
+    u = {label: np.asarray(mpc.simulate(mpc.MPC(problem, iterations=60, compensation=c, replay_history=h,
+                                                options=TIGHT), problem, ticks=6, x0=x0).u[0])
+         for label, c, h in (("none", "none", "sent"), ("predict", "predict", "sent"), ("replay", "replay", "sent"),
+                             ("planned", "replay", "planned"), ("inflight", "inflight", "sent"))}
+    np.testing.assert_allclose(u["predict"], u["inflight"], rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(u["replay"], u["inflight"], rtol=1e-12, atol=1e-14)
+    assert not np.allclose(u["none"], u["inflight"], atol=1e-2)
+    assert not np.allclose(u["planned"], u["inflight"], atol=1e-2)
+
+
+# -- linear plant, quadratic cost: the finite-horizon delayed LQR law ---------------------------
+
+def _linear(delay_steps, horizon):
+    """x = [position, velocity] of an unstable second-order plant driven by the delayed command."""
+    Ac, Bc = np.array([[0.0, 1.0], [2.0, -0.3]]), np.array([[0.0], [1.0]])
+    P, Q, P_final = np.diag([3.0, 0.2]), np.array([[0.05]]), np.diag([20.0, 2.0])
+    problem = di.Problem(lambda x, u, ud: jnp.asarray(Ac) @ x + jnp.asarray(Bc) @ ud, x0=np.array([0.4, -0.2]),
+                         dt=0.05, horizon=horizon, delay_steps=delay_steps,
+                         cost=di.QuadraticCost(P=P, Q=Q, P_final=P_final, x_target=np.zeros(2)))
+    K, dt = horizon, 0.05
+    lqg = DelayedLQG(A=np.broadcast_to(np.eye(2) + dt * Ac, (K, 2, 2)), B0=np.zeros((K, 2, 1)),
+                     B1=np.broadcast_to(dt * Bc, (K, 2, 1)), c=None, C0=None, C1=None,
+                     d_tilde=np.zeros(K + 1), d=np.zeros((K + 1, 2)),
+                     D=np.concatenate([np.broadcast_to(dt * P, (K, 2, 2)), P_final[None]]),
+                     e=np.zeros((K, 1)), E=np.broadcast_to(dt * Q, (K, 1, 1)), delay_steps=delay_steps)
+    return problem, lqg
+
+
+def test_linear_quadratic_receding_law_is_the_delayed_lqr_law():
+    l, K, T = 4, 12, 15
+    problem, lqg = _linear(l, K)
+    gains, _ = backward_pass(lqg)
+    L0, M0 = np.asarray(gains.state_feedback[0]), np.asarray(gains.delay_feedback[0])
+    ctrl = mpc.MPC(problem, iterations=5)
+    run = mpc.simulate(ctrl, problem, ticks=T)
+    # the closed loop of the time-invariant law u_k = L_0 x_k + sum_i M_0^i u_{k+i-l}, in NumPy
+    x, sent, xs = np.asarray(problem.x0), [np.zeros(1)] * l, []
+    for _ in range(T):
+        u = L0 @ x + sum(M0[i] @ sent[-l + i] for i in range(l))
+        x = x + 0.05 * (np.array([[0.0, 1.0], [2.0, -0.3]]) @ x + np.array([0.0, 1.0]) * sent[-l][0])
+        sent.append(u)
+        xs.append(x)
+    np.testing.assert_allclose(run.u[0], np.stack(sent[l:]), rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(run.x[0, 1:], np.stack(xs), rtol=1e-8, atol=1e-10)
+    state, tick = ctrl.step(ctrl.init(), problem.x0)
+    np.testing.assert_allclose(tick.law.state_feedback, L0, rtol=1e-8)
+    np.testing.assert_allclose(tick.law.delay_feedback, M0, rtol=1e-8, atol=1e-12)
+    assert np.abs(M0).max() > 1e-2        # the commands in flight are fed back
+
+
+# -- timing of the loop -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("charge", [False, True])
+def test_the_first_command_acts_after_the_true_delay(charge):
+    """arm2 has no gravity: at rest it stays at x0 until the first command acts, at tick
+    l_true + 1 (+ 1 when the solve time is charged), whatever the model's delay."""
+    model, plant = _arm(2), _arm(4)
+    run = mpc.simulate(mpc.MPC(model, charge_solve_time=charge), plant, ticks=9)
+    first = 4 + int(charge)
+    np.testing.assert_array_equal(run.x[0, :first + 1], np.broadcast_to(plant.x0, (first + 1, 4)))
+    assert np.abs(run.x[0, first + 1] - plant.x0).max() > 1e-6
+
+
+def test_trials_under_noise_are_reproducible_and_differ():
+    problem = _arm(2, horizon=10)
+    plant = di.models.arm2(delay=0.02, dt=DT, horizon=10, noise=True, sigma_u=0.05)
+    ctrl = mpc.MPC(problem)
+    a = mpc.simulate(ctrl, plant, ticks=5, n_trials=3, seed=1)
+    b = mpc.simulate(ctrl, plant, ticks=5, n_trials=3, seed=1)
+    assert a.x.shape == (3, 6, 4) and a.u.shape == (3, 5, 2) and a.cost.shape == (3,)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert np.abs(a.x[0, -1] - a.x[1, -1]).max() > 1e-8
+    assert not np.any(a.failed)
+
+
+def test_failure_flags():
+    problem = _arm(2, horizon=10)
+    w = np.zeros((2, 5, 4))
+    w[1, 2, 2] = 1e300            # a kick that overflows the state of trial 1
+    run = mpc.simulate(mpc.MPC(problem), problem, ticks=5, n_trials=2, disturbance=w, bound=1e3,
+                       failure=lambda x: x[0] > 0.0)
+    np.testing.assert_array_equal(run.diverged, [False, True])
+    np.testing.assert_array_equal(run.failed, [True, True])        # q1 starts at pi / 4 > 0
+    assert np.all(np.isfinite(run.x[0]))
+
+
+# -- bad input ----------------------------------------------------------------------------------
+
+def test_bad_configuration_is_refused_word_for_word():
+    problem = _arm(3, horizon=10)
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(problem, compensation="smith")
+    assert str(e.value) == "compensation must be one of 'inflight', 'none', 'predict', 'replay'; got 'smith'"
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(problem, iterations=0)
+    assert str(e.value) == "iterations must be a positive integer; got 0"
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(_arm(9, horizon=10), charge_solve_time=True)
+    assert str(e.value) == ("problem.horizon must be longer than the controller's delay (delay_steps, plus one tick "
+                            "with charge_solve_time): a command must act within the horizon; got horizon=10, "
+                            "controller delay=10")
+    ctrl = mpc.MPC(problem)
+    with pytest.raises(AttributeError) as e:
+        ctrl.iterations = 3
+    assert str(e.value) == "MPC is immutable: make a new one instead of setting 'iterations'"
+
+
+def test_bad_plant_and_reference_are_refused_word_for_word():
+    ctrl = mpc.MPC(_arm(2, horizon=10))
+    with pytest.raises(ValueError) as e:
+        mpc.simulate(ctrl, di.models.cart_pole(dt=DT), ticks=3)
+    assert str(e.value) == ("plant must have the controller's state and command sizes (n=4, d=2); "
+                            "got n=4, d=1")
+    reference = np.tile(np.asarray(ctrl.problem.cost.x_target), (20, 1))
+    ctrl = mpc.MPC(_arm(2, horizon=10), reference=reference)
+    mpc.simulate(ctrl, ctrl.problem, ticks=10)          # reads up to step 10 - 1 + 10 = 19
+    with pytest.raises(ValueError) as e:
+        mpc.simulate(ctrl, ctrl.problem, ticks=11)
+    assert str(e.value) == ("reference must cover every step a tick's horizon reads: up to step 20 (the last tick + "
+                            "horizon); got 20 samples (steps 0..19); lengthen the reference or run fewer ticks")
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(_arm(2, horizon=10), reference=np.zeros((5, 3)))
+    assert str(e.value) == "reference must have shape (*, 4); got shape (5, 3)"
+
+
+# -- the planar quadrotor -------------------------------------------------------------------------
+
+def test_planar_quadrotor_hovers_and_its_accelerations_follow_the_equations():
+    problem = di.models.planar_quadrotor()
+    f = problem.dynamics
+    np.testing.assert_allclose(f(jnp.zeros(6), jnp.zeros(2), jnp.zeros(2)), np.zeros(6), atol=1e-15)
+    m, r, inertia, g = 0.486, 0.25, 0.00383, 9.81
+    x = np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])
+    ud = np.array([0.5, -0.2])
+    total = m * g + 0.3
+    expected = [-math.sin(0.3) * total / m, math.cos(0.3) * total / m - g, r * 0.7 / inertia]
+    np.testing.assert_allclose(f(jnp.asarray(x), jnp.zeros(2), jnp.asarray(ud))[3:], expected, rtol=1e-12)
+    F = di.models.planar_quadrotor(noise=True).noise(jnp.asarray(x), jnp.zeros(2), jnp.asarray(ud))
+    # each noise column is sigma_u T_i times the response to one newton on rotor i
+    one = np.asarray(f(jnp.asarray(x), jnp.zeros(2), jnp.array([1.0, 0.0])) - f(jnp.asarray(x), jnp.zeros(2),
+                                                                                jnp.zeros(2)))
+    np.testing.assert_allclose(F[:, 0], 0.05 * (m * g / 2 + 0.5) * one, rtol=1e-12)
+
+
+# -- the command line -----------------------------------------------------------------------------
+
+def test_mpc_command_writes_its_table_figure_and_manifest(tmp_path):
+    import json
+
+    from click.testing import CliRunner
+
+    from delayed_ilqr import cli
+    out = tmp_path / "run"
+    result = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.05",
+                                           "--mismatch", "0.2", "--horizon", "10", "--ticks", "12",
+                                           "--compensation", "none", "--compensation", "inflight", "--out", str(out)],
+                                catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    assert "model delay 30 ms, plant delay 50 ms, actuator gain 1.2" in result.output
+    assert "| delay | plant | none | inflight |" in result.output
+    table = json.loads((out / "mpc.json").read_text())
+    assert [row["strategy"] for row in table] == ["none", "inflight"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert set(manifest["files"]) == {"closed_loop.png", "mpc.json", "runs.npz"}
+    assert manifest["settings"]["true_delay"] == pytest.approx(0.05)
+    runs = np.load(out / "runs.npz")
+    assert runs["x_inflight"].shape == (1, 13, 4) and runs["u_none"].shape == (1, 12, 2)
+    bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.025"])
+    assert bad.exit_code == 2
+    assert "arm2: delay must be a whole number of steps of dt=0.01 s; got 0.025 s (2.5 steps)" in bad.output
