@@ -56,15 +56,18 @@ def test_second_problem_of_the_same_shapes_does_not_recompile():
 
 
 def test_the_solver_holds_a_few_times_its_gains_at_a_short_delay():
-    """Memory (issue #5). At l = 1 the gains are 14 numbers per step, fewer than one step's LQ
+    """Memory. At l = 1 the gains are 14 numbers per step, fewer than one step's LQ
     model (67 for the point mass) or the line search's 11 candidate trajectories (66): the
     compiled solver stores neither (it linearises inside the backward pass and scores candidates
-    as they run), nor packed copies of its scans' inputs and outputs, and holds at most 4 times
-    the gains, counting temporaries, outputs and arguments (XLA's memory_analysis: 3.2x measured;
-    15.5x when it stored the model and the candidates, 4.6x with the packed copies)."""
+    as they run), nor packed copies of its scans' inputs and outputs, and holds at most 5 times
+    the gains, counting temporaries, outputs and arguments (XLA's memory_analysis: 4.45x measured,
+    of which 1.25x is the loop's copy of the last nominal whose gains were finite, its gains and
+    nominal, which the solve returns if the final backward pass fails (no NaN in a policy); 3.2x
+    without that copy; 15.5x when it stored the model and the candidates, 4.6x + the copy with
+    the packed copies)."""
     problem = point_mass(dt=0.001, delay=0.001)              # P4 at l = 1, K = 600
     K, n, d, l = problem.horizon, problem.n_states, problem.n_controls, problem.delay_steps
     gains = K * (d + d * n + l * d * d) * 8
     stats = compiled_solver(problem).lower(problem, jnp.zeros((K, d)), di.Options()).compile().memory_analysis()
     held = stats.temp_size_in_bytes + stats.output_size_in_bytes + stats.argument_size_in_bytes
-    assert held <= 4 * gains, (held, gains)
+    assert held <= 5 * gains, (held, gains)

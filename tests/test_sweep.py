@@ -131,7 +131,7 @@ def test_the_sweep_figure_draws_the_datasets_values_in_mm(reference):
     from delayed_ilqr.plot import plot_sweep
     fig = plot_sweep(reference)
     cost_ax, error_ax = fig.axes
-    assert "[mm]" in error_ax.get_ylabel() and error_ax.get_xlabel() == "delay [s]"
+    assert "[mm]" in error_ax.get_ylabel() and error_ax.get_xlabel() == "delay [ms]"
     for j, (cost_line, error_line) in enumerate(zip(cost_ax.get_lines(), error_ax.get_lines())):
         cell = reference.isel(x_target=j)
         np.testing.assert_allclose(cost_line.get_ydata(), cell.mc_cost_mean.mean("seed").values)

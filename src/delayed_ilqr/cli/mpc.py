@@ -7,6 +7,8 @@ import json
 import click
 import numpy as np
 
+from .._files import savez, write_text
+from ..experiments.records import problem_record
 from .arguments import SEED, ModelType, build_problem, factory_kwargs, model_options
 from .output import Output, kwargs_settings, out_option
 
@@ -61,13 +63,14 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
             from ..experiments import report
             from ..plot.mpc import plot_closed_loop
             table = [row._asdict() for row in rows]
-            (output.staging / "mpc.json").write_text(json.dumps(table, indent=2, allow_nan=True) + "\n")
-            np.savez(output.staging / "runs.npz",
-                     **{f"{k}_{label.replace(' ', '_')}": np.asarray(getattr(run, k)) for label, run in runs.items()
-                        for k in ("x", "u", "cost", "failed")})
+            write_text(output.staging / "mpc.json", json.dumps(table, indent=2, allow_nan=True) + "\n")
+            savez(output.staging / "runs.npz",
+                  {f"{k}_{label.replace(' ', '_')}": np.asarray(getattr(run, k)) for label, run in runs.items()
+                   for k in ("x", "u", "cost", "failed")})
             report.save_figures({"closed_loop.png": plot_closed_loop(controller_model, runs)}, output.staging)
             settings = dict(model=model.name, delay=delay, true_delay=plant.delay, mismatch=mismatch,
                             compensations=list(chosen), ticks=ticks, iterations=iterations, trials=trials, seed=seed,
-                            noise=bool(noise), **kwargs_settings(kwargs))
+                            noise=bool(noise), **kwargs_settings(kwargs),
+                            problem=problem_record(controller_model), plant=problem_record(plant))
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out}")
