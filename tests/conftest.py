@@ -115,6 +115,7 @@ LONGEST_FIRST = (
     "test_convergence.py",
     "test_limits_family.py",
     "test_gradients.py",
+    "test_mpc.py",
     "test_gradients_muscle.py",
     "test_continuation.py",
     "test_reach_shape.py",

@@ -167,7 +167,7 @@ def test_perturb_writes_the_responses_and_the_first_response_is_one_step_plus_th
 
 @pytest.mark.parametrize("args, message", [
     (["solve", "no_such_model"], "must be a built-in model (acrobot, arm2, arm2_muscle6, cart_pole, pendulum, "
-                                 "point_mass) or package.module:factory; got 'no_such_model'"),
+                                 "planar_quadrotor, point_mass) or package.module:factory; got 'no_such_model'"),
     (["solve", "no_such_module_xyz:f"], "cannot import module 'no_such_module_xyz'"),
     (["solve", "delayed_ilqr.models:REGISTRY"], "'delayed_ilqr.models' has no callable 'REGISTRY'"),
     (["solve", "delayed_ilqr.models:"], "has no callable ''"),
