@@ -39,7 +39,7 @@ from . import _precision, _validate
 from .ilqg.closed_loop import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
-from .lqg.estimator import FilterGains, _measured_rows, delayed_rows, estimator_predict, estimator_update
+from .lqg.estimator import delayed_rows, estimator_predict, estimator_update
 from .problem import Problem
 from .solution import Estimator, Policy
 from .statistics import Summary, summarize
@@ -189,7 +189,8 @@ def _simulate_observed(problem: Problem, policy: Policy, n_trials: int, substeps
     LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
     B0, B1 = (est.B0 + est.B1, jnp.zeros_like(est.B1)) if l_p == 0 else (est.B0, est.B1)   # merged_if_undelayed
     delayed = tuple(delayed_rows(a, ls_e, fill) for a, fill in ((est.A, jnp.eye(nx)), (B0, 0.0), (B1, 0.0)))
-    Kd, Kc = _measured_rows(FilterGains(est.delayed_gain, est.current_gain), ls_e)
+    arrived = (jnp.arange(K) >= ls_e)[:, None, None]       # absent rows between samples have zero gains
+    Kd, Kc = (jnp.where(arrived, g, 0.0) for g in (est.delayed_gain, est.current_gain))
     rows = (est.A, B0, B1) + delayed + (est.H, est.y_nominal, Kd, Kc)
     q = problem.observation.noise_matrix(problem.x0).shape[1]
 

@@ -36,6 +36,7 @@ Modules (the solver's internals are imported from them, not from here):
 | observation | [`DelayedObservation`][delayed_ilqr.lqg.DelayedObservation]: delayed, noisy sensors dy_k = H_k dx_{k-l_s} + G_k v_k |
 | estimator | [`delayed_kalman`][delayed_ilqr.lqg.delayed_kalman]: the delayed Kalman filter without augmentation, and its run |
 | output_feedback | [`separation_design`][delayed_ilqr.lqg.separation_design], [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost] (exact, any pair), [`separation_cost`][delayed_ilqr.lqg.separation_cost], [`simulate_output_feedback`][delayed_ilqr.lqg.simulate_output_feedback] |
+| fusion | [`fused_kalman`][delayed_ilqr.lqg.fused_kalman]: several sensors with their own delays and periods, fused without augmentation; [`fused_estimates`][delayed_ilqr.lqg.fused_estimates], [`fused_design`][delayed_ilqr.lqg.fused_design] |
 | alternation | [`alternate`][delayed_ilqr.lqg.alternate]: Todorov's alternation of filter and controller for signal-dependent noise ([`filter_step`][delayed_ilqr.lqg.filter_step], [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]) |
 
 """
@@ -48,6 +49,7 @@ from .output_feedback import (OutputFeedback, OutputFeedbackRuns, output_feedbac
                               separation_design, simulate_output_feedback)
 from .structured import backward_pass
 from .alternation import Alternation, alternate, controller_sweep, filter_step
+from .fusion import FusedFeedback, FusionCovariances, FusionGains, fused_design, fused_estimates, fused_kalman
 
 __all__ = [
     "DelayedLQG",
@@ -75,4 +77,10 @@ __all__ = [
     "alternate",
     "controller_sweep",
     "filter_step",
+    "FusionGains",
+    "FusionCovariances",
+    "FusedFeedback",
+    "fused_kalman",
+    "fused_estimates",
+    "fused_design",
 ]

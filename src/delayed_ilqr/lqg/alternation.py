@@ -155,7 +155,7 @@ def _controller_sweep(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fg
     blocks = _Blocks(n, l, nd)
     S_o, S_del = _selectors(blocks, nd, dt)
     Phi, _ = transition_windows(lqg.A, jnp.zeros_like(lqg.A), ls)
-    Kd, Kc = _measured_rows(fgains, ls)
+    Kd, Kc = _measured_rows(fgains, obs)
     # V_K: the terminal cost of dx_K = a_K + Phi_K eps_K (the unseen part is charged through W)
     Tx = jnp.zeros((n, blocks.size), dt).at[:, blocks.a()].set(jnp.eye(n, dtype=dt)).at[:, blocks.eps()].set(Phi[-1])
     P_K = Tx.T @ lqg.D[-1] @ Tx

@@ -35,7 +35,8 @@ def _sym(M):
 
 
 class FilterGains(NamedTuple):
-    """The gains of the delayed filter (rows k < l_s are zero: no measurement has arrived).
+    """The gains of the delayed filter (rows k < l_s, and columns of rows between two samples, are
+    zero: no measurement has arrived).
 
     Attributes:
         delayed_gain: [K, n, m] Kd_k, the innovation's gain on the estimate of dx_{k-l_s}.
@@ -140,8 +141,11 @@ def _delayed_kalman(lqg: DelayedLQG, obs: DelayedObservation, Q, R):
     # the delayed-time filter at step k predicts dx_{k-l_s+1} with the transition of time k - l_s
     A_del = delayed_rows(lqg.A, ls, jnp.eye(n))
     Q_del = delayed_rows(Q, ls, 0.0)
+    # an absent row (before l_s, or between two samples) has H = 0: R is block diagonal across
+    # sensors, so its gain column P H' S^{-1} is exactly zero and the update ignores it
+    H = jnp.where(obs.present[:, :, None], obs.H, 0.0)
     P_last, (Kd, P_prior, P_post, S) = jax.lax.scan(
-        _kalman_step, jnp.zeros((n, n), lqg.A.dtype), (obs.H, R, A_del, Q_del))
+        _kalman_step, jnp.zeros((n, n), lqg.A.dtype), (H, R, A_del, Q_del))
     Phi, Pi = transition_windows(lqg.A, Q, ls)
     Kc = Phi[:-1] @ Kd
     P_end = jnp.concatenate([P_post, P_last[None]])
@@ -212,16 +216,16 @@ def _filter_estimates(lqg, obs, fgains, du, dy):
         prior = estimator_predict(x_hat, x_del, sent, (A, B0, B1), (Ad, B0d, B1d), l, ls)
         return prior + (sent,), (x_hat, x_del)
 
-    Kd, Kc = _measured_rows(fgains, ls)
+    Kd, Kc = _measured_rows(fgains, obs)
     init = (jnp.zeros(n, dt), jnp.zeros(n, dt), jnp.zeros((ls + l + 1, lqg.n_controls), dt))
     _, out = jax.lax.scan(step, init, (obs.H, Kd, Kc, dy, du, lqg.A, lqg.B0, lqg.B1) + delayed)
     return out
 
 
-def _measured_rows(fgains: FilterGains, sensory_delay: int):
-    """The gains with rows k < l_s set to zero: no measurement arrives before step l_s."""
-    K = fgains.delayed_gain.shape[0]
-    mask = (jnp.arange(K) >= sensory_delay)[:, None, None]
+def _measured_rows(fgains: FilterGains, obs: DelayedObservation):
+    """The gains with the columns of absent rows set to zero: no measurement arrives before step
+    l_s, nor between two samples of a sensor (``DelayedObservation.present``)."""
+    mask = obs.present[:, None, :]
     return jnp.where(mask, fgains.delayed_gain, 0.0), jnp.where(mask, fgains.current_gain, 0.0)
 
 

@@ -212,7 +212,7 @@ def _joint_moments(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgain
     dt = lqg.A.dtype
     blocks = _Blocks(n, l, nd)
     Phi, _ = transition_windows(lqg.A, jnp.zeros_like(lqg.A), ls)
-    Kd, Kc = _measured_rows(fgains, ls)
+    Kd, Kc = _measured_rows(fgains, obs)
     data = (jnp.arange(K), lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1],
             lqg.e, lqg.E, lqg.N, gains.feedforward, augmented_feedback(gains), Kd, Kc, obs.H, obs.measurement_cov,
             Phi[:-1], Phi[1:], delayed_rows(lqg.A, ls, jnp.eye(n)))
@@ -267,7 +267,7 @@ def _trial(key, lqg, obs, gains, fgains):
     key_w, key_v = jax.random.split(key)
     xi = jax.random.normal(key_w, (K, p), dt)
     v = jax.random.normal(key_v, (K, obs.G.shape[2]), dt)
-    Kd, Kc = _measured_rows(fgains, ls)
+    Kd, Kc = _measured_rows(fgains, obs)
     delayed = (delayed_rows(lqg.A, ls, jnp.eye(n)), delayed_rows(lqg.B0, ls, 0.0), delayed_rows(lqg.B1, ls, 0.0))
 
     def step(carry, data):
