@@ -59,3 +59,51 @@ class AugmentedSensors(Augmented):
             posts[k] = P
             P = self.Az[k] @ P @ self.Az[k].T + self.Qz[k]
         return Lz, posts, P
+
+    def loop_kalman_cost(self, Kh):
+        """Exact E[cost] of du_k = Kh_k [Z_hat_k; 1] on the augmented Kalman filter designed, step by
+        step, for the motor noise E[w_k w_k'] of this very loop (signal-dependent noise included):
+        the second moment of xi = [Z; Z_hat; 1] and the filter's covariance advance together.
+        Returns (cost, the filter's Cov(dx_k | I_k) [K, n, n])."""
+        N, d, n, a = self.N, self.d, self.n, self.a
+        X = np.zeros((2 * N + 1, 2 * N + 1))
+        X[-1, -1] = 1.0
+        P = np.zeros((N, N))
+        total, current = 0.0, []
+        Z, Zh = slice(0, N), slice(N, 2 * N)
+        for k in range(self.K):
+            S = self.Hz[k] @ P @ self.Hz[k].T + self.R[k]
+            Lz = np.linalg.solve(S, self.Hz[k] @ P).T
+            P = P - Lz @ S @ Lz.T
+            current.append(P[:n, :n])
+            U = np.eye(2 * N + 1)
+            U[Zh, Z] += Lz @ self.Hz[k]
+            U[Zh, Zh] -= Lz @ self.Hz[k]
+            V = np.zeros((2 * N + 1, self.R.shape[1]))
+            V[Zh] = Lz
+            X = U @ X @ U.T + V @ self.R[k] @ V.T
+            Tc = np.zeros((N + 1 + d, 2 * N + 1))
+            Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
+            Tc[N + 1:, Zh], Tc[N + 1:, -1] = Kh[k, :, :N], Kh[k, :, N]
+            total += np.sum(self._stage_weight(k) * (Tc @ X @ Tc.T))
+            noise = np.zeros((n, n))
+            for j in range(a["c"].shape[1]):
+                Gj = np.zeros((n, 2 * N + 1))
+                Gj[:, -1] = a["c"][k, j]
+                Gj += a["C0"][k, j] @ Tc[N + 1:]
+                if self.l > 0:
+                    xs = n * (self.ls + 1)
+                    Gj[:, xs:xs + d] += a["C1"][k, j]
+                noise += Gj @ X @ Gj.T
+            T = np.zeros((2 * N + 1, 2 * N + 1))
+            T[Z, Z], T[Zh, Zh], T[-1, -1] = self.Az[k], self.Az[k], 1.0
+            T[Z] += self.Bz[k] @ Tc[N + 1:]
+            T[Zh] += self.Bz[k] @ Tc[N + 1:]
+            X = T @ X @ T.T
+            X[:n, :n] += noise
+            Qz = np.zeros((N, N))
+            Qz[:n, :n] = noise
+            P = self.Az[k] @ P @ self.Az[k].T + Qz
+        Tc = np.zeros((N + 1, 2 * N + 1))
+        Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
+        return total + np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T)), np.array(current)

@@ -12,29 +12,42 @@ from fused_sensing import AugmentedSensors, random_fusion_problem, random_sensor
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from delayed_ilqr.lqg import (DelayedObservation, FilterGains, delayed_kalman, filter_estimates, fused_design, fused_estimates,
-                              fused_kalman, output_feedback_cost, separation_design)
+from delayed_ilqr.lqg import (DelayedObservation, FilterGains, Gains, delayed_kalman, filter_estimates, fused_design, fused_estimates,
+                              fused_kalman, fused_loop, output_feedback_cost, separation_design)
 
 RTOL = 1e-9
 
 
-def _against_augmented(lqg, sensors, seed):
-    """Relative differences of the fused filter and the separation pair from the augmented ones."""
+def _against_augmented(lqg, sensors, seed, additive):
+    """Relative differences of the fused filter and its pairs from the augmented ones."""
     K = lqg.horizon
-    design = fused_design(lqg, sensors)
     aug = AugmentedSensors(lqg, sensors)
-    Lz, posts, terminal = aug.kalman()
-    now = aug.block(0)
+    design = fused_design(lqg, sensors)
     rng = np.random.default_rng(seed)
-    du = rng.standard_normal((K, lqg.n_controls))
-    dys = [rng.standard_normal((K, s.n_outputs)) for s in sensors]
-    x_hat = fused_estimates(lqg, sensors, design.filter_gains, du, dys)
-    Kh, _, _ = aug.policy(design.gains, np.zeros((K, lqg.n_states, 1)))
-    return {
-        "current": rel_err(design.covariances.current, np.concatenate([posts[:, now, now], terminal[None, now, now]])),
-        "x_hat": rel_err(x_hat, aug.estimates(Lz, du, np.concatenate(dys, axis=1))[:, now]),
-        "cost": rel_err(design.expected_cost, aug.output_feedback_cost(Kh, Lz)),
-    }
+    errs = {}
+    if additive:
+        Lz, posts, terminal = aug.kalman()
+        now = aug.block(0)
+        du = rng.standard_normal((K, lqg.n_controls))
+        dys = [rng.standard_normal((K, s.n_outputs)) for s in sensors]
+        x_hat = fused_estimates(lqg, sensors, design.filter_gains, du, dys)
+        Kh, _, _ = aug.policy(design.gains, np.zeros((K, lqg.n_states, 1)))
+        errs = {
+            "current": rel_err(design.covariances.current,
+                               np.concatenate([posts[:, now, now], terminal[None, now, now]])),
+            "x_hat": rel_err(x_hat, aug.estimates(Lz, du, np.concatenate(dys, axis=1))[:, now]),
+            "separation cost": rel_err(design.expected_cost, aug.output_feedback_cost(Kh, Lz)),
+        }
+    # any law, and the filter for the motor noise of its own loop (signal-dependent if not additive)
+    gains = Gains(*(np.asarray(g) + 0.2 * rng.standard_normal(np.shape(g)) for g in design.gains))
+    loop = fused_loop(lqg, sensors, gains)
+    cost, current = aug.loop_kalman_cost(aug.policy(gains, np.zeros((K, lqg.n_states, 1)))[0])
+    errs["loop cost"] = rel_err(loop.expected_cost, cost)
+    errs["loop current"] = rel_err(loop.covariances.current[:-1], current)
+    if additive:
+        errs["loop gains"] = rel_err(loop.filter_gains.window_gain, design.filter_gains.window_gain) + rel_err(
+            loop.filter_gains.base_gain, design.filter_gains.base_gain)
+    return errs
 
 
 # (K, n, d, p, l, sensors as (m, q, delay, period)): delays 0, 1, equal, >= K; periods 1..3
@@ -54,7 +67,7 @@ CASES = [
 def test_fused_filter_matches_augmented_kalman(case, seed):
     K, n, d, p, l, specs = case
     lqg, sensors = random_fusion_problem(seed, K, n, d, p, l, specs)
-    errs = _against_augmented(lqg, sensors, seed)
+    errs = _against_augmented(lqg, sensors, seed, additive=True)
     assert all(e <= RTOL for e in errs.values()), errs
 
 
@@ -70,10 +83,12 @@ def _structures(draw):
 
 @settings(max_examples=6, deadline=None)
 @given(structure=_structures(), seed=st.integers(0, 2**31 - 1))
-def test_fused_filter_matches_augmented_kalman_random_structures(structure, seed):
+def test_fused_loop_matches_augmented_kalman_random_structures(structure, seed):
+    """Random sizes, delays and periods, signal-dependent motor noise: the filter for the loop's
+    own noise and the exact cost of the pair."""
     K, n, d, l, specs = structure
-    lqg, sensors = random_fusion_problem(seed, K, n, d, 1, l, specs)
-    errs = _against_augmented(lqg, sensors, seed)
+    lqg, sensors = random_fusion_problem(seed, K, n, d, 1, l, specs, mult_noise=0.3)
+    errs = _against_augmented(lqg, sensors, seed, additive=False)
     assert all(e <= RTOL for e in errs.values()), (structure, errs)
 
 

@@ -49,7 +49,8 @@ from .output_feedback import (OutputFeedback, OutputFeedbackRuns, output_feedbac
                               separation_design, simulate_output_feedback)
 from .structured import backward_pass
 from .alternation import Alternation, alternate, controller_sweep, filter_step
-from .fusion import FusedFeedback, FusionCovariances, FusionGains, fused_design, fused_estimates, fused_kalman
+from .fusion import (FusedFeedback, FusedLoop, FusionCovariances, FusionGains, fused_design, fused_estimates,
+                     fused_kalman, fused_loop)
 
 __all__ = [
     "DelayedLQG",
@@ -83,4 +84,6 @@ __all__ = [
     "fused_kalman",
     "fused_estimates",
     "fused_design",
+    "FusedLoop",
+    "fused_loop",
 ]

@@ -30,14 +30,15 @@ from .model import DelayedLQG, merged_if_undelayed
 from .observation import DelayedObservation
 
 __all__ = ["FusionGains", "FusionCovariances", "FusedFeedback", "fused_kalman", "fused_estimates", "fused_design",
-           "stacked_sensors"]
+           "FusedLoop", "fused_loop", "stacked_sensors"]
 
 
 class FusionGains(NamedTuple):
     """The gains of the fused filter.
 
     Attributes:
-        base_gain: [K, n, M] the base filter's gain on z_j, indexed by the state time j.
+        base_gain: [K, n, M] the base filter's gain on z_j, indexed by the state time j (rows
+            j >= K - W, never used, are zero).
         window_gain: [K, W, n, M] at step k, the re-filter's gain on z_{k-W+i+1} (i = 0..W-1);
             columns of rows not yet arrived (or not sampled) are zero.
     """
@@ -50,7 +51,8 @@ class FusionCovariances(NamedTuple):
     """Second moments of the fused filter's errors.
 
     Attributes:
-        base: [K, n, n] Cov(dx_j | z_0..z_j), the base filter's posterior in state time j.
+        base: [K, n, n] Cov(dx_j | z_0..z_j), the base filter's posterior in state time j (rows
+            j >= K - W, never used, may be zero).
         current: [K+1, n, n] Sigma_k = Cov(dx_k | I_k); row K is that of the terminal state given
             I_{K-1} (the same convention as ``FilterCovariances.current``).
     """
@@ -170,6 +172,8 @@ def _fused_kalman(lqg: DelayedLQG, st: Stacked, Q):
             return gains, P
 
         Wg, current = jax.vmap(refilter)(jnp.arange(K))
+    # base rows of state times j >= K - W are never used (step j + W is past the horizon)
+    Kb = jnp.where((jnp.arange(K) < K - W)[:, None, None], Kb, 0.0)
     last = lqg.A[-1] @ current[-1] @ lqg.A[-1].T + Q[-1]
     current = jnp.concatenate([current, last[None]])
     Wg = jnp.zeros((K, 0, n, st.H.shape[1]), dt) if W == 0 else Wg
@@ -325,3 +329,116 @@ def fused_design(lqg: DelayedLQG, sensors: Sequence[DelayedObservation]) -> Fuse
     fgains, cov = fused_kalman(lqg, sensors)
     gains, value = backward_pass(lqg)
     return FusedFeedback(gains, fgains, value, cov, separation_cost(lqg, value, gains, cov))
+
+
+# -- the filter for the loop's own motor noise, and the exact cost of the pair ---------------------
+
+class FusedLoop(NamedTuple):
+    """The fused filter for the motor noise of the closed loop under a given law, and the pair's
+    exact expected cost (``fused_loop``).
+
+    Attributes:
+        filter_gains: [`FusionGains`][delayed_ilqr.lqg.FusionGains]; covariances: [`FusionCovariances`][delayed_ilqr.lqg.FusionCovariances];
+        motor_cov: [K, n, n] E[w_k w_k'] under the loop (signal-dependent noise included);
+        expected_cost: [] the exact expected cost of the law on the filter's estimate.
+    """
+
+    filter_gains: FusionGains
+    covariances: FusionCovariances
+    motor_cov: jax.Array
+    expected_cost: jax.Array
+
+
+def _moments_of(T, t0, mu, X):
+    m = T @ mu
+    return m + t0, T @ X @ T.T + jnp.outer(m, t0) + jnp.outer(t0, m) + jnp.outer(t0, t0)
+
+
+@jax.jit
+def _fused_loop(lqg: DelayedLQG, st: Stacked, I_ff, LM):
+    lqg = merged_if_undelayed(lqg)
+    K, n, nd, l, W = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps, st.window
+    dt = lqg.A.dtype
+    Nz = n + l * nd
+    A_in = _transitions_in(lqg.A, W, jnp.eye(n, dtype=dt))
+    masks = _window_masks(st.lags, W) if W else None
+    S_del = jnp.zeros((nd, Nz), dt)                    # u_{k-l}: the oldest pending command
+    if l > 0:
+        S_del = S_del.at[:, n:n + nd].set(jnp.eye(nd, dtype=dt))
+    E_x = jnp.zeros((n, Nz), dt).at[:, :n].set(jnp.eye(n, dtype=dt))
+
+    def step(carry, data):
+        Pb, Qbuf, Sigma_prev, mu, X, total = carry     # Qbuf[i]: Q of state time k - W - 1 + i
+        k, A, B0, B1, c, C0, C1, d_tilde, dv, D, e, E, N, I, LMk = data
+        # the base filter at state time k - W, then the re-filter over the window (section 16)
+        Kb, Pb = _update(A_in[k] @ Pb @ A_in[k].T + Qbuf[0], st.H[k], st.R[k])
+        P, Wg = Pb, jnp.zeros((0, n, st.H.shape[1]), dt)
+        if W:
+            def refilter(P, data):
+                i, mask = data
+                p = k + i
+                A_p = A_in[p]
+                return _update(A_p @ P @ A_p.T + Qbuf[i], jnp.where(mask[:, None], st.H[p], 0.0), st.R[p])[::-1]
+            P, Wg = jax.lax.scan(refilter, Pb, (jnp.arange(1, W + 1), masks))
+        Sigma = 0.5 * (P + P.T)
+        # the estimate's jump at k is uncorrelated with I_{k-1}: Cov = P_{k|k-1} - Sigma_k
+        A_prev = A_in[k + W]
+        jump = A_prev @ Sigma_prev @ A_prev.T + Qbuf[W] - Sigma
+        X = X.at[:n, :n].add(jump)
+        # the stage cost, with dx = x_hat + error (the error is orthogonal to what the law sees)
+        Tu = LMk
+        Eu, Euu = _moments_of(Tu, I, mu, X)
+        Eux = (Tu @ X @ E_x.T) + jnp.outer(I, mu[:n])
+        Ex, Exx = mu[:n], X[:n, :n] + Sigma
+        total = total + d_tilde + 2 * dv @ Ex + jnp.sum(D * Exx) + 2 * e @ Eu + jnp.sum(E * Euu) + 2 * jnp.sum(N * Eux)
+        # the motor noise of this step: columns c_j + C0_j u_k + C1_j u_{k-l}, affine in zeta
+        g = c + C0 @ I
+        Gm = jnp.einsum("pnd,dz->pnz", C0, Tu) + jnp.einsum("pnd,dz->pnz", C1, S_del)
+        Gmu = jnp.einsum("pnz,z->pn", Gm, mu)
+        Q = jnp.einsum("pn,pm->nm", g, g) + jnp.einsum("pn,pm->nm", Gmu, g) + jnp.einsum("pn,pm->nm", g, Gmu) \
+            + jnp.einsum("pnz,zy,pmy->nm", Gm, X, Gm)
+        Q = 0.5 * (Q + Q.T)
+        # the time update of zeta = (x_hat, pending)
+        T = jnp.zeros((Nz, Nz), dt).at[:n].set(B0 @ Tu + B1 @ S_del).at[:n, :n].add(A)
+        t0 = jnp.zeros(Nz, dt).at[:n].set(B0 @ I)
+        if l > 0:
+            T = T.at[n:Nz - nd, n + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))
+            T = T.at[Nz - nd:].set(Tu)
+            t0 = t0.at[Nz - nd:].set(I)
+        mu, X = _moments_of(T, t0, mu, X)
+        Qbuf = jnp.concatenate([Qbuf[1:], Q[None]])
+        return (Pb, Qbuf, Sigma, mu, X, total), (Kb, Wg, Pb, Sigma, Q)
+
+    data = (jnp.arange(K), lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1],
+            lqg.e, lqg.E, lqg.N, I_ff, LM)
+    init = (jnp.zeros((n, n), dt), jnp.zeros((W + 1, n, n), dt), jnp.zeros((n, n), dt), jnp.zeros(Nz, dt),
+            jnp.zeros((Nz, Nz), dt), jnp.asarray(0.0, dt))
+    (_, Qbuf, Sigma, mu, X, total), (Kb, Wg, Pb, current, Qs) = jax.lax.scan(step, init, data)
+    terminal = lqg.A[-1] @ Sigma @ lqg.A[-1].T + Qbuf[-1]
+    total = total + lqg.d_tilde[-1] + 2 * lqg.d[-1] @ mu[:n] + jnp.sum(lqg.D[-1] * (X[:n, :n] + terminal))
+    # the base filter's rows were produced at step k for state time k - W: back to state time
+    Kb = jnp.concatenate([Kb[W:], jnp.zeros((min(W, K),) + Kb.shape[1:], dt)])
+    Pb = jnp.concatenate([Pb[W:], jnp.zeros((min(W, K),) + Pb.shape[1:], dt)])
+    current = jnp.concatenate([current, terminal[None]])
+    return FusedLoop(FusionGains(Kb, Wg), FusionCovariances(Pb, current), Qs, total)
+
+
+def fused_loop(lqg: DelayedLQG, sensors: Sequence[DelayedObservation], gains) -> FusedLoop:
+    """The fused Kalman filter for the motor noise the closed loop actually has when the law
+    ``gains`` acts on its estimate, and the exact expected cost of that pair, in one forward scan
+    (``docs/derivation.md`` §16).
+
+    The noise of step k, E[w_k w_k'] with w_k = sum_j (c_j + C0_j du_k + C1_j du_{k-l}) xi_j, is
+    uncorrelated with everything before it, so the Kalman filter for that covariance is the best
+    affine estimator, its error is orthogonal to the estimate and the commands, and the loop's
+    second moments need only those of (x_hat, pending commands) and Sigma_k. With additive noise
+    the filter is ``fused_kalman``'s and the cost that of the separation formula. Cost
+    O(K W (n^3 + M^3) + K (n + l d)^3).
+    """
+    from ..ilqg.closed_loop import augmented_feedback
+    from .exact import checked_gains
+
+    _precision.require_x64("lqg.fused_loop")
+    sensors = _checked(lqg, sensors)
+    gains = checked_gains(lqg, gains)
+    return _fused_loop(lqg, stacked_sensors(sensors), gains.feedforward, augmented_feedback(gains))
