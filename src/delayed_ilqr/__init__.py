@@ -41,6 +41,7 @@ from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
 from .observation import Observation
 from .solution import Estimator, Policy, Solution, Status, Trace
+from .fused_estimator import FusedEstimator
 from .ilqg.solver import solve
 from .ilqg.continuation import Continuation, Starts, augmented_lagrangian_start, solve_from_starts
 from .options import Options
@@ -50,7 +51,7 @@ from .saving import load, load_metadata
 __all__ = ["lqg", "models", "mpc", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
            "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve",
            "solve_from_starts", "augmented_lagrangian_start", "Starts", "Continuation", "Solution", "Policy",
-           "Estimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
+           "Estimator", "FusedEstimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"
 
 

@@ -3,7 +3,10 @@
     y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k,    v_k ~ N(0, I_q),    k = l_s..K-1
 
 ``y_k`` is available when u_k is computed: the information for u_k is y_{l_s..k}, the commands
-already sent, and x0 (known exactly; states before time 0 equal x0). A disturbance that changes
+already sent, and x0 (known exactly; states before time 0 equal x0). A sensor with ``period`` m
+samples the states x_j with j % m == 0 (x0 included), so its measurements arrive at the steps k >= l_s
+with (k - l_s) % m == 0. Several sensors, each with its own delay and period, are a list of
+``Observation`` (``sensor_list``). A disturbance that changes
 x_{k+1} is first seen in y_{k+1+l_s}. [`delayed_ilqr.solve`][delayed_ilqr.solve] designs the delayed Kalman filter
 of the linearisation around its nominal (`linearized_observation`, ``lqg.delayed_kalman``) and
 [`delayed_ilqr.simulate`][delayed_ilqr.simulate] runs it on the nonlinear plant (``docs/derivation.md`` §14).
@@ -33,15 +36,18 @@ class Observation:
             state-dependent sensory noise (evaluated at the sensed state x_{k-l_s}; the filter
             uses it at the nominal).
         delay_steps: l_s >= 0, the sensory delay in steps (below the problem's horizon).
+        period: m >= 1, the steps between two samples (default 1: a measurement every step); the
+            samples are of the states x_j with j % m == 0, arriving l_s steps later.
 
     Callables are static data (part of the compilation key; a frozen dataclass or a module-level
     function shares compilations), arrays are data. The state size n is checked against the
     problem that receives the observation.
     """
 
-    def __init__(self, output: Union[Callable, object], noise: Union[Callable, object], delay_steps=0):
+    def __init__(self, output: Union[Callable, object], noise: Union[Callable, object], delay_steps=0, period=1):
         _precision.require_x64("Observation")
         self.delay_steps = _validate.delay_steps(delay_steps, "delay_steps")
+        self.period = _validate.positive_int(period, "observation period")
         if callable(output):
             self.output_fn, self.H = output, None
         else:
@@ -114,7 +120,7 @@ class Observation:
     def __repr__(self):
         output = "H" if self.output_fn is None else repr(self.output_fn)
         noise = "G" if self.noise_fn is None else repr(self.noise_fn)
-        return f"Observation(output={output}, noise={noise}, delay_steps={self.delay_steps})"
+        return f"Observation(output={output}, noise={noise}, delay_steps={self.delay_steps}, period={self.period})"
 
 
 def _eval_shape(what, fn, x):
@@ -142,12 +148,12 @@ def _at_x0(what, fn, x0):
 
 
 def _flatten(obs: Observation):
-    return (obs.H, obs.G), (obs.output_fn, obs.noise_fn, obs.delay_steps)
+    return (obs.H, obs.G), (obs.output_fn, obs.noise_fn, obs.delay_steps, obs.period)
 
 
 def _unflatten(aux, data):
     new = object.__new__(Observation)
-    new.output_fn, new.noise_fn, new.delay_steps = aux
+    new.output_fn, new.noise_fn, new.delay_steps, new.period = aux
     new.H, new.G = data
     return new
 
@@ -166,7 +172,8 @@ def linearized_observation(observation: Observation, xs):
     """The linear delayed observation (14.1) around the nominal xs [K+1, n], and the nominal outputs.
 
     Row k belongs to the measurement that arrives at k, of x_{k-l_s}: H_k = dh/dx and G_k = G at
-    x_bar_{k-l_s} (x0 for k < l_s, rows the filter never uses).
+    x_bar_{k-l_s} (x0 for k < l_s, rows the filter never uses). Sensors with one delay stacked
+    (``sensor_list.SensorList``) give one observation whose rows keep their periods.
 
     Returns:
         ([`DelayedObservation`][delayed_ilqr.lqg.DelayedObservation], y_nominal [K, m] = h(x_bar_{k-l_s})).
@@ -174,4 +181,7 @@ def linearized_observation(observation: Observation, xs):
     sensed = sensed_states(xs, observation.delay_steps)
     H = jax.vmap(observation.jacobian)(sensed)
     G = jax.vmap(observation.noise_matrix)(sensed)
-    return _delayed_observation(observation.delay_steps, (H, G)), jax.vmap(observation.measure)(sensed)
+    m = H.shape[1]
+    period = observation.period if isinstance(observation.period, tuple) else (observation.period,) * m
+    return (_delayed_observation((observation.delay_steps, period), (H, G)),
+            jax.vmap(observation.measure)(sensed))

@@ -161,7 +161,9 @@ class Problem:
         observation: optional [`Observation`][delayed_ilqr.Observation], the delayed noisy sensors
             y_k = h(x_{k-l_s}) + G v_k. With it, [`solve`][delayed_ilqr.solve] adds the delayed
             Kalman filter to the policy and [`simulate`][delayed_ilqr.simulate] runs the controller on
-            its estimate; without it (the default) the controller sees the state.
+            its estimate; without it (the default) the controller sees the state. A list of
+            Observations is several sensors, each with its own delay and period, fused by one
+            filter (``docs/guide/sensors.md``).
         delay_frame: optional L with l <= L < K: the delay becomes data, the pending commands are kept in a
             frame of L slots, and problems that differ only in ``delay_steps`` <= L share one
             compiled solver, under ``jax.vmap`` too (docs/derivation.md §17, docs/sweeps.md). A
@@ -449,11 +451,8 @@ def _observation(observation, x0, horizon):
     """The problem's observation, checked against its state size and horizon (None: full state)."""
     if observation is None:
         return None
-    from .observation import Observation       # the sensors' module imports the LQG layer
-    if not isinstance(observation, Observation):
-        raise TypeError(f"observation must be None or a delayed_ilqr.Observation; got {type(observation).__name__}")
-    observation.check(x0, horizon)
-    return observation
+    from .sensor_list import checked_observation      # the sensors' module imports the LQG layer
+    return checked_observation(observation, x0, horizon)
 
 
 def _data_or_static(fn):

@@ -39,8 +39,11 @@ from . import _precision, _validate
 from .ilqg.closed_loop import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
+from .fused_estimator import FusedEstimator
 from .lqg.estimator import delayed_rows, estimator_predict, estimator_update
+from .lqg.fusion import FusionGains, fusion_advance, fusion_init, fusion_rows, fusion_update
 from .problem import Problem
+from .sensor_list import SensorList
 from .solution import Estimator, Policy
 from .statistics import Summary, summarize
 
@@ -207,6 +210,72 @@ def _simulate_observed(problem: Problem, policy: Policy, n_trials: int, substeps
     return Runs(*jax.vmap(trial)(jax.random.split(key, n_trials)))
 
 
+@partial(jax.jit, static_argnames=("n_trials", "substeps"))
+def _simulate_fused(problem: Problem, policy: Policy, n_trials: int, substeps: int, key, disturbance) -> Runs:
+    """The closed loop with sensors of different delays and the policy's fused filter
+    (``FusedEstimator``, ``lqg.fusion``): sensor a reads the state l_a steps back with its own noise,
+    the rows arriving at k update the filter's window, and the law acts on its estimate."""
+    K, nx, nd, p = problem.horizon, problem.n_states, problem.n_controls, problem.n_noise
+    est, sensors, l = policy.estimator, problem.observation, problem.delay_steps
+    l_p, L, W = policy.delay_feedback.shape[1], sensors.delay_steps, est.window
+    lags = np.asarray(est.lags)
+    B = max(l, l_p, 1)
+    dtype = problem.x0.dtype
+    LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
+    B0, B1 = (est.B0 + est.B1, jnp.zeros_like(est.B1)) if l_p == 0 else (est.B0, est.B1)   # merged_if_undelayed
+    rows = fusion_rows(est.A, B0, B1, jnp.concatenate([jnp.zeros((W,) + est.H.shape[1:], dtype), est.H]),
+                       FusionGains(est.base_gain, est.window_gain), W)
+    q = sensors.noise_matrix(problem.x0).shape[1]
+
+    def step(carry, data):
+        past, sent, nominal, memory = carry                     # past[0] = x_{k-L}, past[-1] = x_k
+        k, x_bar, u_bar, LMk, xi, v, y_bar, dist, t = data
+        dy = sensors.measure_delayed(past, v) - y_bar
+        x_hat, memory = fusion_update(memory, k, dy, rows, lags, W, l_p)
+        pending = (sent[B - l_p:] - nominal[B - l_p:]).reshape(-1)
+        u = jnp.clip(u_bar + delayed_law(jnp.zeros_like(u_bar), LMk, jnp.concatenate([x_hat, pending])),
+                     problem.u_min, problem.u_max)
+        ud = sent[B - l] if l > 0 else u
+        x_new = _plant_step(problem, past[-1], u, ud, xi, t, substeps) + dist
+        memory = fusion_advance(memory, u - u_bar)                 # the filter moves with the commands sent
+        past = jnp.concatenate([past[1:], x_new[None]])
+        sent = jnp.concatenate([sent[1:], u[None]])
+        nominal = jnp.concatenate([nominal[1:], u_bar[None]])
+        return (past, sent, nominal, memory), (x_new, u, x_bar + x_hat)
+
+    def trial(trial_key):
+        xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
+        v = jax.random.normal(jax.random.fold_in(trial_key, 1), (K, q), dtype)
+        init = (jnp.broadcast_to(problem.x0, (L + 1, nx)), jnp.zeros((B, nd), dtype), jnp.zeros((B, nd), dtype),
+                fusion_init(nx, est.n_outputs, nd, W, l_p, dtype))
+        data = (jnp.arange(K), policy.x_nominal[:-1], policy.u_nominal, LM, xi, v, est.y_nominal, disturbance,
+                problem.step_times(dtype))
+        _, (xs, us, x_hat) = jax.lax.scan(step, init, data)
+        xs = jnp.concatenate([problem.x0[None], xs])
+        return xs, us, trajectory_cost(problem, xs, us), x_hat
+
+    return Runs(*jax.vmap(trial)(jax.random.split(key, n_trials)))
+
+
+def _check_fused_estimator(problem: Problem, est):
+    """A FusedEstimator, checked against the problem's sensors of different delays."""
+    sensors = problem.observation
+    if not isinstance(est, FusedEstimator):
+        raise ValueError("policy.estimator must be a delayed_ilqr.FusedEstimator for a problem whose sensors have "
+                         "different delays (solve the problem with its observation); got "
+                         f"{'None' if est is None else type(est).__name__}")
+    if tuple(est.lags) != sensors.lags:
+        raise ValueError(f"policy.estimator.lags must be the problem's sensor delays per row {sensors.lags}; got "
+                         f"{tuple(est.lags)}")
+    K, nx, nd, m = problem.horizon, problem.n_states, problem.n_controls, sum(sensors.sizes)
+    W = min(sensors.delay_steps, K)
+    shapes = dict(A=(K, nx, nx), B0=(K, nx, nd), B1=(K, nx, nd), H=(K, m, nx), y_nominal=(K, m),
+                  base_gain=(K, nx, m), window_gain=(K, W, nx, m), error_covariance=(K + 1, nx, nx))
+    checked = {name: jnp.asarray(_validate.array(getattr(est, name), f"policy.estimator.{name}", shape),
+                                 jnp.float64) for name, shape in shapes.items()}
+    return FusedEstimator(**checked, lags=est.lags)
+
+
 def _check_estimator(problem: Problem, policy: Policy):
     """The policy's estimator, checked against the problem's sensors (None for full state)."""
     est, obs = policy.estimator, problem.observation
@@ -215,6 +284,8 @@ def _check_estimator(problem: Problem, policy: Policy):
     if obs is None:
         raise ValueError("policy.estimator is set but the problem has no observation: a policy with a filter runs "
                          "on a problem with sensors (Problem(observation=...)); got observation=None")
+    if isinstance(obs, SensorList) and not obs.equal_delays:
+        return _check_fused_estimator(problem, est)
     if not isinstance(est, Estimator):
         raise ValueError("policy.estimator must be a delayed_ilqr.Estimator for a problem with an observation "
                          "(solve the problem with its observation); got "
@@ -376,7 +447,8 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     if policy.estimator is not None and disturbance is None:
         # with sensors, one compilation serves the runs with and without a disturbance
         disturbance = jnp.zeros((problem.horizon, problem.n_states))
-    run = _simulate if policy.estimator is None else _simulate_observed
+    run = _simulate if policy.estimator is None else (
+        _simulate_fused if isinstance(policy.estimator, FusedEstimator) else _simulate_observed)
     try:
         # waited for here, so that a failed allocation is reported by this call, not by a later read
         return jax.block_until_ready(run(problem, policy, n_trials, substeps, key, disturbance))

@@ -10,6 +10,11 @@ and the feedback in turn, never raising the pair's exact cost; the feedforward a
 iLQG's, and commands without feedback (at a limit) keep none. The expected cost of the pair is exact
 on the linearisation (the joint second moments, signal-dependent motor noise included). This runs
 once, after the solver's loop.
+
+Sensors with different delays (a ``SensorList``) are fused without augmentation (``lqg.fusion``):
+the filter is the Kalman filter for the motor noise that iLQG's law actually has in closed loop
+(``lqg.fused_loop``, Todorov's filter for a fixed controller; with additive noise the separation
+design), and the law stays iLQG's: the controller half of the alternation is not available there.
 """
 from __future__ import annotations
 
@@ -19,9 +24,12 @@ import jax
 import jax.numpy as jnp
 
 from ..lqg.alternation import _alternate
+from ..fused_estimator import FusedEstimator
 from ..lqg.estimator import _delayed_kalman, _process_cov
+from ..lqg.fusion import _fused_loop, stacked_sensors
 from ..lqg.model import Gains
 from ..observation import linearized_observation
+from ..sensor_list import SensorList, linearized_sensors
 from ..options import Options
 from ..problem import Problem
 from ..solution import Estimator, Solution, Status
@@ -41,6 +49,8 @@ def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: i
         ([`Estimator`][delayed_ilqr.Estimator], the law [`Gains`][delayed_ilqr.lqg.Gains], expected cost []).
     """
     lqg = linearize(problem, xs, us)
+    if fused(problem):
+        return _design_fused(lqg, problem.observation, xs, gains)
     obs, y_nominal = linearized_observation(problem.observation, xs)
     fgains, _ = _delayed_kalman(lqg, obs, _process_cov(lqg), obs.measurement_cov)
     signal_dependent = jnp.any(lqg.C0 != 0) | jnp.any(lqg.C1 != 0)
@@ -51,6 +61,22 @@ def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: i
     estimator = Estimator(lqg.A, lqg.B0, lqg.B1, obs.H, y_nominal, alt.filter_gains.delayed_gain,
                           alt.filter_gains.current_gain, alt.error_covariance, sensory_delay=obs.delay_steps)
     return estimator, alt.gains, jnp.asarray(alt.expected_cost)
+
+
+def fused(problem: Problem) -> bool:
+    """Whether the problem's sensors have different delays (the fused filter, ``lqg.fusion``)."""
+    return isinstance(problem.observation, SensorList) and not problem.observation.equal_delays
+
+
+def _design_fused(lqg, sensors: SensorList, xs, gains: Gains):
+    """The fused filter for the motor noise of iLQG's law in closed loop, and the pair's exact cost."""
+    linear, y_nominal = linearized_sensors(sensors, xs)
+    st = stacked_sensors(linear)
+    loop = _fused_loop(lqg, st, gains.feedforward, augmented_feedback(gains))
+    W = st.window
+    estimator = FusedEstimator(lqg.A, lqg.B0, lqg.B1, st.H[W:], y_nominal, loop.filter_gains.base_gain,
+                               loop.filter_gains.window_gain, loop.covariances.current, st.lags)
+    return estimator, gains, loop.expected_cost
 
 
 def without_observation(problem: Problem) -> Problem:
@@ -77,9 +103,14 @@ def _without_updates(problem: Problem, xs, us, designed: Estimator) -> Estimator
     nx = xs.shape[1]
     _, P = jax.lax.scan(predict, jnp.zeros((nx, nx), xs.dtype), (lqg.A, _process_cov(lqg)))
     finite = lambda a: jnp.where(jnp.isfinite(a), a, 0.0)
+    P = jnp.concatenate([jnp.zeros((1, nx, nx), xs.dtype), P])
+    if isinstance(designed, FusedEstimator):
+        return designed.replace(A=lqg.A, B0=lqg.B0, B1=lqg.B1, H=finite(designed.H),
+                                y_nominal=finite(designed.y_nominal), base_gain=jnp.zeros_like(designed.base_gain),
+                                window_gain=jnp.zeros_like(designed.window_gain), error_covariance=P)
     return Estimator(lqg.A, lqg.B0, lqg.B1, finite(designed.H), finite(designed.y_nominal),
                      jnp.zeros_like(designed.delayed_gain), jnp.zeros_like(designed.current_gain),
-                     jnp.concatenate([jnp.zeros((1, nx, nx), xs.dtype), P]), sensory_delay=designed.sensory_delay)
+                     P, sensory_delay=designed.sensory_delay)
 
 
 def all_finite(tree):

@@ -224,12 +224,12 @@ class FusionRows(NamedTuple):
     window_gain: jax.Array
 
 
-def fusion_rows(lqg: DelayedLQG, H_pad, fgains: FusionGains, W: int) -> FusionRows:
-    lqg = merged_if_undelayed(lqg)
-    n = lqg.n_states
-    return FusionRows(_transitions_in(lqg.A, W, jnp.eye(n, dtype=lqg.A.dtype)), _transitions_in(lqg.B0, W, 0.0),
-                      _transitions_in(lqg.B1, W, 0.0), H_pad, _padded(fgains.base_gain, W, 0.0),
-                      fgains.window_gain)
+def fusion_rows(A, B0, B1, H_pad, fgains: FusionGains, W: int) -> FusionRows:
+    """The rows the filter moves with, from the plant's A [K, n, n], B0, B1 [K, n, d] (with B1
+    already folded into B0 when l = 0), the stacked sensors H_pad [K + W, M, n] and the gains."""
+    n = A.shape[1]
+    return FusionRows(_transitions_in(A, W, jnp.eye(n, dtype=A.dtype)), _transitions_in(B0, W, 0.0),
+                      _transitions_in(B1, W, 0.0), H_pad, _padded(fgains.base_gain, W, 0.0), fgains.window_gain)
 
 
 def fusion_init(n: int, M: int, d: int, W: int, l: int, dtype):
@@ -278,8 +278,9 @@ def fusion_advance(memory, du):
 
 @jax.jit
 def _fused_estimates(lqg, st: Stacked, fgains, du, dy):
-    l, W = merged_if_undelayed(lqg).delay_steps, st.window
-    rows = fusion_rows(lqg, st.H, fgains, W)
+    lqg = merged_if_undelayed(lqg)
+    l, W = lqg.delay_steps, st.window
+    rows = fusion_rows(lqg.A, lqg.B0, lqg.B1, st.H, fgains, W)
 
     def step(memory, data):
         k, du_k, dy_k = data
