@@ -37,6 +37,7 @@ import numpy as np
 
 from . import _files, _precision
 from ._files import FileFormatError
+from .fused_estimator import FusedEstimator
 from .solution import Estimator, Policy, Solution, Status, Trace
 
 __all__ = ["FORMAT_VERSION", "FileFormatError", "save", "load", "load_metadata"]
@@ -46,12 +47,14 @@ FORMAT_VERSION = 1
 _METADATA = "__metadata__"
 # the records a file may contain, by the name the header gives their class (a new record type
 # nested in Solution or Policy is added here, with its fields in _fields)
-_RECORDS = {cls.__name__: cls for cls in (Solution, Policy, Trace, Estimator)}
+_RECORDS = {cls.__name__: cls for cls in (Solution, Policy, Trace, Estimator, FusedEstimator)}
+# the static (pytree auxiliary) fields of the estimators, saved as integer arrays
+_STATIC = {Estimator: ("sensory_delay",), FusedEstimator: ("lags",)}
 
 
 def _fields(cls) -> tuple:
-    """The field names of a record class: a NamedTuple's, or the Estimator's arrays and its delay."""
-    return cls._arrays + ("sensory_delay",) if cls is Estimator else cls._fields
+    """The field names of a record class: a NamedTuple's, or an estimator's arrays and its delays."""
+    return cls._arrays + _STATIC[cls] if cls in _STATIC else cls._fields
 
 
 def _flatten(record, prefix: str, arrays: dict, types: dict) -> None:
@@ -190,6 +193,10 @@ def _value(cls, name, array, path, key):
         if array.ndim or array.dtype.kind not in "iu" or int(array) < 0:
             raise _files.FileFormatError(path, f"{key} must be a non-negative integer scalar; got {array!r}")
         return int(array)                        # static: the pytree's auxiliary data
+    if cls is FusedEstimator and name == "lags":
+        if array.ndim != 1 or array.dtype.kind not in "iu" or np.any(array < 0):
+            raise _files.FileFormatError(path, f"{key} must be a vector of non-negative integers; got {array!r}")
+        return tuple(int(v) for v in array)
     if array.dtype.kind == "f":                  # the library computes in float64, whatever the writer did
         return jnp.asarray(array, jnp.float64)
     if array.dtype.kind not in "biu":

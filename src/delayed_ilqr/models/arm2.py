@@ -53,7 +53,7 @@ from ..problem import Problem
 from . import _common
 from .metadata import ModelMetadata, TaskSpace
 from .muscle import T_ACT
-from .sensors import joint_sensors
+from .sensors import arm_sensors
 
 __all__ = ["arm2", "Arm2Params", "ARM2_PARAMS", "ARM2_PARAMS_ARM_DYN", "Arm2Dynamics", "Arm2Noise",
            "mass_matrix", "mass_matrix_inverse", "coriolis", "joint_acceleration", "hand_position",
@@ -248,7 +248,7 @@ def _check_params(params) -> Arm2Params:
 
 def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi / 2, 0.0, 0.0),
          x_target=(math.pi / 2, math.pi / 3, 0.0, 0.0), params: Arm2Params = ARM2_PARAMS,
-         sigma_u=None, sensory_delay=None) -> Problem:
+         sigma_u=None, sensory_delay=None, vision_delay=None) -> Problem:
     """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
@@ -266,6 +266,8 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
         sensory_delay: None (default): the controller sees the state. A delay in seconds (a
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
             velocities seen that late through additive noise (`sensors.joint_sensors`).
+        vision_delay: None (default): no vision. A delay in seconds: the hand position seen that
+            late (`sensors.vision_sensors`), fused with proprioception when ``sensory_delay`` is set.
 
     Returns:
         A [`Problem`][delayed_ilqr.Problem] named ``"arm2"``; its metadata's task space is the hand
@@ -282,4 +284,4 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
                        state_labels=ARM_STATE_LABELS,
                        control_labels=("shoulder torque u1 [N m]", "elbow torque u2 [N m]"),
                        task=hand_task(params), noise=preset),
-                   observation=None if sensory_delay is None else joint_sensors(4, sensory_delay, dt))
+                   observation=arm_sensors(4, dt, sensory_delay, vision_delay, params))

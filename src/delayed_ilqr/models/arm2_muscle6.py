@@ -93,7 +93,7 @@ from . import muscle as _muscle
 from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
                    hand_velocity, joint_acceleration)
 from .metadata import CostParameter, ModelMetadata
-from .sensors import joint_sensors
+from .sensors import arm_sensors
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", "Arm2Muscle6Dynamics",
            "Arm2Muscle6Noise",
@@ -221,7 +221,7 @@ def center_out_targets(n=8, radius=0.1, q0=Q0, arm: Arm2Params = ARM2_PARAMS, st
 def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, final_time=FINAL_TIME,
                  geometry="angle_dependent", x0=None, sigma_u=SIGMA_U, r=R_EFFORT, w_p=W_POS, w_v=W_VEL,
                  w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS, t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT,
-                 sensory_delay=None) -> Problem:
+                 sensory_delay=None, vision_delay=None) -> Problem:
     """Energy-optimal reaching with the six-muscle arm and delayed excitations (Li & Todorov 2004).
 
     Args:
@@ -249,6 +249,8 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
             whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
             velocities seen that late through additive noise (`sensors.joint_sensors`);
             the activations are not sensed.
+        vision_delay: None (default): no vision. A delay in seconds: the hand position seen that
+            late (`sensors.vision_sensors`), fused with proprioception when ``sensory_delay`` is set.
 
     Returns:
         A [`Problem`][delayed_ilqr.Problem] named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
@@ -273,4 +275,4 @@ def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, fi
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
                    metadata=dataclasses.replace(METADATA if arm == ARM2_PARAMS else _metadata(arm), noise=preset),
-                   observation=None if sensory_delay is None else joint_sensors(10, sensory_delay, dt))
+                   observation=arm_sensors(10, dt, sensory_delay, vision_delay, arm))
