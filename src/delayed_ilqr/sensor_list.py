@@ -6,7 +6,7 @@ The list is checked and normalised here (`checked_observation`): a single
 a longer list becomes a [`SensorList`][delayed_ilqr.sensor_list.SensorList]. Sensors with one common
 delay are one observation whose output stacks theirs (the delayed filter of ``lqg.estimator``, with
 each row's period); sensors with different delays are fused by ``lqg.fusion`` without augmenting
-the state (``docs/derivation.md`` §16).
+the state (``docs/derivation.md`` §18).
 """
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def checked_observation(observation, x0, horizon: int):
     if isinstance(observation, SensorList):
         observation = observation.observations
     if not isinstance(observation, (list, tuple)):
-        raise TypeError(f"observation must be None, a delayed_ilqr.Observation or a list of them; got "
+        raise TypeError(f"observation must be None or a delayed_ilqr.Observation (or a list of them, one per sensor); got "
                         f"{type(observation).__name__}")
     if len(observation) == 0:
         raise ValueError("observation must be an Observation or a non-empty list of Observations (one per sensor); "
