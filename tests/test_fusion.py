@@ -52,17 +52,15 @@ def _against_augmented(lqg, sensors, seed, additive):
 
 # (K, n, d, p, l, sensors as (m, q, delay, period)): delays 0, 1, equal, >= K; periods 1..3
 CASES = [
-    (6, 2, 1, 1, 0, [(1, 1, 0, 1), (1, 2, 2, 1)]),
-    (8, 3, 2, 2, 2, [(2, 2, 1, 1), (1, 2, 3, 2)]),
+    (6, 2, 1, 1, 0, [(1, 1, 0, 1), (1, 2, 2, 1), (1, 1, 8, 1)]),    # delays 0 and > K (never arrives)
     (8, 2, 1, 1, 1, [(1, 1, 2, 1), (2, 2, 2, 3)]),                  # equal delays, different periods
-    (9, 2, 2, 2, 1, [(2, 2, 0, 2), (1, 1, 4, 1), (1, 1, 9, 2)]),    # one delay = K: never arrives
-    (6, 2, 1, 1, 0, [(1, 1, 1, 3), (1, 1, 11, 1)]),                 # one delay > K
+    (9, 2, 2, 2, 2, [(2, 2, 1, 2), (1, 1, 4, 1), (1, 1, 9, 3)]),    # delays 1 and = K
 ]
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: f"K{c[0]}-l{c[4]}-" + "-".join(
     f"ls{s[2]}m{s[3]}" for s in c[5]))
-@settings(max_examples=2, deadline=None)
+@settings(max_examples=1, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_fused_filter_matches_augmented_kalman(case, seed):
     K, n, d, p, l, specs = case
@@ -81,7 +79,7 @@ def _structures(draw):
     return K, draw(st.integers(1, 3)), draw(st.integers(1, 2)), draw(st.integers(0, 2)), specs
 
 
-@settings(max_examples=6, deadline=None)
+@settings(max_examples=5, deadline=None)
 @given(structure=_structures(), seed=st.integers(0, 2**31 - 1))
 def test_fused_loop_matches_augmented_kalman_random_structures(structure, seed):
     """Random sizes, delays and periods, signal-dependent motor noise: the filter for the loop's
@@ -130,3 +128,21 @@ def test_one_sampled_sensor_through_the_delayed_filter(ls, period):
     present = np.asarray(obs.present)[:, None, :]
     got = output_feedback_cost(lqg, obs, design.gains, FilterGains(Kd, Kc))
     assert rel_err(got, AugmentedSensors(lqg, [obs]).output_feedback_cost(Kh, Lz * present)) <= RTOL
+
+
+def test_the_exact_cost_of_the_fused_pair_has_gradients():
+    """d/dtheta of fused_loop's exact cost, theta scaling the slow sensor's noise and the motor
+    noise (signal-dependent), by autodiff against central finite differences."""
+    import jax
+
+    lqg, sensors = random_fusion_problem(2, 6, 2, 1, 1, 1, [(1, 1, 0, 1), (1, 1, 3, 2)], mult_noise=0.3)
+    gains = fused_design(lqg, sensors).gains
+
+    def cost(theta):
+        slow = DelayedObservation(sensors[1].H, theta[0] * sensors[1].G, 3, 2)
+        return fused_loop(lqg.replace(c=theta[1] * lqg.c), [sensors[0], slow], gains).expected_cost
+
+    theta, h = np.array([1.1, 0.9]), 1e-5
+    grad = np.asarray(jax.grad(cost)(jax.numpy.asarray(theta)))
+    fd = [(cost(theta + h * e) - cost(theta - h * e)) / (2 * h) for e in np.eye(2)]
+    assert rel_err(grad, np.array(fd)) <= 1e-7, (grad, fd)
