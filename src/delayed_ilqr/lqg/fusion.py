@@ -293,7 +293,7 @@ def _fused_estimates(lqg, st: Stacked, fgains, du, dy):
 
 def fused_estimates(lqg: DelayedLQG, sensors: Sequence[DelayedObservation], fgains: FusionGains, du, dys):
     """Runs the fused filter on one record: commands du [K, d] and each sensor's measurements
-    dys[a] [K, m_a] indexed by arrival step (absent rows are ignored). Returns x_hat [K, n] =
+    dys, one [K, m_a] per sensor indexed by arrival step (absent rows are ignored). Returns x_hat [K, n] =
     E[dx_k | I_k]."""
     _precision.require_x64("lqg.fused_estimates")
     sensors = _checked(lqg, sensors)
