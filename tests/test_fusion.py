@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from comparisons import rel_err
-from fused_sensing import AugmentedSensors, random_fusion_problem, random_sensors
+from fused_sensing import AugmentedSensors, random_fusion_problem
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

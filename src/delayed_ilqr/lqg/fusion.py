@@ -25,9 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _precision
+from ..ilqg.closed_loop import augmented_feedback
 from .estimator import _kalman_step, _process_cov
-from .model import DelayedLQG, merged_if_undelayed
+from .exact import checked_gains
+from .model import DelayedLQG, Gains, Value, merged_if_undelayed
 from .observation import DelayedObservation
+from .output_feedback import separation_cost
+from .structured import backward_pass
 
 __all__ = ["FusionGains", "FusionCovariances", "FusedFeedback", "fused_kalman", "fused_estimates", "fused_design",
            "FusedLoop", "fused_loop", "stacked_sensors"]
@@ -312,9 +316,9 @@ class FusedFeedback(NamedTuple):
         expected_cost: [] the exact expected cost of the pair (additive noise: separation).
     """
 
-    gains: object
+    gains: Gains
     filter_gains: FusionGains
-    value: object
+    value: Value
     covariances: FusionCovariances
     expected_cost: jax.Array
 
@@ -324,9 +328,6 @@ def fused_design(lqg: DelayedLQG, sensors: Sequence[DelayedObservation]) -> Fuse
     fused Kalman estimate, and its expected cost J(0) + sum_k tr(L_k' H_k L_k Sigma_k)
     ([`separation_cost`][delayed_ilqr.lqg.separation_cost]), exact when the motor noise is additive (C0 = C1 = 0):
     the estimation error is then independent of everything the law sees (``docs/derivation.md`` §18)."""
-    from .output_feedback import separation_cost
-    from .structured import backward_pass
-
     fgains, cov = fused_kalman(lqg, sensors)
     gains, value = backward_pass(lqg)
     return FusedFeedback(gains, fgains, value, cov, separation_cost(lqg, value, gains, cov))
@@ -436,9 +437,6 @@ def fused_loop(lqg: DelayedLQG, sensors: Sequence[DelayedObservation], gains) ->
     the filter is ``fused_kalman``'s and the cost that of the separation formula. Cost
     O(K W (n^3 + M^3) + K (n + l d)^3).
     """
-    from ..ilqg.closed_loop import augmented_feedback
-    from .exact import checked_gains
-
     _precision.require_x64("lqg.fused_loop")
     sensors = _checked(lqg, sensors)
     gains = checked_gains(lqg, gains)
