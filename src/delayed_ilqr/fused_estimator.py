@@ -1,6 +1,6 @@
 """The fused filter of a policy whose sensors have different delays (``lqg.fusion``).
 
-It runs on deviations from the policy's nominal (``docs/derivation.md`` §18). The measurements are
+It runs on deviations from the policy's nominal (``docs/derivation.md`` §19). The measurements are
 kept by the time j of the state they sense, over the window j = k-W..k (W the largest delay):
 
     x_b     <- A x_b + B0 du + B1 du_{-l} + Kb_{k-W} (z_{k-W} - H_{k-W} x_b)        E[dx_{k-W} | z_{<=k-W}]

@@ -6,7 +6,7 @@ The list is checked and normalised here (`checked_observation`): a single
 a longer list becomes a [`SensorList`][delayed_ilqr.sensor_list.SensorList]. Sensors with one common
 delay are one observation whose output stacks theirs (the delayed filter of ``lqg.estimator``, with
 each row's period); sensors with different delays are fused by ``lqg.fusion`` without augmenting
-the state (``docs/derivation.md`` §18).
+the state (``docs/derivation.md`` §19).
 """
 from __future__ import annotations
 

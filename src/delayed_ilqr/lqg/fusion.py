@@ -4,7 +4,7 @@ Sensor a measures dy^a_k = H^a_k dx_{k-l_a} + G^a_k v^a_k at the steps k >= l_a 
 (k - l_a) % m_a == 0 (``DelayedObservation``; the sensors' noises are independent). Indexed by the
 time j of the sensed state, the rows of all sensors form one measurement z_j = Hs_j dx_j + noise
 (rows of sensor a present when j % m_a == 0 and j + l_a < K), and sensor a's rows of z_j arrive at
-step j + l_a. With L = max_a l_a and the window W = min(L, K) (``docs/derivation.md`` §18):
+step j + l_a. With L = max_a l_a and the window W = min(L, K) (``docs/derivation.md`` §19):
 
 * the base filter, an ordinary Kalman filter in state time over every row of z_j, gives
   E[dx_{k-W} | z_0..z_{k-W}] at step k: every row of those measurements has arrived;
@@ -327,7 +327,7 @@ def fused_design(lqg: DelayedLQG, sensors: Sequence[DelayedObservation]) -> Fuse
     """The separation design with several delayed sensors: [`backward_pass`][delayed_ilqr.lqg.backward_pass]'s law on the
     fused Kalman estimate, and its expected cost J(0) + sum_k tr(L_k' H_k L_k Sigma_k)
     ([`separation_cost`][delayed_ilqr.lqg.separation_cost]), exact when the motor noise is additive (C0 = C1 = 0):
-    the estimation error is then independent of everything the law sees (``docs/derivation.md`` §18)."""
+    the estimation error is then independent of everything the law sees (``docs/derivation.md`` §19)."""
     fgains, cov = fused_kalman(lqg, sensors)
     gains, value = backward_pass(lqg)
     return FusedFeedback(gains, fgains, value, cov, separation_cost(lqg, value, gains, cov))
@@ -428,7 +428,7 @@ def _fused_loop(lqg: DelayedLQG, st: Stacked, I_ff, LM):
 def fused_loop(lqg: DelayedLQG, sensors: Sequence[DelayedObservation], gains) -> FusedLoop:
     """The fused Kalman filter for the motor noise the closed loop actually has when the law
     ``gains`` acts on its estimate, and the exact expected cost of that pair, in one forward scan
-    (``docs/derivation.md`` §18).
+    (``docs/derivation.md`` §19).
 
     The noise of step k, E[w_k w_k'] with w_k = sum_j (c_j + C0_j du_k + C1_j du_{k-l}) xi_j, is
     uncorrelated with everything before it, so the Kalman filter for that covariance is the best
