@@ -16,7 +16,7 @@ import numpy as np
 
 from . import _validate
 
-__all__ = ["is_per_channel", "checked", "checked_frame", "longest"]
+__all__ = ["is_per_channel", "checked", "checked_frame", "check_below_horizon", "longest", "as_json"]
 
 
 def is_per_channel(delay_steps) -> bool:
@@ -63,3 +63,20 @@ def checked_frame(delay_frame, delay_steps, name: str = "delay_frame"):
         raise ValueError(f"{name} must be at least the longest channel delay (the frame holds every channel's "
                          f"pending commands); got {name}={value} with delay_steps={list(delay_steps)!r}")
     return value
+
+
+def check_below_horizon(delay_steps, horizon: int) -> None:
+    """Per-channel delays of a [`Problem`][delayed_ilqr.Problem]: each l_j < K (with l_j >= K, channel
+    j's commands would never act within the horizon)."""
+    for j, l_j in enumerate(np.asarray(delay_steps)):
+        if l_j >= horizon:
+            raise ValueError(f"delay_steps[{j}] must be below the horizon: a command sent at step k acts at "
+                             f"k + l_j, so with l_j >= K channel {j} never acts; got delay_steps="
+                             f"{as_json(delay_steps)}, horizon={horizon}")
+
+
+def as_json(delay_steps):
+    """The delay as a JSON value: an int, or a list of ints per channel."""
+    if is_per_channel(delay_steps):
+        return [int(l_j) for l_j in np.asarray(delay_steps)]
+    return int(delay_steps)

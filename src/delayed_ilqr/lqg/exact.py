@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _precision, _validate
-from ..ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_law
+from .law import augmented_feedback, closed_loop_affine, delayed_law
 from .augmented import augment
 from .model import DelayedLQG, Gains, checked_entry, merged_if_undelayed
 
