@@ -68,17 +68,23 @@ def test_per_channel_pass_equals_augmentation(shape, data, seed, reg):
         assert not np.any(M[:, :L - l_j, :, j]), (j, l_j)
 
 
-@pytest.mark.parametrize("l", [0, 1, 3])
+@pytest.mark.parametrize("l", [0, 1, 4])
 def test_equal_channel_delays_are_the_single_delay(l):
-    """Every channel delayed by l: the per-channel pass (a frame of l slots, l as data per channel)
-    gives the single-delay pass's gains and value to round-off."""
-    K, n, d, p = 6, 2, 3, 2
+    """Every channel delayed by l, in the frame of 4 slots of the first shape above (its compiled
+    pass): the live blocks equal the single-delay pass's gains and value to round-off, and the
+    frame's 4 - l older slots are exactly zero."""
+    K, n, d, p, L = SHAPES[0]
     arrays = random_arrays(11 + l, K, n, d, p, l)
     single = _lqg.backward_pass(DelayedLQG(**arrays), 0.0)
-    per_channel = _lqg.backward_pass(DelayedLQG(**{**arrays, "delay_steps": [l] * d}), 0.0)
-    errs = _errors(*per_channel, *single)
+    gains, value = _lqg.backward_pass(DelayedLQG(**{**arrays, "delay_steps": [l] * d}, delay_frame=L), 0.0)
+    live = lambda x, axes: x[(slice(None),) + (slice(L - l, None),) * axes]
+    dead = lambda x, axes: [x[(slice(None),) * (1 + a) + (slice(0, L - l),)] for a in range(axes)]
+    errs = _errors(gains._replace(delay_feedback=live(gains.delay_feedback, 1)),
+                   value._replace(r=live(value.r, 1), Rt=live(value.Rt, 1), R=live(value.R, 2)), *single)
     _WORST.record(max(errs.values()), f"equal delays l={l}")
     assert all(e <= RTOL for e in errs.values()), errs
+    for x, axes in ((gains.delay_feedback, 1), (value.r, 1), (value.Rt, 1), (value.R, 2)):
+        assert not any(np.any(np.asarray(block)) for block in dead(x, axes))
 
 
 def _augmented_by_channel(arrays, delays):
