@@ -6,7 +6,9 @@ P4 (the point mass at dt = 1 ms, K = 600, n = 4, d = 2; docs/models.md §2) with
 
 1. the backward pass alone, linearised at u = 0: the compiled per-channel structured pass
    (``structured_slot_scan(store_value=False, predict=True)``, what the solver runs) against the
-   compiled augmented pass (``augmented_scan``), median of 7 calls each after a first (compiling) one;
+   compiled augmented pass (``augmented_scan``), and, for scale, the structured pass of the same
+   plant with one delay L for both channels (no frame): median of 7 calls each after a first
+   (compiling) one, the three interleaved;
 2. the whole solve, ``solve(problem)`` against ``solve(problem, Options(method="augmented"))``,
    median of 3 solves after a first one (1 with ``--quick``).
 
@@ -52,22 +54,41 @@ def median_time(fn, repeats: int):
     return first, statistics.median(times)
 
 
+def interleaved_medians(fns: dict, repeats: int) -> dict:
+    """{name: median seconds} of ``repeats`` rounds, each calling every function once, after a
+    first (compiling) call of each: a change of load hits them alike."""
+    for fn in fns.values():
+        jax.block_until_ready(fn())
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - start)
+    return {name: statistics.median(t) for name, t in times.items()}
+
+
 def main(quick: bool):
     structured = jax.jit(lambda q: (lambda gains, out, ok, model: (out[0][0], *model))(
         *structured_slot_scan(q, 0.0, store_value=False, predict=True)))
     augmented = jax.jit(lambda q: augmented_scan(q, 0.0)[1].s_tilde[0])
-    print("| channel delays | N = n + L d | pass: structured | pass: augmented | ratio | J(0) rel. diff "
-          "| solve: structured | solve: augmented | ratio | cost rel. diff |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| channel delays | N = n + L d | pass: structured | pass: one delay L | pass: augmented | ratio "
+          "| J(0) rel. diff | solve: structured | solve: augmented | ratio | cost rel. diff |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for l in LONGEST:
         p = problem(l)
         us = jnp.zeros((p.horizon, p.n_controls))
         lqg = linearize(p, rollout(p, us), us)
-        (j_s, *_), t_s = median_time(lambda: structured(lqg), 7)
-        j_a, t_a = median_time(lambda: augmented(lqg), 7)
+        single = p.replace(delay_steps=l, delay_frame=None)
+        single_lqg = linearize(single, rollout(single, us), us)
+        t = interleaved_medians(dict(s=lambda: structured(lqg), one=lambda: structured(single_lqg),
+                                     a=lambda: augmented(lqg)), 7)
+        t_s, t_one, t_a = t["s"], t["one"], t["a"]
+        j_s, j_a = structured(lqg)[0], augmented(lqg)
         sol_s, T_s = median_time(lambda: di.solve(p), 1 if quick else 3)
         sol_a, T_a = median_time(lambda: di.solve(p, options=di.Options(method="augmented")), 1 if quick else 3)
-        print(f"| [{l // 2}, {l}] | {4 + 2 * l} | {t_s * 1e3:.2f} ms | {t_a * 1e3:.1f} ms | {t_a / t_s:.0f} "
+        print(f"| [{l // 2}, {l}] | {4 + 2 * l} | {t_s * 1e3:.2f} ms | {t_one * 1e3:.2f} ms | {t_a * 1e3:.1f} ms "
+              f"| {t_a / t_s:.0f} "
               f"| {abs(float(j_s) - float(j_a)) / abs(float(j_a)):.1e} | {T_s * 1e3:.1f} ms | {T_a * 1e3:.0f} ms "
               f"| {T_a / T_s:.0f} | {abs(float(sol_s.cost) - float(sol_a.cost)) / abs(float(sol_a.cost)):.1e} |",
               flush=True)
