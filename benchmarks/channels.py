@@ -7,10 +7,12 @@ P4 (the point mass at dt = 1 ms, K = 600, n = 4, d = 2; docs/models.md §2) with
 1. the backward pass alone, linearised at u = 0: the compiled per-channel structured pass
    (``structured_slot_scan(store_value=False, predict=True)``, what the solver runs) against the
    compiled augmented pass (``augmented_scan``), and, for scale, the structured pass of the same
-   plant with one delay L for both channels (no frame): median of 7 calls each after a first
-   (compiling) one, the three interleaved;
+   plant with one delay L for both channels (no frame): 15 rounds of the three, interleaved,
+   after a first (compiling) call of each;
 2. the whole solve, ``solve(problem)`` against ``solve(problem, Options(method="augmented"))``,
-   median of 3 solves after a first one (1 with ``--quick``).
+   3 rounds after a first call (1 with ``--quick``).
+
+Each time is given as the median and the minimum of its calls.
 
 Every timed call is wrapped in ``jax.block_until_ready``. The machine is shared, so only the
 ratios of one run mean anything.
@@ -43,20 +45,10 @@ def problem(l: int) -> di.Problem:
     return point_mass(dt=0.001).replace(delay_steps=[l // 2, l])
 
 
-def median_time(fn, repeats: int):
-    """(result of the first call, median seconds of ``repeats`` calls after it)."""
-    first = jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return first, statistics.median(times)
-
-
-def interleaved_medians(fns: dict, repeats: int) -> dict:
-    """{name: median seconds} of ``repeats`` rounds, each calling every function once, after a
-    first (compiling) call of each: a change of load hits them alike."""
+def interleaved(fns: dict, repeats: int) -> dict:
+    """{name: (median, min) seconds} of ``repeats`` rounds, each calling every function once, after
+    a first (compiling) call of each: a change of the machine's load hits them alike. The minimum
+    is the call least disturbed by the other processes on the shared machine."""
     for fn in fns.values():
         jax.block_until_ready(fn())
     times = {name: [] for name in fns}
@@ -65,13 +57,19 @@ def interleaved_medians(fns: dict, repeats: int) -> dict:
             start = time.perf_counter()
             jax.block_until_ready(fn())
             times[name].append(time.perf_counter() - start)
-    return {name: statistics.median(t) for name, t in times.items()}
+    return {name: (statistics.median(t), min(t)) for name, t in times.items()}
+
+
+def ms(t) -> str:
+    return f"{t[0] * 1e3:.1f} / {t[1] * 1e3:.1f}"
 
 
 def main(quick: bool):
     structured = jax.jit(lambda q: (lambda gains, out, ok, model: (out[0][0], *model))(
         *structured_slot_scan(q, 0.0, store_value=False, predict=True)))
     augmented = jax.jit(lambda q: augmented_scan(q, 0.0)[1].s_tilde[0])
+    augmented_options = di.Options(method="augmented")
+    print("Times in ms, median / min; ratios augmented / structured of the medians and of the minima.\n")
     print("| channel delays | N = n + L d | pass: structured | pass: one delay L | pass: augmented | ratio "
           "| J(0) rel. diff | solve: structured | solve: augmented | ratio | cost rel. diff |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -81,17 +79,16 @@ def main(quick: bool):
         lqg = linearize(p, rollout(p, us), us)
         single = p.replace(delay_steps=l, delay_frame=None)
         single_lqg = linearize(single, rollout(single, us), us)
-        t = interleaved_medians(dict(s=lambda: structured(lqg), one=lambda: structured(single_lqg),
-                                     a=lambda: augmented(lqg)), 7)
-        t_s, t_one, t_a = t["s"], t["one"], t["a"]
+        t = interleaved(dict(s=lambda: structured(lqg), one=lambda: structured(single_lqg),
+                             a=lambda: augmented(lqg)), 15)
         j_s, j_a = structured(lqg)[0], augmented(lqg)
-        sol_s, T_s = median_time(lambda: di.solve(p), 1 if quick else 3)
-        sol_a, T_a = median_time(lambda: di.solve(p, options=di.Options(method="augmented")), 1 if quick else 3)
-        print(f"| [{l // 2}, {l}] | {4 + 2 * l} | {t_s * 1e3:.2f} ms | {t_one * 1e3:.2f} ms | {t_a * 1e3:.1f} ms "
-              f"| {t_a / t_s:.0f} "
-              f"| {abs(float(j_s) - float(j_a)) / abs(float(j_a)):.1e} | {T_s * 1e3:.1f} ms | {T_a * 1e3:.0f} ms "
-              f"| {T_a / T_s:.0f} | {abs(float(sol_s.cost) - float(sol_a.cost)) / abs(float(sol_a.cost)):.1e} |",
-              flush=True)
+        T = interleaved(dict(s=lambda: di.solve(p), a=lambda: di.solve(p, options=augmented_options)),
+                        1 if quick else 3)
+        sol_s, sol_a = di.solve(p), di.solve(p, options=augmented_options)
+        ratio = lambda x: f"{x['a'][0] / x['s'][0]:.0f} / {x['a'][1] / x['s'][1]:.0f}"
+        print(f"| [{l // 2}, {l}] | {4 + 2 * l} | {ms(t['s'])} | {ms(t['one'])} | {ms(t['a'])} | {ratio(t)} "
+              f"| {abs(float(j_s) - float(j_a)) / abs(float(j_a)):.1e} | {ms(T['s'])} | {ms(T['a'])} | {ratio(T)} "
+              f"| {abs(float(sol_s.cost) - float(sol_a.cost)) / abs(float(sol_a.cost)):.1e} |", flush=True)
 
 
 if __name__ == "__main__":

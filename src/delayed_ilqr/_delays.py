@@ -76,7 +76,10 @@ def check_below_horizon(delay_steps, horizon: int) -> None:
 
 
 def as_json(delay_steps):
-    """The delay as a JSON value: an int, or a list of ints per channel."""
+    """The delay as a JSON value: an int, or a list of ints per channel (for messages under jit,
+    a traced delay as the words that say so)."""
+    if isinstance(delay_steps, jax.core.Tracer):
+        return f"a traced array of shape {np.shape(delay_steps)}"
     if is_per_channel(delay_steps):
         return [int(l_j) for l_j in np.asarray(delay_steps)]
     return int(delay_steps)

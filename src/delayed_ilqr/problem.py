@@ -141,7 +141,7 @@ class Problem:
         delay_steps: 0 <= l < K, the input delay in steps (tau = l dt). l >= K is refused: no
             command would act within the horizon (the LQG layer, ``lqg.DelayedLQG``, keeps
             accepting it as the reference case of its tests). A list [l_1, ..., l_d] gives one delay
-            per command channel (0 <= l_j < K; docs/derivation.md §18, docs/guide/time.md): they run
+            per command channel (0 <= l_j < K; docs/derivation.md §18, docs/guide/own_plant.md): they run
             in a frame of L = max_j l_j slots (``delay_frame``, which may be given larger), and the
             policy's ``delay_feedback`` spans u_{k-L}..u_{k-1}, channel j's entries older than l_j
             zero. Not with ``observation``.

@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from .frame import SlotGains
     from .model import Gains
 
-__all__ = ["delayed_law", "read_slot", "write_slot", "closed_loop_step", "augmented_feedback", "closed_loop_affine"]
+__all__ = ["delayed_law", "write_slot", "closed_loop_step", "augmented_feedback", "closed_loop_affine"]
 
 
 def delayed_law(feedforward, feedback, z):
@@ -53,11 +53,6 @@ def delayed_law(feedforward, feedback, z):
         du_k [d].
     """
     return feedforward + matmul(feedback, z)
-
-
-def read_slot(frame, offset, nd: int):
-    """The [d] entry at ``offset`` of a flat slot frame (pending_k's slot k mod l: du_{k-l})."""
-    return jax.lax.dynamic_slice_in_dim(frame, offset, nd)
 
 
 def write_slot(frame, offset, value):
