@@ -1,6 +1,6 @@
 """The line search's model: the predicted merit change of the LQG against the merit of real
 closed-loop rollouts on the nonlinear plant, and the noise-aware iteration that relies on it; the
-one delayed-law step of ``ilqg.closed_loop`` against eq. (6) written out."""
+one delayed-law step of ``lqg.law`` against eq. (6) written out."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,7 +9,7 @@ import pytest
 import delayed_ilqr as di
 from delayed_ilqr.ilqg.backward import backward
 from delayed_ilqr.ilqg.candidates import closed_loop_rollout
-from delayed_ilqr.ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_law
+from delayed_ilqr.lqg.law import augmented_feedback, closed_loop_affine, delayed_law
 from delayed_ilqr.ilqg.line_search import candidate_scores, merit
 from delayed_ilqr.ilqg.linearize import rollout
 from delayed_ilqr.lqg import Gains

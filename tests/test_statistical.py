@@ -15,7 +15,7 @@ import pytest
 
 import delayed_ilqr as di
 from delayed_ilqr import Options, Policy, lqg, solve
-from delayed_ilqr.ilqg.closed_loop import augmented_feedback
+from delayed_ilqr.lqg.law import augmented_feedback
 from delayed_ilqr.ilqg.linearize import linearize, rollout
 from delayed_ilqr.experiments import designs
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS

@@ -35,7 +35,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import delayed_ilqr as di  # noqa: E402
-from delayed_ilqr.ilqg.closed_loop import augmented_feedback  # noqa: E402
+from delayed_ilqr.lqg.law import augmented_feedback  # noqa: E402
 from delayed_ilqr.lqg import Gains  # noqa: E402
 from delayed_ilqr.models import arm2  # noqa: E402
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS  # noqa: E402

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision
-from .ilqg.closed_loop import augmented_feedback
+from .lqg.law import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
@@ -171,7 +171,7 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         dt l(x_k, u_k))."""
         dx, sent = z[:nx], z[nx:].reshape(m, nd)
         x = x_bar + dx
-        # the law of ilqg.closed_loop.delayed_law, as a plain product: its kernel's custom JVP does
+        # the law of lqg.law.delayed_law, as a plain product: its kernel's custom JVP does
         # not nest, and the second-order rule differentiates twice
         du = LMk @ jnp.concatenate([dx, sent[m - l_p:].reshape(-1)])
         u = jnp.clip(ub + du, problem.u_min, problem.u_max)

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _precision, _validate
+from . import _delays, _precision, _validate
 from .lqg.model import frame_delay_leaf
 
 __all__ = ["Problem", "QuadraticCost", "GeneralCost"]
@@ -133,13 +133,18 @@ class Problem:
     """A nonlinear, possibly stochastic, optimal control problem with input delay.
 
     Args:
-        dynamics: ``f(x, u, ud) -> dx/dt`` [n]; ``ud`` is the command acting now, u_{k-l}.
+        dynamics: ``f(x, u, ud) -> dx/dt`` [n]; ``ud`` is the command acting now, u_{k-l}; with
+            per-channel delays, ``ud[j]`` = u_{k-l_j, j}, channel j's command sent l_j steps ago.
         x0: [n] initial state.
         dt: time step (s).
         horizon: K, the number of control steps (final time K dt).
         delay_steps: 0 <= l < K, the input delay in steps (tau = l dt). l >= K is refused: no
             command would act within the horizon (the LQG layer, ``lqg.DelayedLQG``, keeps
-            accepting it as the reference case of its tests).
+            accepting it as the reference case of its tests). A list [l_1, ..., l_d] gives one delay
+            per command channel (0 <= l_j < K; docs/derivation.md §18, docs/guide/own_plant.md): they run
+            in a frame of L = max_j l_j slots (``delay_frame``, which may be given larger), and the
+            policy's ``delay_feedback`` spans u_{k-L}..u_{k-1}, channel j's entries older than l_j
+            zero. Not with ``observation``.
         cost: a [`QuadraticCost`][delayed_ilqr.QuadraticCost] or [`GeneralCost`][delayed_ilqr.GeneralCost].
         noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1),
             dx = f dt + F dw: one step adds ``sqrt(dt) F xi``, xi ~ N(0, I_p), so its covariance is
@@ -193,7 +198,6 @@ class Problem:
         self.metadata = metadata
         self.dt = _validate.positive_float(dt, "dt")
         self.horizon = _validate.positive_int(horizon, "horizon")
-        self.delay_steps = _delay_below_horizon(delay_steps, self.horizon)
         x0 = _validate.array(x0, "x0", (None,))
         nx = x0.shape[0]
         if isinstance(cost, QuadraticCost):
@@ -215,6 +219,7 @@ class Problem:
             raise TypeError(f"cost must be a QuadraticCost or a GeneralCost; got {type(cost).__name__}")
         nd = _resolve_n_controls(n_controls, nd_cost, u_min, u_max)
         self.n_controls = nd
+        self.delay_steps = _delay_below_horizon(delay_steps, self.horizon, nd)
         self.x0, self.cost = jnp.asarray(x0), cost
         self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
         _check_labels(metadata, self.n_states, nd)
@@ -281,6 +286,9 @@ class Problem:
         is traced (a framed problem under jit or vmap)."""
         if self.delay_frame is None:
             return self
+        if _delays.is_per_channel(self.delay_steps):
+            raise ValueError(f"{where} needs one input delay for all command channels; got per-channel "
+                             f"delay_steps={_delays.as_json(self.delay_steps)}")
         if isinstance(self.delay_steps, jax.core.Tracer):
             raise ValueError(f"{where} needs a static delay: it cannot take a problem with a delay_frame under jit "
                              "or vmap (its delay_steps is traced); call it outside, or on problems without a frame")
@@ -316,7 +324,7 @@ class Problem:
         if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
                 and np.issubdtype(delay_steps.dtype, np.integer):
             delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
-        new.delay_steps = _delay_below_horizon(delay_steps, new.horizon)
+        new.delay_steps = _delay_below_horizon(delay_steps, new.horizon, new.n_controls)
         new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation, new.horizon)
         return new
 
@@ -363,10 +371,12 @@ class Problem:
                 + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}") + ")")
 
 
-def _delay_below_horizon(delay_steps, horizon: int) -> int:
+def _delay_below_horizon(delay_steps, horizon: int, n_controls: int):
     """A valid l for a horizon K: a whole number of steps, below K."""
-    delay_steps = _validate.delay_steps(delay_steps)
-    if delay_steps >= horizon:
+    delay_steps = _delays.checked(delay_steps, n_controls)
+    if _delays.is_per_channel(delay_steps):
+        _delays.check_below_horizon(delay_steps, horizon)
+    elif delay_steps >= horizon:
         raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
                          f"l >= K no command ever acts; got delay_steps={delay_steps}, horizon={horizon}")
     return delay_steps
@@ -374,7 +384,10 @@ def _delay_below_horizon(delay_steps, horizon: int) -> int:
 
 def _frame(delay_frame, delay_steps: int, observation, horizon: int):
     """A valid delay_frame for delay l and horizon K (None, or l <= L < K), refused with sensors."""
-    delay_frame = _validate.delay_frame(delay_frame, delay_steps)
+    if _delays.is_per_channel(delay_steps) and observation is not None:
+        raise ValueError("per-channel delay_steps are not available with an observation (delayed sensors): the "
+                         f"delayed filter takes one input delay; got delay_steps={_delays.as_json(delay_steps)}")
+    delay_frame = _delays.checked_frame(delay_frame, delay_steps)
     if delay_frame is not None and delay_frame >= horizon:
         raise ValueError(f"delay_frame must be below the horizon: it holds delays l < K, so a larger frame only "
                          f"costs memory and time; got delay_frame={delay_frame}, "

@@ -35,7 +35,7 @@ from typing import Any, Optional
 import jax.numpy as jnp
 import numpy as np
 
-from . import _files, _precision
+from . import _delays, _files, _precision
 from ._files import FileFormatError
 from .fused_estimator import FusedEstimator
 from .solution import Estimator, Policy, Solution, Status, Trace
@@ -98,7 +98,8 @@ def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
             raise ValueError(f"problem must match the saved gains (K={K}, n={n}, d={d}); got {problem!r}")
         l = header["delay_steps"]
         header.update(dt=problem.dt, delay=l * problem.dt,
-                      problem=dict(name=problem.name, delay_steps=problem.delay_steps, delay=problem.delay))
+                      problem=dict(name=problem.name, delay_steps=_delays.as_json(problem.delay_steps),
+                                   delay=(np.asarray(_delays.as_json(problem.delay_steps)) * problem.dt).tolist()))
     if info is not None:
         header["info"] = info
     try:

@@ -9,7 +9,7 @@ Each trial integrates the SDE ``dx = f(x, u, ud) dt + F(x, u, ud) dw`` by Euler-
 
 The commands are computed online from the state and the commands actually sent (eq. 6 in absolute
 terms, without the feedforward, see [`Policy`][delayed_ilqr.Policy]; the law is the solver's,
-``ilqg.closed_loop.delayed_law``):
+``lqg.law.delayed_law``):
 
     u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
     ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision, _validate
-from .ilqg.closed_loop import augmented_feedback, delayed_law
+from .lqg.law import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
 from .fused_estimator import FusedEstimator
@@ -94,11 +94,11 @@ def _plant_step(problem: Problem, x, u, ud, xi, t, substeps: int):
 def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
     """The scan body of one trial: the state and the last m = max(l, l_p) sent commands and their
     nominals in time order, so that the policy's delay l_p need not be the plant's l. The law is
-    the solver's (``ilqg.closed_loop.delayed_law``) on z = [x - x_bar; u_{k-l_p} - u_bar_{k-l_p},
+    the solver's (``lqg.law.delayed_law``) on z = [x - x_bar; u_{k-l_p} - u_bar_{k-l_p},
     ..., u_{k-1} - u_bar_{k-1}], with [L, M] in that order (``augmented_feedback``). Time order,
     not the solver's slot frame: under the vmap over trials it runs faster
     (docs/performance.md#simulate-pending-commands-in-time-order)."""
-    l, framed = problem.delay_steps, problem.delay_frame is not None
+    l, framed, nd = problem.delay_steps, problem.delay_frame is not None, problem.n_controls
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
@@ -107,8 +107,12 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
         pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
         du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-        if framed:      # l is data (Problem.delay_frame <= m): a dynamic index, and u itself for l = 0
-            ud = jnp.where(l == 0, u, sent[jnp.minimum(m - l, m - 1)])
+        if framed and m == 0:   # every delay 0
+            ud = u
+        elif framed:    # l is data (Problem.delay_frame <= m): a dynamic index, and u itself for l = 0
+            acting = jnp.minimum(m - l, m - 1)
+            # per-channel delays: channel j's command sent l_j steps ago
+            ud = jnp.where(l == 0, u, sent[acting] if jnp.ndim(l) == 0 else sent[acting, jnp.arange(nd)])
         else:
             ud = sent[m - l] if l > 0 else u
 

@@ -48,7 +48,7 @@ from typing import NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 
-from .ilqg.closed_loop import augmented_feedback
+from .lqg.law import augmented_feedback
 from .ilqg.linearize import delayed_commands, linearize
 from .lqg import Gains, policy_cost
 from .lqg.frame import from_slots

@@ -36,7 +36,7 @@ from ..lqg.frame import SlotGains, acting_commands, slot_offsets, to_slots
 from ..lqg.gains import clamped_gains
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..lqg.structured import structured_slot_scan
-from .closed_loop import closed_loop_step
+from ..lqg.law import closed_loop_step
 from .line_search import predicted_change
 
 __all__ = ["linear_plan", "plan_feedforward", "model_cost", "bounded_step"]

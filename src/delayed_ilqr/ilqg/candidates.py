@@ -16,7 +16,7 @@ import jax.numpy as jnp
 from .._kernels.scan import packed_scan
 from ..lqg.frame import SlotGains, slot_offsets
 from ..problem import Problem
-from .closed_loop import closed_loop_step
+from ..lqg.law import closed_loop_step
 from .linearize import delayed_commands
 
 __all__ = ["NominalRow", "StepValues", "nominal_rows", "initial_frame", "nonlinear_step", "closed_loop_rollout"]

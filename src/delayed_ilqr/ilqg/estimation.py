@@ -33,7 +33,7 @@ from ..sensor_list import SensorList, linearized_sensors
 from ..options import Options
 from ..problem import Problem
 from ..solution import Estimator, Solution, Status
-from .closed_loop import augmented_feedback
+from ..lqg.law import augmented_feedback
 from .linearize import linearize
 
 __all__ = ["design_estimator", "with_estimator", "without_observation", "all_finite"]

@@ -42,7 +42,7 @@ from ..lqg.structured import structured_slot_scan
 from ..options import Options
 from ..problem import Problem
 from ..solution import Policy, Solution, Status
-from .closed_loop import closed_loop_step
+from ..lqg.law import closed_loop_step
 from .line_search import noise_cost
 from .linearize import linearize, rollout, step_models, trajectory_cost
 

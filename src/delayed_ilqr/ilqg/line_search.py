@@ -23,7 +23,7 @@ from ..lqg.frame import SlotGains, slot_offsets
 from ..lqg.model import DelayedLQG, merged_if_undelayed, stacked_dynamics
 from ..problem import Problem
 from .candidates import closed_loop_rollout, initial_frame, nominal_rows, nonlinear_step
-from .closed_loop import closed_loop_step
+from ..lqg.law import closed_loop_step
 from .linearize import noise_columns, trajectory_cost
 
 __all__ = ["candidate_scores", "noise_cost", "merit", "predicted_change", "LineSearch", "line_search", "no_step"]

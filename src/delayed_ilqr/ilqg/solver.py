@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _cpu, _precision, _validate
+from .. import _cpu, _delays, _precision, _validate
 from ..lqg.frame import SlotGains, from_slots
 from ..lqg.r_update import DEFER_MIN_LD
 from ..options import Options
@@ -318,7 +318,7 @@ def broken_traced_rules(problem: Problem):
         broken = broken | ~jnp.all(problem.u_min < problem.u_max)
     if problem.delay_frame is not None:
         l = problem.delay_steps
-        broken = broken | (l < 0) | (l > problem.delay_frame) | (l >= problem.horizon)
+        broken = broken | jnp.any((l < 0) | (l > problem.delay_frame) | (l >= problem.horizon))   # l_j per channel
     return broken
 
 
@@ -435,7 +435,7 @@ def _trimmed(problem: Problem, sol: Solution) -> Solution:
     frame's first L - l, on commands that have acted, are zero): the policy of the unframed solve."""
     if problem.delay_frame is None:
         return sol
-    L, l = problem.delay_frame, int(problem.delay_steps)
+    L, l = problem.delay_frame, _delays.longest(problem.delay_steps)
     return sol._replace(policy=sol.policy._replace(delay_feedback=sol.policy.delay_feedback[:, L - l:]))
 
 

@@ -25,7 +25,8 @@ Modules (the solver's internals are imported from them, not from here):
 | module | contents |
 |---|---|
 | model | [`DelayedLQG`][delayed_ilqr.lqg.DelayedLQG], the per-step `Stage`, ``StepModels``, Gains, Value |
-| frame | the circular slot frame of the pending commands (``SlotGains``, conversions) |
+| frame | the circular slot frame of the pending commands (``SlotGains``, conversions, per-channel acting components) |
+| law | the delayed feedback law (6) and the closed-loop step every rollout runs |
 | stage | one step of Theorem 1 as readable mathematics (the statement the fused step obeys) |
 | gains | gain rules: unconstrained, box-constrained, unregularised feedback |
 | boxqp | the box-constrained QP of the control-limited gain rule |

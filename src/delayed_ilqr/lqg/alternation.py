@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _precision, _validate
-from ..ilqg.closed_loop import augmented_feedback
+from .law import augmented_feedback
 from .estimator import FilterGains, _delayed_kalman, _measured_rows, delayed_rows, transition_windows
 from .exact import checked_gains
 from .model import DelayedLQG, Gains, merged_if_undelayed

@@ -47,9 +47,10 @@ def augment(lqg: DelayedLQG):
         # du_{k-l} acts now: entry 0 of the buffer, or entry L - l of a frame (none for l = 0, where
         # merged_if_undelayed folded B1, C1 into B0, C0)
         # (here l is the buffer's length: the delay, or the frame L)
-        entry = jnp.zeros(l, dt).at[0].set(1.0) if lqg.delay_frame is None else \
-            (jnp.arange(l) == lqg.frame_steps - lqg.delay_steps).astype(dt)
-        at = lambda X: (X[..., None, :] * entry[:, None]).reshape(X.shape[:-1] + (l * nd,))
+        # (per-channel delays: column j of B1, C1 reads entry L - l_j, channel j's component)
+        entry = jnp.zeros((l, 1), dt).at[0].set(1.0) if lqg.delay_frame is None else \
+            (jnp.arange(l)[:, None] == lqg.frame_steps - jnp.asarray(lqg.delay_steps)).astype(dt)
+        at = lambda X: (X[..., None, :] * entry).reshape(X.shape[:-1] + (l * nd,))
         Az = Az.at[:, :nx, nx:].set(at(lqg.B1))
         Az = Az.at[:, nx:m - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts
         Bz = Bz.at[:, m - nd:, :].set(jnp.eye(nd, dtype=dt))                # du_k enters last

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _precision, _validate
-from ..ilqg.closed_loop import augmented_feedback, closed_loop_affine, delayed_law
+from .law import augmented_feedback, closed_loop_affine, delayed_law
 from .augmented import augment
 from .model import DelayedLQG, Gains, checked_entry, merged_if_undelayed
 
@@ -129,7 +129,8 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
     lqg = merged_if_undelayed(lqg)
     K, nx, nd, p, slots = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.frame_steps
     # pending holds du_{k-slots} .. du_{k-1}; the command acting is pending[0], or with a frame of L
-    # slots pending[L - l] (clipped for l = 0, where B1 = C1 = 0 and it is unused)
+    # slots pending[L - l] (clipped for l = 0, where B1 = C1 = 0 and it is unused); with per-channel
+    # delays channel j's component of pending[L - l_j]
     acting = 0 if lqg.delay_frame is None else jnp.minimum(slots - lqg.delay_steps, max(slots - 1, 0))
     dt = lqg.A.dtype
 
@@ -140,7 +141,7 @@ def _simulate_lqg(lqg: DelayedLQG, gains: Gains, n_trials: int, key):
             dx, pending = carry                                       # pending[i] = du_{k+i-slots}
             A, B0, B1, c, C0, C1, I, LM, xik, d_tilde, dv, D, e, E, Nxu = data
             du = delayed_law(I, LM, jnp.concatenate([dx, pending.reshape(-1)]))
-            du_delayed = pending[acting] if slots > 0 else jnp.zeros(nd, dt)
+            du_delayed = pending[acting, jnp.arange(nd)] if slots > 0 else jnp.zeros(nd, dt)   # [d] per channel
             noise = xik @ (c + C0 @ du + C1 @ du_delayed)
             dx_new = A @ dx + B0 @ du + B1 @ du_delayed + noise
             cost = d_tilde + 2 * dx @ dv + dx @ D @ dx + 2 * du @ e + du @ E @ du + 2 * du @ Nxu @ dx

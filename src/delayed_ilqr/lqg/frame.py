@@ -12,6 +12,12 @@ du_j lives in slot j mod L and the command acting at step k, du_{k-l}, in slot (
 (`acting_offset`); the other L - l slots hold commands that have acted, with zero blocks
 and zero gains, and for l = L the two slots coincide as above.
 
+With one delay per command channel (``delay_steps`` a [d] vector l_j, always in a frame of
+L >= max_j l_j slots, docs/derivation.md §18) component j of slot (k - l_j) mod L is channel j's
+command acting at step k: `acting_offset` then returns the [d] indices of those components, and
+`take_acting` / `put_acting` read and write them (a contiguous slice for one delay, a gather or
+scatter for several).
+
 Eq. (6)'s order and the slot order differ by a rotation that depends on k: `pending_order`
 gives the permutation, `to_slots` / `from_slots` convert gains and
 `value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
@@ -26,7 +32,8 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "acting_commands", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "acting_commands", "to_slots",
+           "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -52,16 +59,40 @@ def acting_offset(slot, l, frame: int, nd: int):
     """((k - l) mod L) d from slot = (k mod L) d: where du_{k-l}, the command acting at step k,
     sits in a frame of L >= 1 slots (``l`` traced); for l = 0 that is du_k's own slot (folded, see
     derivation §17). Computed inside the loops from the step's slot: a per-step array of these
-    offsets as a scan input made the closed loop three times slower (docs/performance.md)."""
-    return (slot - l * nd) % (frame * nd)
+    offsets as a scan input made the closed loop three times slower (docs/performance.md).
+
+    With one delay per channel (``l`` [d]): the [d] indices ((k - l_j) mod L) d + j of the
+    components that act at step k, channel j's command sent l_j steps ago."""
+    offset = (slot - l * nd) % (frame * nd)
+    return offset if jnp.ndim(l) == 0 else offset + jnp.arange(nd)
+
+
+def take_acting(v, acting, nd: int, axis: int = 0):
+    """The [d] entries of ``v`` along ``axis`` at ``acting`` (an offset from `acting_offset`, or
+    its [d] indices for per-channel delays)."""
+    if jnp.ndim(acting) == 0:
+        return jax.lax.dynamic_slice_in_dim(v, acting, nd, axis=axis)
+    return jnp.take(v, acting, axis=axis)
+
+
+def put_acting(v, new, acting, axis: int = 0):
+    """``v`` with ``new`` ([d] along ``axis``) written at ``acting`` (as in `take_acting`)."""
+    if jnp.ndim(acting) == 0:
+        return jax.lax.dynamic_update_slice_in_dim(v, new, acting, axis=axis)
+    index = (slice(None),) * axis + (acting,)
+    return v.at[index].set(new)
 
 
 def acting_commands(us, l, framed: bool):
     """u_{k-l} for k = 0..K-1, zeros before t = 0 ([K, ...] from ``us`` [K, ...]): a static shift,
-    or with a frame (``framed``, l traced) a dynamic slice; l = 0 gives ``us`` itself."""
+    or with a frame (``framed``, l traced) a dynamic slice; l = 0 gives ``us`` itself. With one
+    delay per channel (``l`` [d], ``us`` [K, d]), column j is u_{k-l_j, j}."""
     if framed:      # one dynamic slice of us behind K zeros (a gather made the loops that read it slower)
         K = us.shape[0]
         padded = jnp.concatenate([jnp.zeros_like(us), us])
+        if jnp.ndim(l) == 1:
+            rows = jnp.arange(K)[:, None] + (K - jnp.minimum(l, K))[None, :]
+            return jnp.take_along_axis(padded, rows, axis=0)
         return jax.lax.dynamic_slice_in_dim(padded, K - jnp.minimum(l, K), K)
     if l == 0:
         return us

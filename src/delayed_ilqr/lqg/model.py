@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _precision, _validate
+from .. import _delays, _precision, _validate
 
 __all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models", "merged_if_undelayed", "checked_entry",
            "stacked_dynamics", "idle_stage", "fold_current", "frame_delay_leaf"]
@@ -63,7 +63,10 @@ class DelayedLQG:
         D: [K+1, n, n] quadratic state cost, symmetric.
         e: [K, d] linear control cost.
         E: [K, d, d] quadratic control cost, symmetric.
-        delay_steps: l >= 0, the input delay in steps.
+        delay_steps: l >= 0, the input delay in steps; or a list [l_1, ..., l_d], one per command
+            channel: column j of B1, C1 then acts with du_{k-l_j}, channel j's command sent l_j steps
+            ago (docs/derivation.md §18). Per-channel delays always run in a frame of L >= max_j l_j
+            slots (``delay_frame``, default max_j l_j).
         N: optional [K, d, n] cross cost 2 du_k'N_k dx_k (absent from eq. 4, which is N = 0; a
             general running cost l(x, u) has one).
         delay_frame: optional L >= l: keep the pending commands in a frame of L slots, with the
@@ -78,8 +81,6 @@ class DelayedLQG:
 
     def __init__(self, A, B0, B1, c, C0, C1, d_tilde, d, D, e, E, delay_steps, N=None, delay_frame=None):
         _precision.require_x64("lqg.DelayedLQG")
-        self.delay_steps = _validate.delay_steps(delay_steps)
-        self.delay_frame = _validate.delay_frame(delay_frame, self.delay_steps)
         A = _validate.array(A, "A", (None, None, None))
         K, n = A.shape[0], A.shape[1]
         if K < 1:
@@ -87,6 +88,8 @@ class DelayedLQG:
         A = _validate.array(A, "A", (K, n, n))
         B0 = _validate.array(B0, "B0", (K, n, None))
         nd = B0.shape[2]
+        self.delay_steps = _delays.checked(delay_steps, nd)
+        self.delay_frame = _delays.checked_frame(delay_frame, self.delay_steps)
         B1 = _validate.array(B1, "B1", (K, n, nd))
         if c is None and C0 is None and C1 is None:
             c, C0, C1 = np.zeros((K, 0, n)), np.zeros((K, 0, n, nd)), np.zeros((K, 0, n, nd))
@@ -170,8 +173,10 @@ def _unflatten(aux, arrays):
 
 
 def frame_delay_leaf(delay_steps):
-    """The delay l as the leaf of a framed pytree: an int32 scalar (a traced one as it is)."""
-    if isinstance(delay_steps, (int, np.integer)):
+    """The delay l as the leaf of a framed pytree: an int32 scalar, or an int32 [d] array of per-channel
+    delays (a traced one as it is)."""
+    if isinstance(delay_steps, (int, np.integer)) or (isinstance(delay_steps, np.ndarray)
+                                                      and np.issubdtype(delay_steps.dtype, np.integer)):
         return np.asarray(delay_steps, np.int32)
     return delay_steps
 

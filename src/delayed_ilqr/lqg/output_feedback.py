@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 
 from .. import _precision, _validate
-from ..ilqg.closed_loop import augmented_feedback
+from .law import augmented_feedback
 from .estimator import (FilterCovariances, FilterGains, _measured_rows, delayed_kalman, delayed_rows,
                         estimator_predict, estimator_update, transition_windows)
 from .exact import checked_gains

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.dense import add_symmetric_product, matmul_t
+from .frame import put_acting
 
 __all__ = ["RStrategy", "update", "update_framed", "flush", "exact", "COPIED_FACTORS_MIN_LD", "DEFER_MIN_LD", "DEFER_BLOCK"]
 
@@ -114,7 +115,8 @@ def update_framed(R, row, M, W, slot, acting, next_slot):
         R: [L d, L d] the exact R of J(k+1).
         row: [d, L d] exact rows of slot alpha at k (zero at slot sigma).
         M, W: [d, L d] the step's delay feedback and W, zero at slot sigma.
-        slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d.
+        slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d (``acting``: the [d]
+            indices of the channels' acting components with per-channel delays, `frame.acting_offset`).
 
     Returns:
         (R, R_next): R at k and its rows [d, L d] of the slot that step k-1 eliminates.
@@ -122,8 +124,8 @@ def update_framed(R, row, M, W, slot, acting, next_slot):
     nd = row.shape[0]
     R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row), (slot, 0))
     R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row.T), (0, slot))
-    R = jax.lax.dynamic_update_slice(R, row, (acting, 0))
-    R = jax.lax.dynamic_update_slice(R, row.T, (0, acting))
+    R = put_acting(R, row, acting, axis=0)
+    R = put_acting(R, row.T, acting, axis=1)
     R = add_symmetric_product(R, M, W)
     return R, jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
 

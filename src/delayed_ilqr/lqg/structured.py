@@ -34,7 +34,7 @@ from .. import _precision, _validate
 from .._kernels.dense import matmul, matmul_t
 from .._kernels.scan import Blocks, packed_scan
 from . import r_update
-from .frame import SlotGains, acting_offset, from_slots, slot_offsets, value_blocks
+from .frame import SlotGains, acting_offset, from_slots, put_acting, slot_offsets, value_blocks
 from .gains import unconstrained_gains
 from .model import (DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, fold_current, idle_stage,
                     stored_models)
@@ -194,11 +194,12 @@ def _moved(blocks, new, slot, acting, axis: int):
 
     Without a frame (``acting`` None) they replace slot sigma's, where du_{k-l} follows du_k. With
     one, slot sigma is cleared first (du_{k-L} has acted) and slot alpha = ``acting``, zero until
-    now, receives them; alpha = sigma where l = L."""
+    now, receives them; alpha = sigma where l = L. With one delay per channel ``acting`` holds the
+    [d] indices of the channels' acting components, and column j of ``new`` goes to index j."""
     start = lambda offset: (offset,) if blocks.ndim == 1 else ((0, offset) if axis == 1 else (offset, 0))
     if acting is not None:
         blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros_like(new), start(slot))
-        slot = acting
+        return put_acting(blocks, new, acting, axis if blocks.ndim > 1 else 0)
     return jax.lax.dynamic_update_slice(blocks, new, start(slot))
 
 

@@ -1,0 +1,95 @@
+"""Per-channel input delays (``delay_steps=[l_1, l_2]``, docs/derivation.md §18): the structured
+pass and solver against the augmented reference, in one run.
+
+P4 (the point mass at dt = 1 ms, K = 600, n = 4, d = 2; docs/models.md §2) with channel delays
+(l/2, l) for l = 50 and 200 steps:
+
+1. the backward pass alone, linearised at u = 0: the compiled per-channel structured pass
+   (``structured_slot_scan(store_value=False, predict=True)``, what the solver runs) against the
+   compiled augmented pass (``augmented_scan``), and, for scale, the structured pass of the same
+   plant with one delay L for both channels (no frame): 15 rounds of the three, interleaved,
+   after a first (compiling) call of each;
+2. the whole solve, ``solve(problem)`` against ``solve(problem, Options(method="augmented"))``,
+   3 rounds after a first call (1 with ``--quick``).
+
+Each time is given as the median and the minimum of its calls.
+
+Every timed call is wrapped in ``jax.block_until_ready``. The machine is shared, so only the
+ratios of one run mean anything.
+
+    .venv/bin/python benchmarks/channels.py [--quick]
+"""
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+
+import delayed_ilqr as di  # noqa: E402
+from delayed_ilqr.ilqg.linearize import linearize, rollout  # noqa: E402
+from delayed_ilqr.lqg.augmented import augmented_scan  # noqa: E402
+from delayed_ilqr.lqg.structured import structured_slot_scan  # noqa: E402
+from delayed_ilqr.models import point_mass  # noqa: E402
+
+LONGEST = (50, 200)
+
+
+def problem(l: int) -> di.Problem:
+    """P4 with channel 0 delayed by l / 2 steps and channel 1 by l."""
+    return point_mass(dt=0.001).replace(delay_steps=[l // 2, l])
+
+
+def interleaved(fns: dict, repeats: int) -> dict:
+    """{name: (median, min) seconds} of ``repeats`` rounds, each calling every function once, after
+    a first (compiling) call of each: a change of the machine's load hits them alike. The minimum
+    is the call least disturbed by the other processes on the shared machine."""
+    for fn in fns.values():
+        jax.block_until_ready(fn())
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[name].append(time.perf_counter() - start)
+    return {name: (statistics.median(t), min(t)) for name, t in times.items()}
+
+
+def ms(t) -> str:
+    return f"{t[0] * 1e3:.1f} / {t[1] * 1e3:.1f}"
+
+
+def main(quick: bool):
+    structured = jax.jit(lambda q: (lambda gains, out, ok, model: (out[0][0], *model))(
+        *structured_slot_scan(q, 0.0, store_value=False, predict=True)))
+    augmented = jax.jit(lambda q: augmented_scan(q, 0.0)[1].s_tilde[0])
+    augmented_options = di.Options(method="augmented")
+    print("Times in ms, median / min; ratios augmented / structured of the medians and of the minima.\n")
+    print("| channel delays | N = n + L d | pass: structured | pass: one delay L | pass: augmented | ratio "
+          "| J(0) rel. diff | solve: structured | solve: augmented | ratio | cost rel. diff |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for l in LONGEST:
+        p = problem(l)
+        us = jnp.zeros((p.horizon, p.n_controls))
+        lqg = linearize(p, rollout(p, us), us)
+        single = p.replace(delay_steps=l, delay_frame=None)
+        single_lqg = linearize(single, rollout(single, us), us)
+        t = interleaved(dict(s=lambda: structured(lqg), one=lambda: structured(single_lqg),
+                             a=lambda: augmented(lqg)), 15)
+        j_s, j_a = structured(lqg)[0], augmented(lqg)
+        T = interleaved(dict(s=lambda: di.solve(p), a=lambda: di.solve(p, options=augmented_options)),
+                        1 if quick else 3)
+        sol_s, sol_a = di.solve(p), di.solve(p, options=augmented_options)
+        ratio = lambda x: f"{x['a'][0] / x['s'][0]:.0f} / {x['a'][1] / x['s'][1]:.0f}"
+        print(f"| [{l // 2}, {l}] | {4 + 2 * l} | {ms(t['s'])} | {ms(t['one'])} | {ms(t['a'])} | {ratio(t)} "
+              f"| {abs(float(j_s) - float(j_a)) / abs(float(j_a)):.1e} | {ms(T['s'])} | {ms(T['a'])} | {ratio(T)} "
+              f"| {abs(float(sol_s.cost) - float(sol_a.cost)) / abs(float(sol_a.cost)):.1e} |", flush=True)
+
+
+if __name__ == "__main__":
+    main("--quick" in sys.argv[1:])
