@@ -112,6 +112,9 @@ class MPC:
             (x - r(t))'P(x - r(t)) + u'Qu with the terminal cost (x - r)'P_final(x - r) at the
             horizon's end (``receding``); a GeneralCost is used as written.
         iterations: the most solver iterations per tick (positive int; 1: real-time iteration).
+            With a noisy model the solver returns the nominal of lowest merit it has evaluated
+            (derivation §12), and a step's merit is evaluated by the next iteration: its ticks run
+            ``iterations + 1``, so that the last step counts.
         compensation: how the delay is handled: "inflight" (this library's delayed law, the
             default), "none" (ignore it), "predict" (roll the model forward over the latency, then
             solve delay-free), "replay" (Nav2's command-history replay); ``strategies`` has the table.
@@ -165,7 +168,8 @@ class MPC:
         strat = strategy(compensation, l_c, problem.horizon, replay_history)
         values = dict(problem=problem, iterations=iterations, compensation=compensation,
                       charge_solve_time=bool(charge_solve_time), reference=ref, replay_history=replay_history,
-                      options=dataclasses.replace(options, max_iterations=iterations), strategy=strat,
+                      options=dataclasses.replace(options, max_iterations=iterations + _noisy(problem)),
+                      strategy=strat,
                       template=tick_problem(problem, ref, strat.model_delay, strat.horizon),
                       process_cov=process_cov, initial_cov=initial_cov)
         for name, value in values.items():
@@ -228,6 +232,11 @@ def _unflatten(aux, data):
                         ("process_cov", process_cov), ("initial_cov", initial_cov)):
         object.__setattr__(new, name, value)
     return new
+
+
+def _noisy(problem: Problem) -> int:
+    """1 for a model with motor noise (its ticks run one more solver iteration), else 0."""
+    return int(problem.noise is not None)
 
 
 def _filter_covariances(problem: Problem, process_cov, initial_cov):
