@@ -34,9 +34,16 @@ def _euler(f, x, u, ud):
 
 # -- one tick, iterated to convergence, is a fresh solve of the shifted problem ----------------
 
-def test_first_tick_converged_equals_fresh_solve():
+@pytest.fixture(scope="module")
+def arm_converged():
+    """arm2, l = 3, K = 15, and its controller iterated to convergence at every tick (one
+    compiled tick for the tests that take it)."""
     problem = _arm(3)
-    ctrl = mpc.MPC(problem, iterations=100, options=TIGHT)
+    return problem, mpc.MPC(problem, iterations=100, options=TIGHT)
+
+
+def test_first_tick_converged_equals_fresh_solve(arm_converged):
+    problem, ctrl = arm_converged
     _, tick = ctrl.step(ctrl.init(), problem.x0)
     fresh = di.solve(problem, options=TIGHT)
     assert fresh.converged
@@ -45,13 +52,12 @@ def test_first_tick_converged_equals_fresh_solve():
     np.testing.assert_allclose(tick.law.delay_feedback, fresh.policy.delay_feedback[0], rtol=1e-6, atol=1e-8)
 
 
-def test_later_tick_converged_equals_delay_free_solve_from_the_prediction():
+def test_later_tick_converged_equals_delay_free_solve_from_the_prediction(arm_converged):
     """At tick k with commands b in flight the delayed problem over K steps is, for a cost without
     running state terms, the delay-free problem over K - l steps from the state the model reaches
     under b (the last l commands never act and are zero at the optimum): solved independently."""
     l, K = 3, 15
-    problem = _arm(l, horizon=K)
-    ctrl = mpc.MPC(problem, iterations=100, options=TIGHT)
+    problem, ctrl = arm_converged
     state, x = ctrl.init(), np.asarray(problem.x0)
     sent = [np.zeros(2)] * l
     for _ in range(4):        # a few ticks on a perturbed plant, so that the commands in flight differ
@@ -336,27 +342,24 @@ def test_the_first_command_acts_after_the_true_delay(charge):
     assert np.abs(run.x[0, first + 1] - plant.x0).max() > 1e-6
 
 
-def test_trials_under_noise_are_reproducible_and_differ():
+def test_trials_under_noise_are_reproducible_and_differ_and_failures_are_flagged():
     problem = _arm(2, horizon=10)
     plant = di.models.arm2(delay=0.02, dt=DT, horizon=10, noise=True, sigma_u=0.05)
     ctrl = mpc.MPC(problem)
-    a = mpc.simulate(ctrl, plant, ticks=5, n_trials=3, seed=1)
-    b = mpc.simulate(ctrl, plant, ticks=5, n_trials=3, seed=1)
+    w = np.zeros((3, 5, 4))
+    w[2, 2, 2] = 1e300            # a kick that overflows the state of trial 2
+    args = dict(ticks=5, n_trials=3, seed=1, disturbance=w, bound=1e3, failure=_q1_positive)
+    a, b = mpc.simulate(ctrl, plant, **args), mpc.simulate(ctrl, plant, **args)
     assert a.x.shape == (3, 6, 4) and a.u.shape == (3, 5, 2) and a.cost.shape == (3,)
     np.testing.assert_array_equal(a.x, b.x)
     assert np.abs(a.x[0, -1] - a.x[1, -1]).max() > 1e-8
-    assert not np.any(a.failed)
+    np.testing.assert_array_equal(a.diverged, [False, False, True])
+    np.testing.assert_array_equal(a.failed, [True, True, True])        # q1 starts at pi / 4 > 0
+    assert np.all(np.isfinite(a.x[:2]))
 
 
-def test_failure_flags():
-    problem = _arm(2, horizon=10)
-    w = np.zeros((2, 5, 4))
-    w[1, 2, 2] = 1e300            # a kick that overflows the state of trial 1
-    run = mpc.simulate(mpc.MPC(problem), problem, ticks=5, n_trials=2, disturbance=w, bound=1e3,
-                       failure=lambda x: x[0] > 0.0)
-    np.testing.assert_array_equal(run.diverged, [False, True])
-    np.testing.assert_array_equal(run.failed, [True, True])        # q1 starts at pi / 4 > 0
-    assert np.all(np.isfinite(run.x[0]))
+def _q1_positive(x):
+    return x[0] > 0.0
 
 
 # -- bad input ----------------------------------------------------------------------------------
