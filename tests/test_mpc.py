@@ -394,8 +394,13 @@ def test_bad_plant_and_reference_are_refused_word_for_word():
     mpc.simulate(ctrl, ctrl.problem, ticks=10)          # reads up to step 10 - 1 + 10 = 19
     with pytest.raises(ValueError) as e:
         mpc.simulate(ctrl, ctrl.problem, ticks=11)
-    assert str(e.value) == ("reference must cover every step a tick's horizon reads: up to step 20 (the last tick + "
+    assert str(e.value) == ("reference must cover every step a tick's horizon reads: up to step 20 (the tick + "
                             "horizon); got 20 samples (steps 0..19); lengthen the reference or run fewer ticks")
+    state = ctrl.init()._replace(tick=jnp.asarray(9, jnp.int32))
+    ctrl.step(state, ctrl.problem.x0)                   # tick 9 reads up to step 19
+    with pytest.raises(ValueError) as e:
+        ctrl.step(state._replace(tick=jnp.asarray(10, jnp.int32)), ctrl.problem.x0)
+    assert str(e.value).startswith("reference must cover every step a tick's horizon reads: up to step 20")
     with pytest.raises(ValueError) as e:
         mpc.MPC(_arm(2, horizon=10), reference=np.zeros((5, 3)))
     assert str(e.value) == "reference must have shape (*, 4); got shape (5, 3)"
@@ -423,8 +428,6 @@ def test_planar_quadrotor_hovers_and_its_accelerations_follow_the_equations():
 # -- the command line -----------------------------------------------------------------------------
 
 def test_mpc_command_writes_its_table_figure_and_manifest(tmp_path):
-    import json
-
     from click.testing import CliRunner
 
     from delayed_ilqr import cli
@@ -436,13 +439,41 @@ def test_mpc_command_writes_its_table_figure_and_manifest(tmp_path):
     assert result.exit_code == 0, result.output
     assert "model delay 30 ms, plant delay 50 ms, actuator gain 1.2" in result.output
     assert "| delay | plant | none | inflight |" in result.output
-    table = json.loads((out / "mpc.json").read_text())
+    table = json.loads((out / "mpc.json").read_text(), parse_constant=_refuse)        # strict JSON
     assert [row["strategy"] for row in table] == ["none", "inflight"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert set(manifest["files"]) == {"closed_loop.png", "mpc.json", "runs.npz"}
     assert manifest["settings"]["true_delay"] == pytest.approx(0.05)
+    assert manifest["settings"]["noise"] is True            # the plant's motor noise is on by default
     runs = np.load(out / "runs.npz")
     assert runs["x_inflight"].shape == (1, 13, 4) and runs["u_none"].shape == (1, 12, 2)
     bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.025"])
     assert bad.exit_code == 2
     assert "arm2: delay must be a whole number of steps of dt=0.01 s; got 0.025 s (2.5 steps)" in bad.output
+    bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.1",
+                                        "--horizon", "10"])
+    assert bad.exit_code == 2
+    assert ("arm2: the horizon must be longer than the delay (a command must act within it); got --horizon 10 "
+            "steps and --true-delay 0.1 s = 10 steps") in " ".join(bad.output.split())
+
+
+def _refuse(constant):
+    raise ValueError(f"not strict JSON: {constant}")
+
+
+# -- the full-size baseline study (make bench; its key assertion, the converged agreement, is above) --
+
+@pytest.mark.full
+def test_baseline_study_of_the_tracking_arm():
+    """The tracking arm at 100 ms (experiments.mpc_baselines, 4 trials): ignoring the delay fails
+    in every trial on every plant, replay of the sent history is inflight's tick problem (the
+    same cells), and the three delay-aware controllers keep every trial on the model."""
+    from delayed_ilqr.experiments import mpc_baselines
+    rows = mpc_baselines.run_scenario(mpc_baselines.SCENARIOS["arm2"], n_trials=4, delays=(0.1,))
+    cells = {(r.condition, r.strategy): r for r in rows}
+    for condition, _, _ in mpc_baselines.CONDITIONS:
+        assert cells[(condition, "none")].failure_rate == 1.0
+        sent, ours = cells[(condition, "replay (sent)")], cells[(condition, "inflight")]
+        assert sent.median_cost == pytest.approx(ours.median_cost, rel=1e-9)
+    for label in ("predict", "replay (sent)", "inflight"):
+        assert cells[("model", label)].failure_rate == 0.0

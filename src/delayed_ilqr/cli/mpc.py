@@ -51,13 +51,9 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
     noise = noise_value(noise, no_noise)
     kwargs = factory_kwargs(params, dt)
     if horizon is not None:
+        _check_horizon(model, horizon, delay, true_delay, kwargs)
         kwargs["horizon"] = horizon
     controller_model = build_problem(model, delay, False, kwargs)
-    if controller_model.delay_steps >= controller_model.horizon:
-        raise click.BadParameter(f"{model.name}: the horizon must be longer than the delay (a command must act within "
-                                 f"it); got horizon={controller_model.horizon} steps, delay="
-                                 f"{controller_model.delay_steps} steps ({delay:g} s)",
-                                 param_hint="'--horizon' / '--delay'")
     plant = build_problem(model, delay if true_delay is None else true_delay, noise, kwargs, hint="--true-delay")
     plant = plant.replace(dynamics=mpc_baselines.InputGain(plant.dynamics, 1.0 + mismatch), name="plant")
     chosen = compensations or COMPENSATIONS
@@ -87,3 +83,15 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
 def _json_number(value):
     """A table value for strict JSON: a NaN or infinite number becomes null."""
     return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _check_horizon(model, horizon: int, delay: float, true_delay, kwargs: dict) -> None:
+    """--horizon against the model's and the plant's delays in steps (usage errors naming both)."""
+    for option, seconds in (("--delay", delay), ("--true-delay", true_delay)):
+        if seconds is None:
+            continue
+        steps = build_problem(model, seconds, False, kwargs, hint=option).delay_steps
+        if steps >= horizon:
+            raise click.BadParameter(f"{model.name}: the horizon must be longer than the delay (a command must act "
+                                     f"within it); got --horizon {horizon} steps and {option} {seconds:g} s = {steps} "
+                                     "steps", param_hint=f"'--horizon' / '{option}'")

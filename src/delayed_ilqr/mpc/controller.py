@@ -203,7 +203,13 @@ class MPC:
 
     def step(self, state: ControllerState, x) -> tuple[ControllerState, Tick]:
         """One compiled tick from the newest state x [n], or with sensors the newest measurement
-        y_k [m] (see the module docstring)."""
+        y_k [m] (see the module docstring).
+
+        Raises:
+            ValueError: for a sampled reference that ends before the step this tick's horizon
+                reads last (tick k + horizon)."""
+        if self.reference.sampled:
+            self.reference.check_covers(int(state.tick) + self.problem.horizon)
         return _tick(self, state, jnp.asarray(x, jnp.float64))
 
     def __repr__(self):
