@@ -110,7 +110,9 @@ class MPC:
         problem: the model the controller plans with (dynamics, cost, limits, noise). With a
             [`QuadraticCost`][delayed_ilqr.QuadraticCost] the cost recedes as the tracking cost
             (x - r(t))'P(x - r(t)) + u'Qu with the terminal cost (x - r)'P_final(x - r) at the
-            horizon's end (``receding``); a GeneralCost is used as written.
+            horizon's end (``receding``); a GeneralCost is used as written. With an
+            ``observation`` the controller is given measurements, not states, and estimates the
+            state with its delayed filter (``estimation``).
         iterations: the most solver iterations per tick (positive int; 1: real-time iteration).
             With a noisy model the solver returns the nominal of lowest merit it has evaluated
             (derivation §12), and a step's merit is evaluated by the next iteration: its ticks run
