@@ -8,7 +8,8 @@ On the two-link arm (``models.arm2``, dt = 10 ms) with a 50-step horizon:
    commands, run to convergence, same states), and the ticks per second inside the compiled closed
    loop (``mpc.simulate``, one trial: no Python between ticks);
 2. the tick's cost against the delay l in {0, 2, 5, 10, 20, 40} (closed loop, ticks per second,
-   and the time per tick relative to l = 0; the structured pass grows like l^2 d^3 per step);
+   and the time per tick relative to l = 0; the structured pass grows like l^2 d^3 per step), with
+   the exponent p of time ~ l^p fitted over l = 10..40 (the goal: p <= 2);
 3. batched rollouts: ``mpc.simulate`` of ``--trials`` seeds (default 1000) on the noisy arm,
    ``--rollout-ticks`` ticks each, under ``vmap``: rollouts per second and trial-ticks per second,
    with the trials one after another (what ``mpc.simulate`` does on CPU) and batched by JAX.
@@ -128,11 +129,15 @@ def main(argv=None):
 
     print("| l | ticks/s (closed loop) | us per tick | relative to l = 0 |")
     print("|---|---|---|---|")
-    base = None
+    base, per_tick = None, {}
     for l in (0, 2, 5, 10, 20, 40):
         rate = closed_loop_rate(K, l, args.ticks)
         base = base or rate
+        per_tick[l] = 1 / rate
         print(f"| {l} | {rate:.0f} | {1e6 / rate:.0f} | {base / rate:.2f} |")
+    ls = np.array([10, 20, 40])
+    exponent = np.polyfit(np.log(ls), np.log([per_tick[int(l)] for l in ls]), 1)[0]
+    print(f"time per tick ~ l^{exponent:.2f} over l = 10..40 (O(l^2) allows 2)")
 
     print(f"\n{args.trials} seeds x {args.rollout_ticks} ticks (noisy arm, l = 10):")
     for name, sequential in (("one after another (mpc.simulate on CPU)", True), ("batched by JAX's vmap", False)):

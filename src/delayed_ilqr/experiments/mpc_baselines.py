@@ -15,8 +15,9 @@ tracking error in the model's task space (over the trials that did not fail).
 | arm2 | the two-link arm (Li & Todorov 2004) tracking a target moving on a circle in joint space (0.5 Hz), dt = 10 ms, horizon 0.3 s; a failure: the hand more than 10 cm from the target's after the first 0.5 s |
 | planar_quadrotor | the planar quadrotor flying to a waypoint 1 m away and holding it, dt = 10 ms, horizon 0.5 s; a fall: a roll past 90 degrees |
 
-Plants that differ from the model only in arrays share one compiled loop: the mismatched
-dynamics are pytrees whose scale is data, and the true delay is data through ``delay_frame``.
+The five plants of a controller run in one compiled call (``mpc.simulate`` of a list of plants):
+the mismatched dynamics are pytrees whose scale is data, and the true delay is data through
+``delay_frame``.
 """
 from __future__ import annotations
 
@@ -187,15 +188,19 @@ def run_scenario(scenario: Scenario, n_trials: int = 16, seed: int = 0, iteratio
         frame = l + 2
         rng = np.random.default_rng(seed)
         x0 = np.asarray(model.x0) + rng.standard_normal((n_trials, model.n_states)) * np.asarray(scenario.spread)
-        plants = [(label, model.replace(dynamics=scenario.plant_dynamics(scale)).replace(
-            delay_steps=max(l + offset, 0), delay_frame=frame)) for label, scale, offset in CONDITIONS]
+        labels = [label for label, _, _ in CONDITIONS]
+        plants = [model.replace(dynamics=scenario.plant_dynamics(scale)).replace(delay_steps=max(l + offset, 0),
+                                                                                  delay_frame=frame)
+                  for _, scale, offset in CONDITIONS]
         for label, compensation, history in STRATEGIES:
             ctrl = mpc.MPC(model, iterations=iterations, compensation=compensation, replay_history=history,
                            reference=scenario.reference)
             late = scenario.failure_from > 0
-            for condition, plant in plants:
-                run = mpc.simulate(ctrl, plant, ticks=scenario.ticks, n_trials=n_trials, seed=seed, x0=x0,
-                                   failure=None if late else scenario.failure, bound=scenario.bound)
+            # every plant in one compiled run: outputs [P, N, ...]
+            runs = mpc.simulate(ctrl, plants, ticks=scenario.ticks, n_trials=n_trials, seed=seed, x0=x0,
+                                failure=None if late else scenario.failure, bound=scenario.bound)
+            for i, condition in enumerate(labels):
+                run = mpc.ClosedLoop(*(a[i] for a in runs[:-1]), reference=runs.reference)
                 failed = np.asarray(run.failed)
                 if late and scenario.failure is not None:
                     tail = jax.vmap(jax.vmap(scenario.failure))(run.x[:, scenario.failure_from:])

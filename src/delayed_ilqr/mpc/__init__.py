@@ -4,6 +4,7 @@ fed back.
 |  |  |
 |---|---|
 | controller.py | ``MPC`` (immutable configuration), its state, the pure compiled tick |
+| estimation.py | with delayed sensors, the controller's delayed filter (its estimate of the present state) |
 | strategies.py | the compensations of the delay as strategies of one controller |
 | receding.py | the problem one tick solves: restarted at t_k, the commands in flight first |
 | reference.py | the reference r(t): constant, sampled, or a function of time |
@@ -11,7 +12,8 @@ fed back.
 
 """
 from .controller import MPC, ControllerState, Tick, TickLaw
+from .estimation import FilterState
 from .strategies import COMPENSATIONS
 from .closed_loop import ClosedLoop, simulate
 
-__all__ = ["MPC", "ControllerState", "Tick", "TickLaw", "COMPENSATIONS", "ClosedLoop", "simulate"]
+__all__ = ["MPC", "ControllerState", "Tick", "TickLaw", "FilterState", "COMPENSATIONS", "ClosedLoop", "simulate"]

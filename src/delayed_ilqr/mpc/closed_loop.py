@@ -11,6 +11,14 @@ controller charges its solve time (the command computed at k goes out at k + 1),
 with f_p, F_p the plant's dynamics and noise (Euler-Maruyama, as [`delayed_ilqr.simulate`][delayed_ilqr.simulate]
 with one sub-step) and W an optional disturbance the controller does not know. The plant may differ
 from the controller's model in its parameters, its delay and its noise, not in n and d.
+
+With sensors (a controller whose problem has an ``observation``) the controller is given, instead
+of x_k, the measurement y_k = h(x_{k-l_s}) + G(x_{k-l_s}) v_k of the plant's sensors (the plant's
+``observation`` when it has one, else the model's; x0 before time 0), v_k ~ N(0, I).
+
+Several plants (``simulate(ctrl, [plant_1, ..., plant_P])``) that differ only in arrays run in the
+same compiled call, mapped over a leading plant axis outside the trials' axis: a mismatch study
+(parameters +-20 %, true delays as data through ``delay_frame``) is one run.
 """
 from __future__ import annotations
 
@@ -32,7 +40,8 @@ __all__ = ["ClosedLoop", "simulate"]
 
 
 class ClosedLoop(NamedTuple):
-    """Trials of the receding-horizon controller on a plant.
+    """Trials of the receding-horizon controller on a plant (with several plants every array has a
+    leading plant axis [P, ...]).
 
     Attributes:
         x: [N, T+1, n] the plant's states (x[:, 0] = the initial states).
@@ -43,6 +52,7 @@ class ClosedLoop(NamedTuple):
         failed: [N] bool, diverged, or ``failure(x_k)`` held at some tick (a fall).
         solver_failures: [N] int, ticks whose solve ended without descent or with a non-finite rollout.
         status: [N, T] int32, the solver's status at each tick ([`Status`][delayed_ilqr.Status] codes).
+        estimate: [N, T, n] the state each tick acted on: x_k, or with sensors the filter's x_hat_k.
         reference: [T+1, n] r(t_k), the target the cost measures against.
     """
 
@@ -53,6 +63,7 @@ class ClosedLoop(NamedTuple):
     failed: jax.Array
     solver_failures: jax.Array
     status: jax.Array
+    estimate: jax.Array
     reference: jax.Array
 
     @property
@@ -78,28 +89,42 @@ def _acting(pending, u, lag):
     return jnp.where(lag == 0, u, pending[jnp.clip(Q - lag, 0, Q - 1)])
 
 
+def _sensors(ctrl: MPC, plant: Problem):
+    """The sensors that measure the plant for a controller with sensors (None without)."""
+    if not ctrl.sensors:
+        return None
+    return plant.observation if plant.observation is not None else ctrl.problem.observation
+
+
 def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], bound: float, key, x0, disturbance):
-    """One trial: (x [T+1, n], u [T, d], cost, diverged, failed, solver_failures, status [T])."""
+    """One trial: (x [T+1, n], u [T, d], cost, diverged, failed, solver_failures, status [T], estimate [T, n])."""
     nd, p = plant.n_controls, plant.n_noise
     s = int(ctrl.charge_solve_time)
     queue = plant.frame_steps + s                 # the most ticks between computing and acting
     lag = plant.delay_steps + s                   # this plant's (traced with a frame)
     xi = jax.random.normal(key, (ticks, p))
     times = plant.dt * jnp.arange(ticks, dtype=jnp.float64)
+    sensors = _sensors(ctrl, plant)
+    ls = 0 if sensors is None else sensors.delay_steps
+    q = 0 if sensors is None else sensors.noise_matrix(x0).shape[1]
+    v = jax.random.normal(jax.random.fold_in(key, 1), (ticks, q))
 
     def step(carry, data):
-        state, x, pending = carry          # pending: the last `queue` commands computed, oldest first
-        xi_k, t, w = data
-        state, out = tick(ctrl, state, x)
+        state, past, pending = carry       # past: x_{k-l_s}..x_k; pending: the last `queue` commands computed
+        xi_k, v_k, t, w = data
+        x, sensed = past[-1], past[0]
+        seen = x if sensors is None else sensors.measure(sensed) + sensors.noise_matrix(sensed) @ v_k
+        state, out = tick(ctrl, state, seen)
         u = out.command
         # the plant's own u argument: the command it receives now (one tick late when charged)
         received = _acting(pending, u, s) if s else u
         x_new = _plant_step(plant, x, received, _acting(pending, u, lag), xi_k, t) + w
         pending = jnp.concatenate([pending[1:], u[None]]) if queue else pending
-        return (state, x_new, pending), (x_new, u, out.status)
+        past = jnp.concatenate([past[1:], x_new[None]])
+        return (state, past, pending), (x_new, u, out.status, out.estimate)
 
-    init = (ctrl.init(), x0, jnp.zeros((queue, nd)))
-    _, (xs, us, status) = jax.lax.scan(step, init, (xi, times, disturbance))
+    init = (ctrl.init(), jnp.broadcast_to(x0, (ls + 1, x0.shape[0])), jnp.zeros((queue, nd)))
+    _, (xs, us, status, estimate) = jax.lax.scan(step, init, (xi, v, times, disturbance))
     xs = jnp.concatenate([x0[None], xs])
     cost_fn = receding_cost(plant.cost, ctrl.reference)
     running = jax.vmap(cost_fn.running)(xs[:-1], us, times)
@@ -107,33 +132,67 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
     diverged = ~jnp.all(jnp.isfinite(xs)) | jnp.any(jnp.abs(xs) > bound)
     fell = jnp.asarray(False) if failure is None else jnp.any(jax.vmap(failure)(xs))
     solver_failures = jnp.sum(jnp.isin(status, jnp.asarray([int(s) for s in FAILED])))
-    return xs, us, cost, diverged, diverged | fell, solver_failures, status
+    return xs, us, cost, diverged, diverged | fell, solver_failures, status, estimate
 
 
-@partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials", "sequential"))
-def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance, sequential):
-    plant = jax.tree_util.tree_unflatten(plant_static, plant_data)
+@partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials", "sequential",
+                                   "several"))
+def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance, sequential,
+         several=False):
     keys = jax.random.split(key, n_trials)
-    in_axes = (0, None if x0.ndim == 1 else 0, None if disturbance.ndim == 2 else 0)
-    trial = lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w)
-    # on CPU the trials run one after another under the vmap (the solver's CPU batching rule): each
-    # tick's solve stays a small loop instead of a batched one (docs/performance.md#receding-horizon-control)
-    return jax.vmap(one_after_another(trial) if sequential else trial, in_axes=in_axes)(keys, x0, disturbance)
+
+    def trials(data):
+        plant = jax.tree_util.tree_unflatten(plant_static, data)
+        start = plant.x0 if x0 is None else x0
+        in_axes = (0, None if start.ndim == 1 else 0, None if disturbance.ndim == 2 else 0)
+        trial = lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w)
+        # on CPU the trials run one after another under the vmap (the solver's CPU batching rule): each
+        # tick's solve stays a small loop instead of a batched one (docs/performance.md#receding-horizon-control)
+        return jax.vmap(one_after_another(trial) if sequential else trial, in_axes=in_axes)(keys, start, disturbance)
+
+    if not several:
+        return trials(plant_data)
+    return jax.vmap(one_after_another(trials) if sequential else trials)(plant_data)
 
 
-def _check_plant(ctrl: MPC, plant) -> Problem:
+def _check_plant(ctrl: MPC, plant, name: str = "plant") -> Problem:
     if not isinstance(plant, Problem):
-        raise TypeError(f"plant must be a delayed_ilqr.Problem (the true system); got {type(plant).__name__}")
+        raise TypeError(f"{name} must be a delayed_ilqr.Problem (the true system); got {type(plant).__name__}")
     model = ctrl.problem
     if (plant.n_states, plant.n_controls) != (model.n_states, model.n_controls):
-        raise ValueError(f"plant must have the controller's state and command sizes (n={model.n_states}, "
+        raise ValueError(f"{name} must have the controller's state and command sizes (n={model.n_states}, "
                          f"d={model.n_controls}); got n={plant.n_states}, d={plant.n_controls}")
     if not math.isclose(plant.dt, model.dt, rel_tol=1e-12):
-        raise ValueError(f"plant.dt must equal the controller's tick (problem.dt={model.dt}); got {plant.dt}")
+        raise ValueError(f"{name}.dt must equal the controller's tick (problem.dt={model.dt}); got {plant.dt}")
+    if plant.observation is not None and not ctrl.sensors:
+        raise ValueError(f"{name} has sensors (an observation) but the controller is given the state: build the "
+                         "controller from a problem with an observation, or drop the plant's; got "
+                         f"{name}.observation={plant.observation!r} and problem.observation=None")
+    sensors = _sensors(ctrl, plant)
+    if sensors is not None:
+        m = lambda o: jax.eval_shape(o.measure, jax.ShapeDtypeStruct((model.n_states,), jnp.float64)).shape
+        if m(sensors) != m(model.observation):
+            raise ValueError(f"{name}.observation must measure as many outputs as the controller's, "
+                             f"{m(model.observation)}; got {m(sensors)}")
     return plant
 
 
-def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int = 0, disturbance=None,
+def _stacked(ctrl: MPC, plants) -> tuple:
+    """(static, data) of several plants with the data stacked on a leading plant axis."""
+    if len(plants) == 0:
+        raise ValueError("plant must be a Problem or a non-empty sequence of them; got an empty sequence")
+    flat = [jax.tree_util.tree_flatten(_check_plant(ctrl, p, f"plant[{i}]")) for i, p in enumerate(plants)]
+    static = flat[0][1]
+    for i, (_, other) in enumerate(flat[1:], 1):
+        if other != static:
+            raise ValueError(f"plant[{i}] must differ from plant[0] only in arrays (data: parameters of a dynamics "
+                             "registered as a pytree, x0, weights, the delay with a common delay_frame) to share "
+                             f"the compiled run; got another structure: {other} against {static}")
+    data = [jnp.stack([jnp.asarray(d[j]) for d, _ in flat]) for j in range(len(flat[0][0]))]
+    return static, data
+
+
+def simulate(ctrl: MPC, plant, ticks: int, n_trials: int = 1, seed: int = 0, disturbance=None,
              x0=None, failure: Optional[Callable] = None, bound: float = math.inf) -> ClosedLoop:
     """Runs ``ctrl`` against ``plant`` for ``ticks`` ticks, ``n_trials`` times, in one compiled loop.
 
@@ -151,23 +210,31 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
         seed: non-negative integer.
         disturbance: optional W [T, n] (every trial) or [N, T, n] (one per trial), added to the
             plant's state update and unknown to the controller.
-        x0: optional initial states [N, n], one per trial (default ``plant.x0`` for all).
+        x0: optional initial states [N, n], one per trial (default ``plant.x0`` for all; the
+            controller's filter, with sensors, starts at the model's ``x0`` whatever the plant's).
         failure: optional ``failure(x) -> bool`` on one state (jax-traceable, e.g. the pole past
             horizontal); a trial fails when it holds at any tick.
         bound: a trial diverges when a state component leaves [-bound, bound] (default: only
             non-finite states).
 
     Returns:
-        [`ClosedLoop`][delayed_ilqr.mpc.ClosedLoop] with x [N, T+1, n], u [N, T, d], cost [N] and the failure flags.
+        [`ClosedLoop`][delayed_ilqr.mpc.ClosedLoop] with x [N, T+1, n], u [N, T, d], cost [N] and the failure flags
+        ([P, N, ...] for P plants).
 
     Raises:
-        TypeError, ValueError: naming the argument, for a plant of other sizes or another dt, a
-            reference that ends before the last tick's horizon, or a malformed disturbance.
+        TypeError, ValueError: naming the argument, for a plant of other sizes, another dt, sensors
+            the controller does not use, plants that differ in more than arrays, a reference that
+            ends before the last tick's horizon, or a malformed disturbance.
     """
     if not isinstance(ctrl, MPC):
         raise TypeError(f"ctrl must be a delayed_ilqr.mpc.MPC; got {type(ctrl).__name__}")
     _precision.require_x64("mpc.simulate")
-    plant = _check_plant(ctrl, plant)
+    several = isinstance(plant, (list, tuple))
+    if several:
+        static, data = _stacked(ctrl, plant)
+        plant = plant[0]
+    else:
+        data, static = jax.tree_util.tree_flatten(_check_plant(ctrl, plant))
     ticks = _validate.positive_int(ticks, "ticks")
     n_trials = _validate.positive_int(n_trials, "n_trials")
     seed = _validate.seed(seed)
@@ -181,10 +248,9 @@ def simulate(ctrl: MPC, plant: Problem, ticks: int, n_trials: int = 1, seed: int
     else:
         shape = (ticks, nx) if np.ndim(disturbance) == 2 else (n_trials, ticks, nx)
         disturbance = _validate.array(disturbance, "disturbance", shape)
-    x0 = plant.x0 if x0 is None else jnp.asarray(_validate.array(x0, "x0", (n_trials, nx)))
-    data, static = jax.tree_util.tree_flatten(plant)
+    x0 = None if x0 is None else jnp.asarray(_validate.array(x0, "x0", (n_trials, nx)))
     out = _run(ctrl, static, data, ticks, failure, float(bound), n_trials, jax.random.PRNGKey(seed), x0,
-               jnp.asarray(disturbance), jax.default_backend() == "cpu")
+               jnp.asarray(disturbance), jax.default_backend() == "cpu", several)
     times = plant.dt * jnp.arange(ticks + 1, dtype=jnp.float64)
     reference = jax.vmap(lambda t: ctrl.reference.lookup(ctrl.reference.samples, t))(times)
     return ClosedLoop(*out, reference=reference)

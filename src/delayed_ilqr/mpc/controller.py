@@ -1,8 +1,11 @@
 """The receding-horizon controller: an immutable configuration ([`MPC`][delayed_ilqr.mpc.MPC]), its state
 ([`ControllerState`][delayed_ilqr.mpc.ControllerState]) and a pure tick ([`MPC.step`][delayed_ilqr.mpc.MPC.step]).
 
-One tick k, given the newest state x_k (time t_k = k dt):
+One tick k, given the newest state x_k (time t_k = k dt), or with sensors (a problem with an
+``observation``) the newest measurement y_k = h(x_{k-l_s}) + G v_k:
 
+0. with sensors, the delayed filter (``estimation``) takes y_k and carries its estimate of
+   x_{k-l_s} to the present with the commands already sent: the tick acts on x_hat_k = E[x_k | I_k];
 1. the strategy (``strategies``) makes the tick problem: the problem restarted at t_k from x_k
    (or from the model's prediction x_hat_{k+l_c}) with the commands in flight acting first;
 2. the warm start is the last tick's plan shifted by one tick;
@@ -10,7 +13,8 @@ One tick k, given the newest state x_k (time t_k = k dt):
    compiled body of [`solve`][delayed_ilqr.solve]) runs at most ``iterations`` times: one is the
    real-time iteration, more converge the tick towards a fresh solve of the shifted problem;
 4. the plan's command is sent (and joins the commands in flight), the plan shifts, and the tick
-   returns the command together with its feedback law ([`TickLaw`][delayed_ilqr.mpc.TickLaw]).
+   returns the command together with its feedback law ([`TickLaw`][delayed_ilqr.mpc.TickLaw]);
+   with sensors the filter predicts the next sensed state under the commands actually sent.
 
 With ``charge_solve_time=True`` the solve takes one tick: the command computed at tick k from x_k
 is sent at tick k + 1, so the controller's delay is l_c = l + 1 (the model's l steps plus the
@@ -19,7 +23,7 @@ tick), and [`simulate`][delayed_ilqr.mpc.simulate] holds it one tick before the 
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -30,6 +34,7 @@ from ..ilqg.solver import _solve_body
 from ..options import Options
 from ..problem import Problem
 from ..solution import Status
+from .estimation import FilterState, filter_init, filter_predict, filter_update, present_estimate
 from .receding import at_tick, tick_problem
 from .reference import Reference, reference as make_reference
 from .strategies import COMPENSATIONS, REPLAY_HISTORIES, Strategy, strategy
@@ -49,11 +54,13 @@ class ControllerState(NamedTuple):
             the tick problem's horizon (K, or K - l_c for ``predict``).
         in_flight: [l_c, d] the commands sent and not yet acting, oldest first (u_{k-l_c}..u_{k-1}).
         tick: [] int32, k.
+        estimate: with sensors, the delayed filter's `FilterState` (None without).
     """
 
     plan: jax.Array
     in_flight: jax.Array
     tick: jax.Array
+    estimate: Optional[FilterState] = None
 
 
 class TickLaw(NamedTuple):
@@ -76,13 +83,15 @@ class TickLaw(NamedTuple):
 
 class Tick(NamedTuple):
     """The output of one tick: the command to send [d], its [`TickLaw`][delayed_ilqr.mpc.TickLaw], the solver's status
-    (int32) and iterations, and the predicted cost of the tick problem."""
+    (int32) and iterations, the predicted cost of the tick problem, and the state the tick acted on
+    [n] (x_k; with sensors the filter's estimate x_hat_k)."""
 
     command: jax.Array
     law: TickLaw
     status: jax.Array
     iterations: jax.Array
     cost: jax.Array
+    estimate: jax.Array
 
 
 def _check_compensation(value) -> str:
@@ -101,8 +110,13 @@ class MPC:
         problem: the model the controller plans with (dynamics, cost, limits, noise). With a
             [`QuadraticCost`][delayed_ilqr.QuadraticCost] the cost recedes as the tracking cost
             (x - r(t))'P(x - r(t)) + u'Qu with the terminal cost (x - r)'P_final(x - r) at the
-            horizon's end (``receding``); a GeneralCost is used as written.
+            horizon's end (``receding``); a GeneralCost is used as written. With an
+            ``observation`` the controller is given measurements, not states, and estimates the
+            state with its delayed filter (``estimation``).
         iterations: the most solver iterations per tick (positive int; 1: real-time iteration).
+            With a noisy model the solver returns the nominal of lowest merit it has evaluated
+            (derivation §12), and a step's merit is evaluated by the next iteration: its ticks run
+            ``iterations + 1``, so that the last step counts.
         compensation: how the delay is handled: "inflight" (this library's delayed law, the
             default), "none" (ignore it), "predict" (roll the model forward over the latency, then
             solve delay-free), "replay" (Nav2's command-history replay); ``strategies`` has the table.
@@ -114,19 +128,24 @@ class MPC:
             "planned" (the plan's own values for the ticks in flight, re-planned every tick).
         options: [`Options`][delayed_ilqr.Options] for the solver's tolerances and line search
             (``max_iterations`` is replaced by ``iterations``).
+        process_cov: with sensors, the delayed filter's process covariance per step [n, n]
+            (symmetric PSD); default dt F F' of the model's noise at the estimate (``estimation``).
+            Give one for a model without noise, or the filter never corrects its model.
+        initial_cov: with sensors, the covariance of the filter's initial estimate ``problem.x0``
+            [n, n] (symmetric PSD); default zeros (x0 known exactly, as in the problem).
 
     Raises:
         ValueError, TypeError: naming the argument, for an unknown compensation, a non-positive
-            ``iterations``, a horizon not longer than the controller's delay, a problem with
-            sensors (not supported yet), or a reference of the wrong shape.
+            ``iterations``, a horizon not longer than the controller's delay, a reference of the
+            wrong shape, or filter covariances of the wrong shape, not PSD, or given without sensors.
     """
 
     __slots__ = ("problem", "iterations", "compensation", "charge_solve_time", "reference", "replay_history",
-                 "options", "strategy", "template")
+                 "options", "strategy", "template", "process_cov", "initial_cov")
 
     def __init__(self, problem: Problem, iterations: int = 1, compensation: str = "inflight",
                  charge_solve_time: bool = False, reference=None, replay_history: str = "sent",
-                 options: Options | None = None):
+                 options: Options | None = None, process_cov=None, initial_cov=None):
         if not isinstance(problem, Problem):
             raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
         _precision.require_x64("mpc.MPC")
@@ -136,9 +155,7 @@ class MPC:
             raise TypeError(f"charge_solve_time must be True or False; got {charge_solve_time!r}")
         if replay_history not in REPLAY_HISTORIES:
             raise ValueError(f"replay_history must be 'sent' or 'planned'; got {replay_history!r}")
-        if problem.observation is not None:
-            raise ValueError("problem must not have an observation: the receding-horizon controller is given the "
-                             "state (delayed sensors are not supported yet); got a problem with an observation")
+        process_cov, initial_cov = _filter_covariances(problem, process_cov, initial_cov)
         if problem.delay_frame is not None:
             problem = problem.without_frame("mpc.MPC")
         options = Options() if options is None else options
@@ -153,8 +170,10 @@ class MPC:
         strat = strategy(compensation, l_c, problem.horizon, replay_history)
         values = dict(problem=problem, iterations=iterations, compensation=compensation,
                       charge_solve_time=bool(charge_solve_time), reference=ref, replay_history=replay_history,
-                      options=dataclasses.replace(options, max_iterations=iterations), strategy=strat,
-                      template=tick_problem(problem, ref, strat.model_delay, strat.horizon))
+                      options=dataclasses.replace(options, max_iterations=iterations + _noisy(problem)),
+                      strategy=strat,
+                      template=tick_problem(problem, ref, strat.model_delay, strat.horizon),
+                      process_cov=process_cov, initial_cov=initial_cov)
         for name, value in values.items():
             object.__setattr__(self, name, value)
 
@@ -166,16 +185,33 @@ class MPC:
         """l_c: the model's delay in ticks, plus one when the solve time is charged."""
         return self.problem.delay_steps + int(self.charge_solve_time)
 
+    @property
+    def sensors(self) -> bool:
+        """Whether the controller sees delayed, noisy measurements (its problem's ``observation``)."""
+        return self.problem.observation is not None
+
     def init(self, u_init=None) -> ControllerState:
         """The state before the first tick: the plan ``u_init`` [K_t, d] (default zeros; K_t the
         tick problem's horizon, ``strategy.horizon``), nothing in flight (commands before t = 0
-        are zero, as in the problem), tick 0."""
+        are zero, as in the problem), tick 0; with sensors the filter at ``problem.x0`` with
+        covariance ``initial_cov``."""
         K, nd = self.strategy.horizon, self.problem.n_controls
         plan = np.zeros((K, nd)) if u_init is None else _validate.array(u_init, "u_init", (K, nd))
-        return ControllerState(jnp.asarray(plan), jnp.zeros((self.controller_delay, nd)), jnp.asarray(0, jnp.int32))
+        estimate = None
+        if self.sensors:
+            estimate = filter_init(self.problem.x0, self.initial_cov, self.problem.observation.delay_steps, nd)
+        return ControllerState(jnp.asarray(plan), jnp.zeros((self.controller_delay, nd)), jnp.asarray(0, jnp.int32),
+                               estimate)
 
     def step(self, state: ControllerState, x) -> tuple[ControllerState, Tick]:
-        """One compiled tick from the newest state x [n] (see the module docstring)."""
+        """One compiled tick from the newest state x [n], or with sensors the newest measurement
+        y_k [m] (see the module docstring).
+
+        Raises:
+            ValueError: for a sampled reference that ends before the step this tick's horizon
+                reads last (tick k + horizon)."""
+        if self.reference.sampled:
+            self.reference.check_covers(int(state.tick) + self.problem.horizon)
         return _tick(self, state, jnp.asarray(x, jnp.float64))
 
     def __repr__(self):
@@ -191,18 +227,43 @@ _STATIC = ("iterations", "compensation", "charge_solve_time", "replay_history", 
 
 
 def _flatten(ctrl: MPC):
-    return ((ctrl.problem, ctrl.template, ctrl.reference.samples),
+    return ((ctrl.problem, ctrl.template, ctrl.reference.samples, ctrl.process_cov, ctrl.initial_cov),
             tuple(getattr(ctrl, name) for name in _STATIC) + (ctrl.reference.lookup,))
 
 
 def _unflatten(aux, data):
     new = object.__new__(MPC)
-    problem, template, samples = data
+    problem, template, samples, process_cov, initial_cov = data
     for name, value in zip(_STATIC, aux):
         object.__setattr__(new, name, value)
-    for name, value in (("problem", problem), ("template", template), ("reference", Reference(aux[-1], samples))):
+    for name, value in (("problem", problem), ("template", template), ("reference", Reference(aux[-1], samples)),
+                        ("process_cov", process_cov), ("initial_cov", initial_cov)):
         object.__setattr__(new, name, value)
     return new
+
+
+def _noisy(problem: Problem) -> int:
+    """1 for a model with motor noise (its ticks run one more solver iteration), else 0."""
+    return int(problem.noise is not None)
+
+
+def _filter_covariances(problem: Problem, process_cov, initial_cov):
+    """The filter's (process_cov, initial_cov), checked: None without sensors."""
+    if problem.observation is None:
+        for name, value in (("process_cov", process_cov), ("initial_cov", initial_cov)):
+            if value is not None:
+                raise ValueError(f"{name} is the delayed filter's: give it only for a problem with an observation "
+                                 f"(sensors); got {name} for a problem without one")
+        return None, None
+    n = problem.n_states
+    checked = []
+    for name, value in (("process_cov", process_cov), ("initial_cov", initial_cov)):
+        if value is None:
+            checked.append(None if name == "process_cov" else jnp.zeros((n, n)))
+            continue
+        value = _validate.array(value, name, (n, n))
+        checked.append(jnp.asarray(_validate.symmetric_psd(np.asarray(value), name, definite=False), jnp.float64))
+    return tuple(checked)
 
 
 jax.tree_util.register_pytree_node(MPC, _flatten, _unflatten)
@@ -224,10 +285,14 @@ def predicted_state(ctrl: MPC, x, in_flight, plan, t0):
 
 
 def tick(ctrl: MPC, state: ControllerState, x) -> tuple[ControllerState, Tick]:
-    """One tick of ``ctrl`` (pure; [`MPC.step`][delayed_ilqr.mpc.MPC.step] is it compiled): returns the next state and
-    the [`Tick`][delayed_ilqr.mpc.Tick]."""
+    """One tick of ``ctrl`` (pure; [`MPC.step`][delayed_ilqr.mpc.MPC.step] is it compiled) from the newest state x [n]
+    (with sensors the newest measurement y [m]): returns the next state and the [`Tick`][delayed_ilqr.mpc.Tick]."""
     s: Strategy = ctrl.strategy
     dt = ctrl.problem.dt
+    if ctrl.sensors:
+        x_del, P_post = filter_update(ctrl.problem, state.estimate, x)
+        commands = jnp.concatenate([state.estimate.earlier, state.in_flight])
+        x = present_estimate(ctrl.problem, x_del, commands, state.tick, ctrl.controller_delay)
     t0 = dt * state.tick.astype(x.dtype)
     start, t_start = x, t0
     if s.predict_steps:
@@ -240,8 +305,12 @@ def tick(ctrl: MPC, state: ControllerState, x) -> tuple[ControllerState, Tick]:
     law = TickLaw(sol.x[j], command, policy.feedforward[j], policy.state_feedback[j], policy.delay_feedback[j])
     plan = jnp.concatenate([sol.u[1:], sol.u[-1:]])          # the last command held for the new last tick
     sent = jnp.concatenate([state.in_flight[1:], command[None]]) if state.in_flight.shape[0] else state.in_flight
-    new = ControllerState(plan, sent, state.tick + 1)
-    return new, Tick(command, law, sol.status, sol.iterations, sol.cost)
+    estimate = None
+    if ctrl.sensors:
+        estimate = filter_predict(ctrl.problem, x_del, P_post, jnp.concatenate([commands, command[None]]), state.tick,
+                                  ctrl.controller_delay, ctrl.process_cov)
+    new = ControllerState(plan, sent, state.tick + 1, estimate)
+    return new, Tick(command, law, sol.status, sol.iterations, sol.cost, x)
 
 
 _tick = jax.jit(tick)

@@ -53,7 +53,7 @@ class Reference:
         horizon reads: the last tick plus the horizon)."""
         if self.sampled and last_step > self.samples.shape[0] - 1:
             raise ValueError(f"reference must cover every step a tick's horizon reads: up to step {last_step} "
-                             f"(the last tick + horizon); got {self.samples.shape[0]} samples (steps 0.."
+                             f"(the tick + horizon); got {self.samples.shape[0]} samples (steps 0.."
                              f"{self.samples.shape[0] - 1}); lengthen the reference or run fewer ticks")
 
 
