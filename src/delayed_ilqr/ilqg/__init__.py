@@ -6,7 +6,6 @@ Data flow of one iteration, one module per job:
 |---|---|
 | linearize.py | eq. (3)-(4): rollout, cost, the LQG of a nominal (stored or step by step) |
 | backward.py | the backward pass of an iteration: linearise, Theorem 1 (or augmentation), the solver's gain rules (box limits, noise) |
-| closed_loop.py | ONE delayed-law step (eq. 6), for every closed loop of the package |
 | candidates.py | the nonlinear plant in closed loop around the nominal (step size alpha) |
 | line_search.py | merit, candidate scores, the LQG's predicted change, Tassa's line search |
 | regularization.py | Tassa's lambda schedule |

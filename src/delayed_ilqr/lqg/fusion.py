@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import _precision
-from ..ilqg.closed_loop import augmented_feedback
+from .law import augmented_feedback
 from .estimator import _kalman_step, _process_cov
 from .exact import checked_gains
 from .model import DelayedLQG, Gains, Value, merged_if_undelayed
