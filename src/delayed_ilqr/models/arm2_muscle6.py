@@ -15,7 +15,7 @@ The human preset (``noise=True``, the default; §4.7 has every value with its so
 
 - Rest: a tonic co-activation (Gribble et al. 2003). The start activations and the rest
   excitations ``cost.params["u_rest"]`` are the static equilibrium at the start posture nearest to
-  the level `COACTIVATION` = 0.15 (`rest_activations`: zero net joint torque, every muscle
+  the level `COACTIVATION` = 0.2 (`rest_activations`: zero net joint torque, every muscle
   active), so the arm stays still when the rest is held and every muscle can raise or lower its
   force.
 - Effort (a `GeneralCost`; running cost per unit time, final cost not multiplied by dt):
@@ -30,7 +30,7 @@ The human preset (``noise=True``, the default; §4.7 has every value with its so
   "w_v", "w_a"}`` (arrays): problems with different targets or weights share one compiled solver.
 - Motor noise, F [10, 8] (a continuous-time diffusion, `delayed_ilqr.models.noise`):
   signal-dependent on the excitations, ud_i (1 + sigma_u w_i), F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i),
-  whose force CV for a held excitation is 4.8-8.8 % at `SIGMA_U` = 0.01 (`force_cv`; the
+  whose force CV for a held excitation is 4-9 % at `SIGMA_U` = 0.01 (`force_cv`; the
   activation's own CV is 2.8-3.2 %); and signal-independent joint-torque noise
   F[2:4, 6:8] = sigma_tau M(q)^{-1}, `SIGMA_TAU` = 0.004 N m s^1/2 (van Beers, Haggard & Wolpert
   2004 model both). The delayed Kalman filter takes its process noise from F at the nominal, so
@@ -80,7 +80,7 @@ FINAL_TIME = 0.5  # s
 SIGMA_U = 0.01  # signal-dependent excitation noise (module docstring)
 SIGMA_TAU = 0.004  # N m s^1/2, signal-independent joint-torque noise (module docstring)
 NOISE_PRESETS = {"human": SIGMA_U}  # noise=True is "human"; another sigma_u is "custom"
-COACTIVATION = 0.15  # tonic co-activation of the rest posture (module docstring)
+COACTIVATION = 0.2  # tonic co-activation of the rest posture (module docstring)
 A_REST = 0.05  # start activations of Li & Todorov's arm without a tonic rest (coactivation=None)
 MOTOR_DELAY = 0.02  # s, efferent + electromechanical delay of the human preset
 SENSORY_DELAY = 0.04  # s, proprioceptive (afferent) delay of the human preset
