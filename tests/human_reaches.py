@@ -31,9 +31,12 @@ class Reach(NamedTuple):
         peaks, peak_to_mean: of the trial-mean hand speed profile (`reach_shape`'s definitions).
         single_peaked: fraction of trials whose own speed has one peak.
         trial_peak_to_mean: median over trials of peak / mean speed.
-        deviation: median over trials of the largest lateral deviation over the distance.
+        deviation: largest lateral deviation of the trial-mean hand path over the distance (the
+            average path, as published paths are).
+        trial_deviation: median over trials of each trial's own deviation.
         sd_major, sd_minor: endpoint SDs along the principal axes of the endpoint covariance.
         angle: between the major axis and the movement direction, in [0, 90].
+        orientation: of the major axis, counter-clockwise from +x, in [0, 180).
         bias: distance of the mean endpoint from the target.
         mc_cost, predicted_cost: Monte Carlo mean cost and the LQG's expected cost (linearised).
         at_bound: fraction of the nominal's (step, muscle) excitations at a bound (0 or 1).
@@ -48,9 +51,11 @@ class Reach(NamedTuple):
     single_peaked: float
     trial_peak_to_mean: float
     deviation: float
+    trial_deviation: float
     sd_major: float
     sd_minor: float
     angle: float
+    orientation: float
     bias: float
     mc_cost: float
     predicted_cost: float
@@ -81,6 +86,7 @@ def _measure(plant, sol, n_trials: int, seed: int) -> Reach:
     chord = target - start
     direction = np.arctan2(chord[1], chord[0])
     shapes = [reach_shape(plant, xi) for xi in x]
+    path = hand.mean(axis=0) - start
     speed = np.linalg.norm(np.diff(hand, axis=1), axis=2).mean(axis=0) / plant.dt
     peaks, _ = find_peaks(np.concatenate([[0.0], speed, [0.0]]), prominence=PEAK_PROMINENCE * speed.max())
     ends = hand[:, -1]
@@ -91,8 +97,10 @@ def _measure(plant, sol, n_trials: int, seed: int) -> Reach:
                  status=Status(int(sol.status)).name, peaks=len(peaks), peak_to_mean=float(speed.max() / speed.mean()),
                  single_peaked=float(np.mean([s.peaks == 1 for s in shapes])),
                  trial_peak_to_mean=float(np.median([s.peak_to_mean for s in shapes])),
-                 deviation=float(np.median([s.deviation for s in shapes])),
+                 deviation=float(np.max(np.abs(path[:, 0] * chord[1] - path[:, 1] * chord[0])) / (chord @ chord)),
+                 trial_deviation=float(np.median([s.deviation for s in shapes])),
                  sd_major=float(np.sqrt(eigval[-1])), sd_minor=float(np.sqrt(eigval[0])), angle=float(angle),
+                 orientation=float(np.degrees(np.arctan2(major[1], major[0])) % 180.0),
                  bias=float(np.linalg.norm(ends.mean(axis=0) - target)),
                  mc_cost=float(np.mean(np.asarray(trials.runs.cost))), predicted_cost=float(sol.expected_cost),
                  at_bound=float(np.mean((u <= np.asarray(plant.u_min)) | (u >= np.asarray(plant.u_max)))),
@@ -102,11 +110,14 @@ def _measure(plant, sol, n_trials: int, seed: int) -> Reach:
 def markdown(reaches: list[Reach], label: str = "target") -> str:
     """A table of the reaches (mm and degrees)."""
     head = (f"| {label} | direction [deg] | distance [cm] | status | speed peaks (mean) | peak/mean (mean) | "
-            "single-peaked trials | peak/mean (median trial) | path deviation (median trial) | endpoint SD major / minor [mm] | "
-            "major axis vs movement [deg] | MC mean cost / linearised prediction |")
-    rows = [head, "|" + "---|" * 12]
+            "single-peaked trials | peak/mean (median trial) | path deviation (mean path) | path deviation (median trial) | "
+            "endpoint SD major / minor [mm] | major axis vs movement [deg] | major axis from +x [deg] | "
+            "MC mean cost / linearised prediction |")
+    rows = [head, "|" + "---|" * 14]
     for j, r in enumerate(reaches, 1):
         rows.append(f"| {j} | {r.direction:.0f} | {100 * r.distance:.0f} | {r.status} | {r.peaks} | {r.peak_to_mean:.2f} | "
                     f"{100 * r.single_peaked:.0f} % | {r.trial_peak_to_mean:.2f} | {100 * r.deviation:.1f} % | "
-                    f"{1e3 * r.sd_major:.1f} / {1e3 * r.sd_minor:.1f} | {r.angle:.0f} | {r.mc_cost / r.predicted_cost:.2f} |")
+                    f"{100 * r.trial_deviation:.1f} % | "
+                    f"{1e3 * r.sd_major:.1f} / {1e3 * r.sd_minor:.1f} | {r.angle:.0f} | {r.orientation:.0f} | "
+                    f"{r.mc_cost / r.predicted_cost:.2f} |")
     return "\n".join(rows)
