@@ -367,7 +367,8 @@ def test_argument_errors():
 def test_reaches_a_target_10cm_away(delay, k):
     target = models.center_out_targets()[k]
     p = models.arm2_muscle6(delay=delay, target=target, noise=False)
-    sol = delayed_ilqr.solve(p, models.rest_commands(p))
+    # the effort on forces from the tonic rest takes 100-200 iterations on some targets
+    sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
     assert delayed_ilqr.Status(int(sol.status)).converged, delayed_ilqr.Status(int(sol.status)).message
     q, dq = sol.x[-1, :2], sol.x[-1, 2:4]
     err = float(jnp.linalg.norm(models.hand_position(q) - target))

@@ -73,7 +73,7 @@ from .metadata import CostParameter, ModelMetadata
 from .sensors import joint_sensors
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "rest_activations", "default_x0",
-           "force_cv", "Arm2Muscle6Dynamics", "Arm2Muscle6Noise", "ReachRunningCost", "ReachFinalCost", "FINAL_TIME",
+           "force_cv", "Arm2Muscle6Dynamics", "Arm2Muscle6Noise", "ReachRunningCost", "MuscleEffort", "ReachFinalCost", "FINAL_TIME",
            "SIGMA_U", "SIGMA_TAU", "COACTIVATION", "A_REST", "LI_TODOROV", "MOTOR_DELAY", "SENSORY_DELAY", "PRESET", "Q0", "TARGET",
            "GEOMETRIES"]
 
@@ -145,9 +145,18 @@ jax.tree_util.register_dataclass(Arm2Muscle6Noise, data_fields=["sigma_u", "sigm
 
 @dataclass(frozen=True)
 class ReachRunningCost:
-    """running(x, u, params) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A(u_rest, l(q))|^2 (per unit time):
-    the excitations' and the muscles' active forces' (fractions of the maximal force) departures
-    from the tonic rest."""
+    """running(x, u, params) = r |u|^2 (per unit time): Li & Todorov's effort, shared with the
+    torque arm's reaches (`delayed_ilqr.experiments.reach_tasks`)."""
+
+    def __call__(self, x, u, params):
+        return params["r"] * (u @ u)
+
+
+@dataclass(frozen=True)
+class MuscleEffort:
+    """running(x, u, params) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A(u_rest, l(q))|^2 (per unit
+    time): the excitations' and the muscles' active forces' (fractions of the maximal force)
+    departures from the tonic rest ``params["u_rest"]`` [6]."""
 
     geometry: object = _muscle.ANGLE_DEPENDENT
 
@@ -326,7 +335,7 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
     params = {"target": jnp.asarray(target), "u_rest": jnp.asarray(u_rest), "r": _common.positive(r, "r"),
               "r_f": _common.non_negative(r_f, "r_f"), "w_p": _common.non_negative(w_p, "w_p"),
               "w_v": _common.non_negative(w_v, "w_v"), "w_a": _common.non_negative(w_a, "w_a")}
-    cost = GeneralCost(ReachRunningCost(geometry), ReachFinalCost(arm), params)
+    cost = GeneralCost(MuscleEffort(geometry), ReachFinalCost(arm), params)
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
     noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, sigma_tau, t_act, t_deact, arm)
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
