@@ -119,20 +119,24 @@ class Arm2Muscle6Dynamics:
 class Arm2Muscle6Noise:
     """F(x, u, ud) [10, 8]: columns 0-5 signal-dependent excitation noise, F[4 + i, i] =
     sigma_u ud_i / t(ud_i, a_i); columns 6-7 signal-independent joint-torque noise,
-    F[2:4, 6:8] = sigma_tau M(q)^{-1}."""
+    F[2:4, 6:8] = sigma_tau M(q)^{-1} (left out, F [10, 6], without ``joint_noise``: the factory
+    sets it when sigma_tau > 0, so that the published arm draws the same noise as before)."""
 
     sigma_u: float = SIGMA_U
     sigma_tau: float = SIGMA_TAU
     t_act: float = _muscle.T_ACT
     t_deact: float = _muscle.T_DEACT
     arm: Arm2Params = ARM2_PARAMS
+    joint_noise: bool = True  # False: columns 6-7 left out (F [10, 6], the published arm's noise)
 
     def __call__(self, x, u, ud):
         q, a = x[:2], x[4:]
         gain = self.sigma_u * ud / _muscle.activation_time_constant(ud, a, self.t_act, self.t_deact)
-        torque = self.sigma_tau * mass_matrix_inverse(q, self.arm)
         zeros = jnp.zeros((2, 6), gain.dtype)
         excitation = jnp.concatenate([zeros, zeros, jnp.diag(gain)], axis=0)
+        if not self.joint_noise:
+            return excitation
+        torque = self.sigma_tau * mass_matrix_inverse(q, self.arm)
         additive = jnp.concatenate([jnp.zeros((2, 2), gain.dtype), torque, jnp.zeros((6, 2), gain.dtype)], axis=0)
         return jnp.concatenate([excitation, additive], axis=1)
 
@@ -140,7 +144,7 @@ class Arm2Muscle6Noise:
 # the noise scales are data (pytree leaves): derivatives with respect to them, and problems that
 # differ only in them share one compiled solver
 jax.tree_util.register_dataclass(Arm2Muscle6Noise, data_fields=["sigma_u", "sigma_tau"],
-                                 meta_fields=["t_act", "t_deact", "arm"])
+                                 meta_fields=["t_act", "t_deact", "arm", "joint_noise"])
 
 
 @dataclass(frozen=True)
@@ -337,7 +341,7 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
               "w_v": _common.non_negative(w_v, "w_v"), "w_a": _common.non_negative(w_a, "w_a")}
     cost = GeneralCost(MuscleEffort(geometry), ReachFinalCost(arm), params)
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
-    noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, sigma_tau, t_act, t_deact, arm)
+    noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, sigma_tau, t_act, t_deact, arm, sigma_tau > 0)
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
                    metadata=dataclasses.replace(METADATA if arm == ARM2_PARAMS else _metadata(arm), noise=preset),
