@@ -14,6 +14,7 @@ from delayed_ilqr.experiments import center_out as co
 from delayed_ilqr.experiments import report, tables
 from delayed_ilqr.models.metadata import task_position
 from delayed_ilqr.models import arm2_muscle6
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 from delayed_ilqr.statistical import statistical_feedback
 
 
@@ -71,7 +72,7 @@ def test_delay_feedback_keeps_noisy_reaches_on_target():
     the same law without the feedback on commands in flight (M = 0): the delay gains matter."""
     result = co.center_out(delays=(0.05,), n_targets=1, n_trials=2, designs=("deterministic",))[0]
     policy, target = result.policy(0), result.targets[0].target
-    plant = arm2_muscle6(delay=0.05, target=tuple(target), noise=True, sigma_u=0.01)
+    plant = arm2_muscle6(delay=0.05, target=tuple(target), noise=True, sigma_u=0.01, **LI_TODOROV)
     closed = _median_error(plant, policy, target)
     no_m = _median_error(plant, policy._replace(delay_feedback=jax.numpy.zeros_like(policy.delay_feedback)), target)
     open_loop = _median_error(plant, policy._replace(state_feedback=0 * policy.state_feedback,
@@ -188,7 +189,7 @@ def test_reaches_that_stalled_on_the_activation_switch_converge():
     every one converges within them."""
     from delayed_ilqr.models.arm2_muscle6 import SIGMA_U, center_out_targets, rest_commands
     targets = center_out_targets(8, 0.1)[np.array([3, 4, 6, 7])]
-    plants = [arm2_muscle6(delay=0.15, target=tuple(t), sigma_u=2 * SIGMA_U) for t in targets]
+    plants = [arm2_muscle6(delay=0.15, target=tuple(t), sigma_u=2 * SIGMA_U, **LI_TODOROV) for t in targets]
     stacked = jax.tree_util.tree_map(lambda *leaves: jax.numpy.stack(leaves), *plants)
     batched = jax.jit(jax.vmap(di.solve, in_axes=(0, None, None)), static_argnums=2)
     sols = batched(stacked, rest_commands(plants[0]), co.DEFAULT_OPTIONS)

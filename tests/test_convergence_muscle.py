@@ -15,8 +15,9 @@ def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
     its derivative, then optima on the activation switch's kink), the third latched 89 commands
     while its merit still wandered over a factor 2 and then crept for 250 iterations (the latch
     fires only on a recurring window, LATCH_RECUR)."""
-    from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
-    problem = arm2_muscle6(delay=delay, target=tuple(center_out_targets()[k]), noise=True, sigma_u=sigma_u)
+    from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets, rest_commands
+    problem = arm2_muscle6(delay=delay, target=tuple(center_out_targets()[k]), noise=True, sigma_u=sigma_u,
+                           **LI_TODOROV)
     sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=300))
     assert sol.converged, sol.status
     n = int(sol.iterations)

@@ -14,7 +14,7 @@ from delayed_ilqr import Options, Problem, Status, solve
 from delayed_ilqr.ilqg import implicit
 from delayed_ilqr.ilqg.linearize import rollout, trajectory_cost
 from delayed_ilqr.models import arm2_muscle6
-from delayed_ilqr.models.arm2_muscle6 import rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, rest_commands
 
 from comparisons import WorstDifference
 
@@ -93,7 +93,7 @@ def test_six_muscle_arm_delayed_commands_match_finite_differences():
     derivation §16's fix, one of them (u = 4.7e-6, derivative 1.2e-2) made the tangent err by
     4.9e-3. Held are the commands the KKT conditions hold (implicit.fixed_commands), and every
     re-solve, polished, is a KKT point with that set (measured error 5.4e-8)."""
-    err, spread = _muscle_arm_tangent_against_resolves(arm2_muscle6(delay=0.05, noise=False), (5e-5, 2.5e-5),
+    err, spread = _muscle_arm_tangent_against_resolves(arm2_muscle6(delay=0.05, noise=False, **LI_TODOROV), (5e-5, 2.5e-5),
                                                        polish=True)
     worst.record(err, "six-muscle arm 50 ms forward u")
     assert spread < 1e-6
@@ -111,7 +111,7 @@ def test_six_muscle_arm_delayed_noisy_commands_match_finite_differences():
     agree to 2.0e-7, and at 2.5e-5 the re-solves' stopping error shows, 1.4e-6). Unlike the
     noise-free case above the raw re-solves suffice: the noise terms add curvature to the free
     commands."""
-    err, spread = _muscle_arm_tangent_against_resolves(arm2_muscle6(delay=0.05, noise=True), (1e-4, 5e-5),
+    err, spread = _muscle_arm_tangent_against_resolves(arm2_muscle6(delay=0.05, noise=True, **LI_TODOROV), (1e-4, 5e-5),
                                                        polish=False)
     worst.record(err, "six-muscle arm 50 ms noisy forward u")
     assert spread < 1e-6

@@ -283,10 +283,12 @@ def test_noise_is_signal_dependent_on_the_activations():
     x = jnp.asarray(np.r_[0.8, 1.6, 0.1, -0.2, np.full(6, 0.1)])
     ud = jnp.array([0.0, 0.2, 0.4, 0.05, 1.0, 0.14])
     F = np.asarray(p.noise(x, jnp.zeros(6), ud))
-    assert F.shape == (10, 6) and p.n_noise == 6
-    expected = np.zeros((10, 6))
+    assert F.shape == (10, 8) and p.n_noise == 8
+    expected = np.zeros((10, 8))
     for i in range(6):
         expected[4 + i, i] = 0.1 * float(ud[i]) / np_time_constant(float(ud[i]), 0.1)
+    # columns 6-7: the signal-independent joint-torque noise, sigma_tau M(q)^{-1} on the velocities
+    expected[2:4, 6:] = am6.SIGMA_TAU * np.linalg.inv(np.asarray(models.mass_matrix(x[:2])))
     np.testing.assert_allclose(F, expected, rtol=1e-12, atol=1e-15)
 
 
@@ -295,11 +297,13 @@ def test_noise_is_signal_dependent_on_the_activations():
 # --------------------------------------------------------------------------------------------
 def test_problem_structure():
     p = models.arm2_muscle6(delay=0.05)
-    assert (p.n_states, p.n_controls, p.n_noise, p.delay_steps, p.horizon, p.dt) == (10, 6, 6, 5, 50, 0.01)
+    assert (p.n_states, p.n_controls, p.n_noise, p.delay_steps, p.horizon, p.dt) == (10, 6, 8, 5, 50, 0.01)
     assert p.has_limits and p.name == "arm2_muscle6"
     np.testing.assert_array_equal(p.u_min, np.zeros(6))
     np.testing.assert_array_equal(p.u_max, np.ones(6))
-    np.testing.assert_allclose(p.x0, np.r_[math.pi / 4, math.pi / 2, 0, 0, np.full(6, am6.A_REST)])
+    np.testing.assert_allclose(p.x0, np.r_[math.pi / 4, math.pi / 2, 0, 0, am6.rest_activations()])
+    np.testing.assert_allclose(p.cost.params["u_rest"], am6.rest_activations())
+    np.testing.assert_allclose(models.arm2_muscle6(coactivation=None).x0[4:], np.full(6, am6.A_REST))
     np.testing.assert_array_equal(p.cost.params["target"], [0.05, 0.5])
     assert models.arm2_muscle6(noise=False).noise is None
     assert models.arm2_muscle6(dt=0.005, delay=0.05).delay_steps == 10
@@ -325,7 +329,7 @@ def test_targets_are_data_and_share_a_treedef():
 
 def test_cost_is_the_documented_reach_cost():
     target = np.array([0.02, 0.47])
-    p = models.arm2_muscle6(target=target, r=3e-3, w_p=7.0, w_v=0.2, w_a=0.05)
+    p = models.arm2_muscle6(target=target, r=3e-3, r_f=0.2, w_p=7.0, w_v=0.2, w_a=0.05)
     rng = np.random.default_rng(RNG_SEED + 4)
     x, u = np.r_[rng.uniform(0.3, 2, 2), rng.normal(size=2), rng.uniform(0, 1, 6)], rng.uniform(0, 1, 6)
     l1, l2 = 0.30, 0.33
@@ -335,7 +339,14 @@ def test_cost_is_the_documented_reach_cost():
     ev = J @ x[2:4]
     expected = 7.0 * np.sum((e - target) ** 2) + 0.2 * np.sum(ev ** 2) + 0.05 * np.sum(x[4:] ** 2)
     assert float(p.cost.final(jnp.asarray(x))) == pytest.approx(expected, rel=1e-12)
-    assert float(p.cost.running(jnp.asarray(x), jnp.asarray(u))) == pytest.approx(3e-3 * np.sum(u ** 2), rel=1e-12)
+    rest = np.asarray(am6.rest_activations())
+    l = np_geom_B(x[:2], x[2:4])[1]
+    df = np.array([np_A(ai, li) - np_A(ri, li) for ai, ri, li in zip(x[4:], rest, l)])
+    expected = 3e-3 * np.sum((u - rest) ** 2) + 0.2 * np.sum(df ** 2)
+    assert float(p.cost.running(jnp.asarray(x), jnp.asarray(u))) == pytest.approx(expected, rel=1e-12)
+    # without a tonic rest: Li & Todorov's effort on the excitations from zero
+    p0 = models.arm2_muscle6(target=target, r=3e-3, r_f=0.0, coactivation=None)
+    assert float(p0.cost.running(jnp.asarray(x), jnp.asarray(u))) == pytest.approx(3e-3 * np.sum(u ** 2), rel=1e-12)
 
 
 def test_argument_errors():
@@ -356,7 +367,8 @@ def test_argument_errors():
 def test_reaches_a_target_10cm_away(delay, k):
     target = models.center_out_targets()[k]
     p = models.arm2_muscle6(delay=delay, target=target, noise=False)
-    sol = delayed_ilqr.solve(p, models.rest_commands(p))
+    # the effort on forces from the tonic rest takes 100-200 iterations on some targets
+    sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
     assert delayed_ilqr.Status(int(sol.status)).converged, delayed_ilqr.Status(int(sol.status)).message
     q, dq = sol.x[-1, :2], sol.x[-1, 2:4]
     err = float(jnp.linalg.norm(models.hand_position(q) - target))
@@ -379,7 +391,7 @@ def test_noise_aware_reach_converges_with_delay(k):
     # frozen at the nominal's states, the merit (cost + sum c'S c) is one function per iteration.
     # sigma_u = 0.1, ten times the calibrated default, so that the noise cost dominates the merit
     target = models.center_out_targets()[k]
-    p = models.arm2_muscle6(delay=0.05, target=target, noise=True, sigma_u=0.1)
+    p = models.arm2_muscle6(delay=0.05, target=target, noise=True, sigma_u=0.1, **am6.LI_TODOROV)
     sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
     assert delayed_ilqr.Status(int(sol.status)).converged, delayed_ilqr.Status(int(sol.status)).message
     n = int(sol.iterations)
@@ -394,7 +406,7 @@ def test_noise_aware_prediction_matches_monte_carlo_at_small_noise():
     # (J(0) minus the nominal's cost) equals the Monte Carlo mean excess on the nonlinear plant
     # (measured 4.94e-8 against 4.97e-8 +- 0.10e-8). At 0.01 the Monte Carlo excess is 20x larger.
     target = models.center_out_targets()[1]
-    p = models.arm2_muscle6(delay=0.05, target=target, noise=True, sigma_u=1e-3)
+    p = models.arm2_muscle6(delay=0.05, target=target, noise=True, sigma_u=1e-3, **am6.LI_TODOROV)
     sol = delayed_ilqr.solve(p, models.rest_commands(p), delayed_ilqr.Options(max_iterations=300))
     assert delayed_ilqr.Status(int(sol.status)).converged
     predicted = float(sol.expected_cost - sol.cost)

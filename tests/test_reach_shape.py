@@ -18,7 +18,7 @@ import delayed_ilqr as di
 from delayed_ilqr.experiments import designs
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS, reach_shape
 from delayed_ilqr.models.arm2 import ARM2_PARAMS, hand_position, hand_velocity
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets, rest_commands
 
 from direct import direct_optimum
 from linear_force import linear_force
@@ -28,7 +28,7 @@ TARGETS = center_out_targets(8, 0.1)
 
 def _reach(target: int):
     """The center-out study's deterministic design of its 0 ms reach to ``target`` (1-based)."""
-    plant = arm2_muscle6(delay=0.0, target=tuple(TARGETS[target - 1]), noise=True)
+    plant = arm2_muscle6(delay=0.0, target=tuple(TARGETS[target - 1]), noise=True, **LI_TODOROV)
     return designs.design(plant, "deterministic", DEFAULT_OPTIONS)[0]
 
 

@@ -207,7 +207,8 @@ def test_no_nan_in_the_policy_when_the_last_backward_pass_fails():
     nominal whose gains were finite, with them, and says so."""
     from delayed_ilqr.models import arm2_muscle6
     from delayed_ilqr.models.arm2_muscle6 import rest_commands
-    base = arm2_muscle6(delay=0.05)
+    from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
+    base = arm2_muscle6(delay=0.05, **LI_TODOROV)
     problem = base.replace(cost=di.GeneralCost(_effort, _line_final, base.cost.params))
     sol = di.solve(problem, rest_commands(problem), di.Options(max_iterations=20))
     assert sol.status == di.Status.NON_FINITE_GAINS, sol.status

@@ -20,7 +20,7 @@ from delayed_ilqr.ilqg.linearize import linearize, rollout
 from delayed_ilqr.experiments import designs
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS
 from delayed_ilqr.models import arm2, point_mass
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets
 from delayed_ilqr.prediction import RULES, closed_loop_prediction
 from delayed_ilqr.statistical import expected_jacobians, solver_latch, statistical_feedback
 from delayed_ilqr.statistics import divergence_bound, diverged_trials, sample_stats
@@ -163,7 +163,7 @@ def test_muscle_arm_sl_design_beats_both_designs_where_the_tail_dominates():
     §5.5). SL's re-design of the noise-aware gains (8 iterations, relax 0.5, fifth degree) lies
     below both: its upper 95 % bound under the lower bound of each, 500 trials, seed 0 (measured
     [4.3e-4, 1.5e-3] against [1.8e-2, 2.9e-2] and [1.5e-2, 2.4e-2]; no trial diverges)."""
-    plant = arm2_muscle6(delay=0.05, target=tuple(center_out_targets(8, 0.1)[7]))
+    plant = arm2_muscle6(delay=0.05, target=tuple(center_out_targets(8, 0.1)[7]), **LI_TODOROV)
     stats = {}
     for name in ("deterministic", "noise-aware"):
         problem, options = designs.design(plant, name, DEFAULT_OPTIONS)

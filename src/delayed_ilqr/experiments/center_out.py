@@ -4,7 +4,10 @@ For each delay and design: the reaches to ``n_targets`` hand targets on a circle
 hand position are solved in one compiled, vectorised call (``jax.vmap`` of
 [`solve`][delayed_ilqr.solve] over the targets, which are cost parameters,
 `engine.timed_batched_solve`), then each target's delayed feedback policy runs ``n_trials``
-times on the noisy plant (signal-dependent excitation noise, ``arm2_muscle6``'s ``noise=True``).
+times on the noisy plant (signal-dependent excitation noise). The arm is Li & Todorov's as
+published (``arm2_muscle6(**LI_TODOROV)``: no tonic rest, effort on the excitations, excitation
+noise only), whose delay study this is; the center-out reaches of the model's human preset are
+measured in ``docs/results/center_out_human.md``.
 
 Three designs of the same plant (`designs`; all three by default, the first two with
 sensors):
@@ -39,7 +42,7 @@ import numpy as np
 from .. import Options, Policy, Problem, Solution, Status
 from ..statistics import SampleStats, divergence_bound, diverged_trials, sample_stats
 from ..models.arm2 import hand_velocity
-from ..models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets
+from ..models.arm2_muscle6 import LI_TODOROV, SIGMA_U, arm2_muscle6, center_out_targets
 from ..models.metadata import task_position, task_target
 from . import designs
 from ..statistical import statistical_feedback
@@ -261,8 +264,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
     # per delay and design: its solve (or re-design), then one Monte Carlo run per target
     with progress_bar(len(delays) * len(names) * (1 + len(targets)), "center-out", "step", progress) as bar:
         for delay in delays:
-            plants = [arm2_muscle6(delay=delay, target=tuple(t), noise=True, geometry=geometry, sigma_u=sigma_u,
-                                   sensory_delay=sensory_delay) for t in targets]
+            plants = [arm2_muscle6(**dict(LI_TODOROV, sensory_delay=sensory_delay), delay=delay, target=tuple(t),
+                                   noise=True, geometry=geometry, sigma_u=sigma_u) for t in targets]
             solved = {}                 # design solved -> Timed, shared by the designs built on it
             for name in names:
                 bar.set_postfix_str(f"{1e3 * delay:g} ms, {name}")

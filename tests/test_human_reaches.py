@@ -1,0 +1,154 @@
+"""The six-muscle arm's human preset (``arm2_muscle6()``, docs/models.md §4.7) against the classic
+findings of center-out reaching (docs/results/center_out_human.md has the full-size study).
+
+Measured by Monte Carlo on a fixed seed list: two of the eight 10 cm targets (0 and 90 deg) and
+one the tests never use otherwise (15 cm at 112.5 deg), solved in one batch (one compilation),
+100 trials each. The full eight targets, with unseen distances and directions, are under the ``full``
+marker. Published ranges (Morasso 1981; Flash & Hogan 1985; Gordon, Ghilardi & Ghez 1994; van
+Beers, Haggard & Wolpert 2004): single-peaked hand speed with peak/mean 1.6-2.0, lateral path
+deviation <= 10 % of the length, endpoint SD 2-8 mm with the ellipse's major axis within 30 deg of
+the movement direction.
+"""
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from delayed_ilqr.models import muscle
+from delayed_ilqr.models.arm2 import hand_velocity
+from delayed_ilqr.models.arm2_muscle6 import (A_REST, COACTIVATION, MOTOR_DELAY, Q0, SENSORY_DELAY, SIGMA_U,
+                                              arm2_muscle6, center_out_targets, default_x0, force_cv,
+                                              rest_activations)
+
+from human_reaches import center_out_reaches, reaches
+
+EIGHT = center_out_targets(8, 0.1)
+UNSEEN = center_out_targets(16, 0.15)[5]          # 15 cm at 112.5 deg
+
+
+def _hand_speeds(x0, u, steps=100):
+    """Hand speed [steps] (m/s) of the noise-free arm from x0 with the excitations u held (Euler, dt)."""
+    p = arm2_muscle6(noise=False, x0=tuple(np.asarray(x0)))
+
+    def step(x, _):
+        x = x + p.dt * p.dynamics(x, u, u)
+        return x, jnp.linalg.norm(hand_velocity(x[:2], x[2:4]))
+    return np.asarray(jax.lax.scan(step, p.x0, None, length=steps)[1])
+
+
+def test_the_rest_posture_is_an_equilibrium():
+    """Holding the rest excitations keeps the hand still for 1 s (< 1 mm/s); the former uniform
+    start activation (0.05, not an equilibrium) drifts by centimetres per second."""
+    rest = jnp.asarray(rest_activations())
+    assert np.max(_hand_speeds(default_x0(), rest)) < 1e-3
+    assert np.max(_hand_speeds(default_x0(a0=A_REST), jnp.full(6, A_REST))) > 5e-3
+    # every muscle active, near the co-activation level, and the net torque zero
+    assert np.all(np.asarray(rest) > 0.02) and abs(float(np.mean(rest)) - COACTIVATION) < 0.05
+    tau = muscle.joint_torques(jnp.asarray(Q0), jnp.zeros(2), rest)
+    np.testing.assert_allclose(tau, 0.0, atol=1e-10)
+
+
+def test_the_human_preset_has_delays_sensors_and_both_motor_noises():
+    p = arm2_muscle6()
+    assert p.delay_steps * p.dt == pytest.approx(MOTOR_DELAY)
+    assert p.observation is not None and p.observation.delay_steps * p.dt == pytest.approx(SENSORY_DELAY)
+    assert 0.05 <= MOTOR_DELAY + SENSORY_DELAY <= 0.1          # long-latency loop (Pruszynski & Scott 2012)
+    F = np.asarray(p.noise(p.x0, jnp.asarray(p.cost.params["u_rest"]), jnp.asarray(p.cost.params["u_rest"])))
+    assert F.shape == (10, 8) and np.all(F[2:4, 6:] != 0) and np.all(F[4:, :6].diagonal() > 0)
+    ideal = arm2_muscle6(noise=False)
+    assert ideal.noise is None and ideal.observation is None and ideal.delay_steps == 0
+
+
+def test_the_force_cv_is_the_stated_one():
+    """force_cv (the linearised stationary CV) against a Monte Carlo of the model's own activation
+    rows (its dynamics and noise, Euler steps of 1 ms, 3000 trials) at the start posture; the
+    stated range at the default noise, 4-9 % of the force for held excitations of 0.2-0.6."""
+    p = arm2_muscle6(dt=0.001, sensory_delay=None)
+    u = jnp.asarray([0.2, 0.3, 0.4, 0.5, 0.6, 0.3])
+    x = p.x0.at[4:].set(u)
+    l = muscle.ANGLE_DEPENDENT.lengths(x[:2])
+    rng = np.random.default_rng(0)
+    a = np.tile(np.asarray(u), (3000, 1))
+    f_rows = jax.jit(jax.vmap(lambda ai: p.dynamics(x.at[4:].set(ai), u, u)[4:]))
+    F_rows = jax.jit(jax.vmap(lambda ai: p.noise(x.at[4:].set(ai), u, u)[4:, :6]))
+    for _ in range(700):                                           # > 10 time constants
+        xi = rng.standard_normal(a.shape)
+        a = a + p.dt * np.asarray(f_rows(a)) + math.sqrt(p.dt) * np.einsum("nij,nj->ni", np.asarray(F_rows(a)), xi)
+    force = np.asarray(jax.vmap(lambda ai: muscle.activation_force(ai, l))(jnp.asarray(a)))
+    cv = force.std(axis=0) / force.mean(axis=0)
+    stated = force_cv(u)
+    np.testing.assert_allclose(cv, stated, rtol=0.08)
+    assert SIGMA_U == 0.01 and np.all((stated > 0.04) & (stated < 0.09))
+
+
+@pytest.fixture(scope="module")
+def measured():
+    return reaches(np.vstack([EIGHT[[0, 2]], UNSEEN]), n_trials=100, seed=0)
+
+
+def _straight_and_bell_shaped(r):
+    assert r.status.startswith("CONVERGED"), r
+    assert r.peaks == 1 and 1.6 <= r.peak_to_mean <= 2.0, r
+    assert r.deviation <= 0.10, r          # the mean path
+
+
+def test_reaches_are_straight_and_bell_shaped(measured):
+    for r in measured[:2]:
+        _straight_and_bell_shaped(r)
+
+
+@pytest.mark.xfail(strict=True, reason="measured (docs/results/center_out_human.md, 300 trials): peak/mean 1.55 "
+                   "and a path deviation of 14 % at 15 cm, 112.5 deg; the preset's reaches of 10 cm meet both")
+def test_an_unseen_reach_is_straight_and_bell_shaped(measured):
+    _straight_and_bell_shaped(measured[2])
+
+
+def test_endpoints_scatter_by_millimetres(measured):
+    for r in measured:
+        assert 2e-3 <= r.sd_major <= 8e-3, r
+
+
+def test_muscles_can_respond_in_both_directions(measured):
+    """Most excitations are interior (the rest is co-activated): few sit at a bound and far fewer
+    feedback rows are zero than with Li & Todorov's effort from zero (57-64 % at a bound, 49-63 %
+    zero rows; measured now 0-8 % and 6-27 %, the rows of the last motor-delay steps, whose
+    commands act after the horizon, included)."""
+    for r in measured:
+        assert r.at_bound < 0.15 and r.zero_rows < 0.35, r
+
+
+@pytest.mark.xfail(strict=True, reason="the endpoint ellipses share the posture's orientation (about 15 deg "
+                   "from +x, the image of joint-space error), so they align with the movement only along "
+                   "that axis: docs/results/center_out_human.md")
+def test_endpoint_ellipses_lie_along_the_movement(measured):
+    assert sum(r.angle <= 30 for r in measured) >= 2
+
+
+@functools.lru_cache(maxsize=1)
+def _eight():
+    return tuple(center_out_reaches(8, 0.1, n_trials=300))
+
+
+@pytest.mark.full
+def test_the_eight_targets_full():
+    for r in _eight():
+        _straight_and_bell_shaped(r)
+        assert 2e-3 <= r.sd_major <= 8e-3, r
+
+
+@pytest.mark.full
+@pytest.mark.xfail(strict=True, reason="3 of 8 ellipses within 30 deg of the movement (docs/results/center_out_human.md)")
+def test_endpoint_ellipses_lie_along_the_movement_full():
+    assert sum(r.angle <= 30 for r in _eight()) >= 6
+
+
+@pytest.mark.full
+@pytest.mark.xfail(strict=True, reason="at 15 cm, 112.5 deg: peak/mean 1.55, deviation 14 % (docs/results/center_out_human.md)")
+def test_unseen_distances_and_directions_full():
+    for radius in (0.15, 0.06):
+        for r in center_out_reaches(8, radius, start_angle=math.pi / 8, n_trials=300):
+            _straight_and_bell_shaped(r)
+            assert 2e-3 <= r.sd_major <= 8e-3, r
