@@ -296,9 +296,9 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
     as the solves are: an SL run costs several times the solve it starts from (the README's
     center-out table gives both).
     """
-    args = (stack(plants), base.solution.policy)
+    args = (stack(plants), base.solution.policy, options)
     start = time.perf_counter()
-    compiled = _statistical_on_plants.lower(*args, options).compile()
+    compiled = _statistical_on_plants.lower(*args).compile()
     compile_seconds = time.perf_counter() - start
     start = time.perf_counter()
     sl = jax.block_until_ready(compiled(*args))
