@@ -130,7 +130,10 @@ def test_an_interrupt_while_jax_is_imported_exits_130_without_a_traceback():
     sends itself SIGINT when the import reaches ``jax``, so the signal lands inside the import."""
     import subprocess
     import sys
+    # Ctrl-C as a terminal delivers it: Python's own handler (a process started from one whose
+    # SIGINT is ignored, e.g. a test runner's worker, inherits the ignoring)
     launch = ("import builtins, os, signal, sys\n"
+              "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
               "real = builtins.__import__\n"
               "def hooked(name, *args, **kwargs):\n"
               "    if name == 'jax':\n"
