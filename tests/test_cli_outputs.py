@@ -124,6 +124,43 @@ def test_an_interrupt_exits_cleanly_with_its_code_and_writes_nothing(tmp_path, s
     assert list(tmp_path.iterdir()) == []
 
 
+def test_an_interrupt_while_jax_is_imported_exits_130_without_a_traceback():
+    """Ctrl-C in the seconds the console script spends importing the library (JAX with it), before
+    the command line handles interrupts: one line and exit code 130, no traceback. The process
+    sends itself SIGINT when the import reaches ``jax``, so the signal lands inside the import."""
+    import subprocess
+    import sys
+    # Ctrl-C as a terminal delivers it: Python's own handler (a process started from one whose
+    # SIGINT is ignored, e.g. a test runner's worker, inherits the ignoring)
+    launch = ("import builtins, os, signal, sys\n"
+              "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+              "real = builtins.__import__\n"
+              "def hooked(name, *args, **kwargs):\n"
+              "    if name == 'jax':\n"
+              "        os.kill(os.getpid(), signal.SIGINT)\n"
+              "    return real(name, *args, **kwargs)\n"
+              "builtins.__import__ = hooked\n"
+              "sys.argv = ['delayed-ilqr', 'models']\n"
+              "from delayed_ilqr_entry import main\n"
+              "main()\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(pathlib.Path(cli.__file__).parents[2]),
+                                                                     os.environ.get("PYTHONPATH")) if p))
+    done = subprocess.run([sys.executable, "-c", launch], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 130, done.stderr
+    assert "interrupted by SIGINT while starting" in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert done.stdout == ""             # the command did not run
+
+
+def test_the_console_script_is_the_entry_that_catches_that_interrupt():
+    import signal
+    import tomllib
+    import delayed_ilqr_entry
+    from delayed_ilqr.cli import interrupts
+    project = tomllib.loads((pathlib.Path(cli.__file__).parents[3] / "pyproject.toml").read_text())
+    assert project["project"]["scripts"]["delayed-ilqr"] == "delayed_ilqr_entry:main"
+    assert delayed_ilqr_entry.INTERRUPTED_EXIT == interrupts.exit_code(signal.SIGINT)
+
+
 def test_a_memory_refusal_names_the_trials_given_and_says_when_not_even_one_fits(monkeypatch):
     import importlib
     from delayed_ilqr.models import point_mass

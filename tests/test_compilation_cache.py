@@ -115,3 +115,68 @@ def test_the_default_folder_follows_the_environment(monkeypatch, tmp_path):
         assert default_cache_dir() == tmp_path / "xdg" / "delayed-ilqr" / "jax"
     else:
         pytest.skip("XDG_CACHE_HOME is the Linux convention")
+
+
+# compiles PROGRAMS small programs (each its own constant) with the cache in argv[1]; argv[2] "kill"
+# makes the process kill itself (SIGKILL) halfway through writing its first cache entry; prints the
+# counts of cache requests and hits as JSON. A cache entry that cannot be read is an error.
+_COMPILING = r"""
+import collections, json, os, signal, sys
+import jax, jax.numpy as jnp, jax.monitoring
+import delayed_ilqr
+jax.config.update("jax_raise_persistent_cache_errors", True)
+counts = collections.Counter()
+jax.monitoring.register_event_listener(lambda event, **kw: counts.update([event]))
+delayed_ilqr.enable_compilation_cache(sys.argv[1])
+if sys.argv[2] == "kill":
+    real = os.fdopen
+    class HalfThenKilled:
+        def __init__(self, *args, **kwargs):
+            self.file = real(*args, **kwargs)
+        def __enter__(self):
+            return self
+        def __exit__(self, *exc):
+            self.file.close()
+        def write(self, data):
+            self.file.write(data[:len(data) // 2])
+            self.file.flush()
+            os.kill(os.getpid(), signal.SIGKILL)
+    os.fdopen = HalfThenKilled
+for k in range(PROGRAMS):
+    jax.jit(lambda x: jnp.sin(x) * k + k).lower(1.0).compile()
+print(json.dumps(counts))
+"""
+PROGRAMS = 4
+
+
+def _compiling(cache, mode="run"):
+    code = _COMPILING.replace("PROGRAMS", str(PROGRAMS))
+    return subprocess.Popen([sys.executable, "-c", code, str(cache), mode], env=fresh_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def _counts(process) -> dict:
+    out, err = process.communicate(timeout=300)
+    assert process.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1])
+
+
+def test_processes_sharing_the_cache_folder_never_read_a_partial_entry(tmp_path):
+    """The sweep's Dask workers (or two commands) share one cache folder. A process killed halfway
+    through writing an entry leaves no entry under its name (JAX's own cache writes in place: the
+    truncated file would fail every later read, and its name would never be written again); two
+    processes writing the same entries at once leave each complete; a later process reads every one.
+    Unreadable entries are errors here (jax_raise_persistent_cache_errors)."""
+    cache = tmp_path / "cache"
+    killed = _compiling(cache, "kill")
+    killed.communicate(timeout=300)
+    assert killed.returncode == -9
+    assert not [p for p in os.listdir(cache) if p.endswith("-cache")]        # only the hidden partial file
+    both = [_compiling(cache), _compiling(cache)]
+    for counts in map(_counts, both):
+        assert counts[REQUESTS] >= PROGRAMS
+    entries = sorted(p for p in os.listdir(cache) if p.endswith("-cache"))
+    assert len(entries) >= PROGRAMS
+    later = _counts(_compiling(cache))
+    assert later[HITS] == later[REQUESTS] >= PROGRAMS
+    assert sorted(p for p in os.listdir(cache) if p.endswith("-cache")) == entries

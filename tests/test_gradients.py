@@ -99,36 +99,55 @@ def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
         assert err < 1e-8, (name, key, err)
 
 
-@pytest.mark.slow
+def _limited(free: Problem, fraction: float) -> Problem:
+    """``free`` with symmetric limits at ``fraction`` of its optimum's largest commands."""
+    top = fraction * np.max(np.abs(np.asarray(solve(free, None, TIGHT).u)), axis=0)
+    return free.replace(u_min=-top, u_max=top)
+
+
+def _held(problem: Problem) -> int:
+    """How many commands the KKT conditions hold at a limit at ``problem``'s optimum."""
+    return int(np.sum(implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)[0]))
+
+
+def test_arm_noisy_limited_delayed_matches_finite_differences():
+    """The suite's check of the three full-size ones below, in one problem: the noisy arm at 50 ms
+    with limits at 0.7 of its noise-aware optimum's largest commands (11 commands held). Forward
+    mode against re-solves in every output (sigma_u and the limits among the leaves): the
+    noise-aware fixed point, whose dF/du is not symmetric, with the held commands following the
+    limit. Reverse mode against forward mode on the arm (most of this check's compilation) is in
+    the full-size noisy check below; the suite holds it on the sensed point mass with
+    signal-dependent noise (test_solve_with_sensors_matches_finite_differences)."""
+    problem = _limited(arm2(delay=0.05, noise="benchmark"), 0.7)
+    assert _held(problem) > 5
+    check_against_fd("arm noisy limits 50 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
+
+
+# make bench (pytest -m full): the three cases one at a time; the suite keeps the combined one above
+@pytest.mark.full
 def test_arm_noisy_delayed_matches_finite_differences():
     """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
     not symmetric, so reverse mode solves the transposed system (right-preconditioned)."""
     check_against_fd("arm noisy 50 ms", arm2(delay=0.05, noise="benchmark"), None, h=6e-4, rtol=1e-5)
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_arm_limits_delayed_matches_finite_differences():
     """Commands at a limit follow the limit; the free ones solve (16.1) with those held. The
     limits are 0.7 of the unlimited optimum's largest commands, so that about 30 commands bind;
     h is small enough that no command crosses into or out of the active set."""
-    free = arm2(delay=0.05)
-    top = 0.7 * np.max(np.abs(np.asarray(solve(free, None, TIGHT).u)), axis=0)
-    problem = free.replace(u_min=-top, u_max=top)
-    fixed, _ = implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)
-    assert int(np.sum(fixed)) > 10
+    problem = _limited(arm2(delay=0.05), 0.7)
+    assert _held(problem) > 10
     check_against_fd("arm limits 50 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_arm_no_delay_noisy_limits_matches_finite_differences():
     """Delay 0 (the structured pass with no pending commands) with noise and limits at half the
     noise-aware optimum's largest commands: the held commands follow the limit, the free ones the
     noise-aware fixed point."""
-    free = arm2(delay=0.0, noise="benchmark")
-    top = 0.5 * np.max(np.abs(np.asarray(solve(free, None, TIGHT).u)), axis=0)
-    problem = free.replace(u_min=-top, u_max=top)
-    fixed, _ = implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)
-    assert int(np.sum(fixed)) > 5
+    problem = _limited(arm2(delay=0.0, noise="benchmark"), 0.5)
+    assert _held(problem) > 5
     check_against_fd("arm noisy limits 0 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
 
 

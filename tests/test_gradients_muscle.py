@@ -101,7 +101,7 @@ def test_six_muscle_arm_delayed_commands_match_finite_differences():
 
 
 # make bench (pytest -m full): the suite keeps its two parts, the noise-aware fixed point's derivative
-# against re-solves on the arm (test_gradients.py, test_arm_noisy_delayed_matches_finite_differences,
+# against re-solves on the arm (test_gradients.py, test_arm_noisy_limited_delayed_matches_finite_differences,
 # the same 1e-5) and the muscle arm's near-zero free excitations (the test above)
 @pytest.mark.full
 def test_six_muscle_arm_delayed_noisy_commands_match_finite_differences():

@@ -366,3 +366,30 @@ def test_a_tolerance_below_round_off_leaves_the_stop_to_the_gradient_test(tol_co
     default = di.solve(problem)
     assert default.converged
     np.testing.assert_allclose(sol.u, default.u, rtol=0, atol=1e-6 * float(np.max(np.abs(sol.u))))
+
+
+def test_options_that_differ_in_their_numbers_share_one_compilation():
+    """Options is a pytree: its numbers are traced arguments of the compiled solver, its structure
+    (method, max_iterations, max_alternations, the number of alphas) static. A sweep over the
+    numbers compiles once, and the numbers still act: a large reg_init takes the linear problem
+    off its one-step Newton convergence."""
+    problem = point_mass(delay=0.03)
+    newton = di.solve(problem)
+    compiled = solver_module._solve._cache_size()
+    damped = di.solve(problem, options=di.Options(reg_init=1e3, reg_factor=2.0, tol_cost=1e-9, tol_grad=1e-6,
+                                                  alphas=tuple(0.5 ** i for i in range(11)), z_min=0.1,
+                                                  limit_margin=1e-3, reg_min=1e-7, reg_max=1e12))
+    assert solver_module._solve._cache_size() == compiled
+    assert int(newton.iterations) == 2 and int(damped.iterations) > 2
+    assert float(damped.trace.reg[1]) == 1e3 and float(newton.trace.reg[1]) == 0.0
+    np.testing.assert_allclose(float(damped.cost), float(newton.cost), rtol=1e-6)
+    # a new structure compiles again
+    di.solve(problem, options=di.Options(max_iterations=7))
+    assert solver_module._solve._cache_size() == compiled + 1
+    # an Options passed into jit as an argument: one compilation for two tolerances
+    cost = jax.jit(lambda o: di.solve(problem, options=o).cost)
+    np.testing.assert_allclose([float(cost(di.Options(tol_cost=t))) for t in (1e-10, 1e-6)], float(newton.cost),
+                               rtol=1e-8)
+    assert cost._cache_size() == 1
+    # the numbers are Python floats whatever they were given as (one argument type: one compilation)
+    assert type(di.Options(tol_cost=np.float64(1e-9), reg_init=1).reg_init) is float

@@ -15,11 +15,22 @@ The folder: ``path``, else ``$DELAYED_ILQR_CACHE_DIR``, else ``jax`` in the user
 (``platformdirs.user_cache_dir("delayed-ilqr")``: ``~/.cache/delayed-ilqr/jax`` on Linux, or under
 ``$XDG_CACHE_HOME``; ``~/Library/Caches/delayed-ilqr/jax`` on macOS). The cache is trusted code:
 do not point it at a folder others can write to.
+
+Several processes may share the folder (the sweep's Dask workers, two commands at once): JAX's own
+file cache writes an entry in place, without a lock, so a process reading it meanwhile meets half
+a file (JAX warns and compiles again), and a process killed while writing leaves a truncated entry
+that every later process fails to read and, the name being taken, never replaces. Here each entry
+is written whole into a hidden temporary file of the folder and then given its name by a hard
+link (`AtomicFileCache`): a name always holds a complete entry, the first complete writer of a key
+wins, and a killed writer leaves only a hidden ``.partial`` file that JAX never reads.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import pathlib
+import tempfile
+from functools import cache
 from typing import Optional
 
 __all__ = ["enable_compilation_cache", "default_cache_dir", "CACHE_DIR_ENV", "NO_CACHE_ENV",
@@ -75,11 +86,61 @@ def enable_compilation_cache(path: Optional[os.PathLike | str] = None,
     except OSError as exc:
         raise ValueError(f"path must be a folder that can be created; cannot create {folder}: "
                          f"{exc.strerror or exc}") from None
-    if jax.config.jax_compilation_cache_dir not in (None, str(folder)):
-        cc.reset_cache()        # JAX opens its cache folder once; another folder needs a new cache
+    if jax.config.jax_compilation_cache_dir is not None:
+        cc.reset_cache()        # JAX opens its cache folder once; a new one (or ours) needs a new cache
     cc.set_cache_dir(str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_seconds))
     # every entry, however small (JAX's default 0 lets it pick a filesystem-dependent minimum)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    _install(folder)
     return folder
+
+
+@cache
+def _file_cache_class():
+    """`AtomicFileCache`, built on JAX's file cache (a class of JAX's internals, so built when the
+    cache is turned on, not when the library is imported)."""
+    from jax._src import lru_cache
+
+    class AtomicFileCache(lru_cache.LRUCache):
+        """JAX's file cache, whose entries are written whole under a temporary name and then linked
+        to their own (module docstring). Reading is JAX's. With a size limit
+        (``jax_compilation_cache_max_size``) JAX's own locked writes are kept."""
+
+        def put(self, key: str, value: bytes) -> None:
+            if self.eviction_enabled:
+                return super().put(key, value)
+            if not key:
+                raise ValueError("key cannot be empty")
+            target = self.path / f"{key}{lru_cache._CACHE_SUFFIX}"
+            if target.exists():
+                return
+            handle, staged = tempfile.mkstemp(dir=self.path, prefix=f".{key}.", suffix=".partial")
+            try:
+                with os.fdopen(handle, "wb") as file:
+                    file.write(value)
+                try:
+                    os.link(staged, target)     # fails if another process gave the name first: theirs stays
+                except FileExistsError:
+                    pass
+                except OSError:                 # a file system without hard links: renamed over, whole
+                    os.replace(staged, target)
+            finally:
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(staged)
+
+    return AtomicFileCache
+
+
+def _install(folder: pathlib.Path) -> None:
+    """Makes JAX's persistent cache of this process an `AtomicFileCache` in ``folder`` (JAX opens
+    its cache at the first compilation after ``set_cache_dir``; here it is opened now, with ours)."""
+    import jax
+    from jax._src import compilation_cache as jax_cache
+
+    if jax.config.jax_compilation_cache_check_contents:
+        return                  # JAX's verifying wrapper around its own cache: left as JAX builds it
+    with jax_cache._cache_initialized_mutex:
+        jax_cache._cache = _file_cache_class()(str(folder), max_size=jax.config.jax_compilation_cache_max_size)
+        jax_cache._cache_initialized = True
 

@@ -1,13 +1,29 @@
-"""Solver settings: [`Options`][delayed_ilqr.Options], immutable and validated when built."""
+"""Solver settings: [`Options`][delayed_ilqr.Options], immutable and validated when built.
+
+``Options`` is a JAX pytree: its numbers (tolerances, the regularisation schedule, the step sizes'
+values, ``z_min``, ``limit_margin``) are its leaves, which the compiled solver receives as traced
+arguments, and its structure (``method``, ``max_iterations``, ``max_alternations``, the number of
+step sizes) is the pytree's static part. One compilation of the solver therefore serves every
+value of the numbers; a new structure compiles it again (docs/guide/solver.md, "Options and
+compilation")."""
 from __future__ import annotations
 
 import dataclasses
 
+import jax
 import numpy as np
 
 from . import _validate
 
 __all__ = ["Options"]
+
+#: The fields that decide the compiled program: the solver's method, the length of its iteration
+#: record (max_iterations), the alternation's loop bound. The pytree's static part.
+STRUCTURE = ("method", "max_iterations", "max_alternations")
+#: The fields that are numbers inside the compiled program: the pytree's leaves (``alphas`` a
+#: tuple of them, whose length is structure).
+NUMBERS = ("tol_cost", "tol_grad", "alphas", "reg_init", "reg_min", "reg_max", "reg_factor", "z_min",
+           "limit_margin")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,9 +88,12 @@ class Options:
         margin = _validate.real(self.limit_margin, "limit_margin", "a number in [0, 0.5)")
         if not (np.isfinite(margin) and 0 <= margin < 0.5):
             raise ValueError(f"limit_margin must be a number in [0, 0.5); got {self.limit_margin!r}")
+        # each number is kept as a Python float, so that every Options gives the compiled solver
+        # arguments of one type (a NumPy float64 would be a strongly typed leaf: a second compilation)
         for name in ("tol_cost", "tol_grad", "reg_min", "reg_max"):
-            _validate.positive_float(getattr(self, name), name)
-        _validate.non_negative_float(self.reg_init, "reg_init")
+            object.__setattr__(self, name, _validate.positive_float(getattr(self, name), name))
+        object.__setattr__(self, "reg_init", _validate.non_negative_float(self.reg_init, "reg_init"))
+        object.__setattr__(self, "limit_margin", margin)
         if not self.reg_min < self.reg_max:
             raise ValueError(f"reg_min must be below reg_max; got reg_min={self.reg_min!r}, reg_max={self.reg_max!r}")
         factor = _validate.real(self.reg_factor, "reg_factor", "a finite number greater than 1")
@@ -82,13 +101,47 @@ class Options:
             raise ValueError(f"reg_factor must be greater than 1; got {self.reg_factor!r}")
         if not np.isfinite(factor):
             raise ValueError(f"reg_factor must be a finite number greater than 1; got {self.reg_factor!r}")
+        object.__setattr__(self, "reg_factor", factor)
         # actual / predicted reduction tends to 1 as alpha -> 0 on any smooth problem, so from
         # z_min = 1 on a step is accepted only where the model is wrong; below 0 a step that
         # raises the merit is accepted
         z_min = _validate.real(self.z_min, "z_min", "a number in [0, 1)")
         if not 0 <= z_min < 1:
             raise ValueError(f"z_min must be a number in [0, 1); got {self.z_min!r}")
+        object.__setattr__(self, "z_min", z_min)
         alphas = tuple(float(a) for a in np.atleast_1d(np.asarray(self.alphas, dtype=float)))
         if not alphas or not all(0 < a <= 1 for a in alphas):
             raise ValueError(f"alphas must be a non-empty sequence of step sizes in (0, 1]; got {self.alphas!r}")
         object.__setattr__(self, "alphas", alphas)
+
+
+def unchecked(**fields) -> Options:
+    """An ``Options`` built from ``fields`` (every field) without the checks, for the pytree's
+    rebuilding inside JAX transformations, where the numbers may be tracers (or JAX's
+    placeholders) that no check can read."""
+    options = object.__new__(Options)
+    for name, value in fields.items():
+        object.__setattr__(options, name, value)
+    return options
+
+
+def replaced(options: Options, **structure) -> Options:
+    """``options`` with fields of its static part (``STRUCTURE``) replaced, its numbers kept as they
+    are (traced or not): ``dataclasses.replace`` for an ``Options`` inside a transformation."""
+    if set(structure) - set(STRUCTURE):
+        raise ValueError(f"replaced changes only {STRUCTURE}; got {sorted(structure)}")
+    if "max_alternations" in structure:
+        _validate.non_negative_int(structure["max_alternations"], "max_alternations")
+    if "max_iterations" in structure:
+        _validate.positive_int(structure["max_iterations"], "max_iterations")
+    if structure.get("method", "structured") not in ("structured", "augmented"):
+        raise ValueError(f"method must be 'structured' or 'augmented'; got {structure['method']!r}")
+    return unchecked(**{**{f.name: getattr(options, f.name) for f in dataclasses.fields(Options)}, **structure})
+
+
+jax.tree_util.register_pytree_with_keys(
+    Options,
+    lambda o: (tuple((jax.tree_util.GetAttrKey(n), getattr(o, n)) for n in NUMBERS),
+               tuple(getattr(o, n) for n in STRUCTURE)),
+    lambda structure, numbers: unchecked(**dict(zip(STRUCTURE, structure)), **dict(zip(NUMBERS, numbers))),
+    flatten_func=lambda o: (tuple(getattr(o, n) for n in NUMBERS), tuple(getattr(o, n) for n in STRUCTURE)))

@@ -9,6 +9,10 @@ garbage-collector callback, which JAX registers, a weakref callback or a ``__del
 reports it to ``sys.unraisablehook``) is raised again just after, in the main thread. The process then exits with 128 + the signal's number (130
 for Ctrl-C, 143 for SIGTERM), as a shell reports a process killed by it.
 
+A Ctrl-C before these handlers exist, while the console script imports the library (JAX with it,
+seconds), is caught by the console script's own entry (``delayed_ilqr_entry``, standard library
+only), which exits 130 the same way.
+
 The real process exits with ``os._exit`` after flushing its output (`exit_now`): an
 interrupt can come while XLA still computes on its own threads (asynchronous dispatch,
 compilation), and the interpreter's teardown destroying JAX's objects under them can end in a

@@ -276,8 +276,8 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
 # module level, so that a second study with the same shapes reuses the compiled filter design
 _filter_on_plants = jax.jit(jax.vmap(designs.filter_on_plant))
 
-# statistical_feedback of every target's plant and policy (leading axis: target; options static)
-_statistical_on_plants = jax.jit(jax.vmap(statistical_feedback, in_axes=(0, 0, None)), static_argnums=2)
+# statistical_feedback of every target's plant and policy (leading axis: target)
+_statistical_on_plants = jax.jit(jax.vmap(statistical_feedback, in_axes=(0, 0, None)))
 
 
 
@@ -299,9 +299,9 @@ def _statistical(plants: list[Problem], base: Timed, options: Options):
     as the solves are: an SL run costs several times the solve it starts from (the README's
     center-out table gives both).
     """
-    args = (stack(plants), base.solution.policy)
+    args = (stack(plants), base.solution.policy, options)
     start = time.perf_counter()
-    compiled = _statistical_on_plants.lower(*args, options).compile()
+    compiled = _statistical_on_plants.lower(*args).compile()
     compile_seconds = time.perf_counter() - start
     start = time.perf_counter()
     sl = jax.block_until_ready(compiled(*args))

@@ -62,7 +62,7 @@ def timed_solve(problem: Problem, options: Optional[Options] = None, u_init=None
 
 # Module level, so that a later study with the same shapes (delay, number of problems) reuses the
 # compilation instead of tracing a new function.
-_batched_solve = jax.jit(jax.vmap(solve, in_axes=(0, None, None)), static_argnums=2)
+_batched_solve = jax.jit(jax.vmap(solve, in_axes=(0, None, None)))
 
 
 def solve_batch(problems: Sequence[Problem], options: Optional[Options] = None, u_init=None) -> Solution:

@@ -121,7 +121,7 @@ def _total(log_params, u_init, conditions, data: ReachData, mean_scale, delay_st
 
 # module level with make_problem static: fits with the same model function (e.g. from exact and
 # from sampled data, or a profile's fit again at its best delay) share one compilation
-_value_and_grad = jax.jit(jax.value_and_grad(_total, has_aux=True), static_argnames=("make_problem", "options"))
+_value_and_grad = jax.jit(jax.value_and_grad(_total, has_aux=True), static_argnames=("make_problem",))
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -235,14 +234,15 @@ def solve_from_starts(problem: Problem, options: Options | None = None, *, u_ini
 
 
 # jitted, so that the batches of a second call on a problem of the same structure reuse the
-# compilation (an eager vmap of solve compiles its batch again at every call)
-@partial(jax.jit, static_argnames=("options",))
+# compilation (an eager vmap of solve compiles its batch again at every call); the options are a
+# pytree argument, their numbers traced
+@jax.jit
 def _solve_each_start(problem: Problem, starts, options: Options) -> Solution:
     """``solve(problem, u, options)`` for each u of ``starts`` [S, K, d], under ``vmap``."""
     return jax.vmap(lambda u: solve(problem, u, options))(starts)
 
 
-@partial(jax.jit, static_argnames=("options",))
+@jax.jit
 def _solve_each_box(problem: Problem, lower, upper, u_init, options: Options) -> Solution:
     """``solve`` of ``problem`` with limits ``lower[s]``, ``upper[s]`` ([S, d]) from ``u_init``, under ``vmap``."""
     return jax.vmap(lambda a, b: solve(problem.replace(u_min=a, u_max=b), u_init, options))(lower, upper)

@@ -28,8 +28,6 @@ conditions: `fixed_commands`) are fixed there: their derivative is that of the l
 """
 from __future__ import annotations
 
-from functools import partial
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -330,15 +328,17 @@ def differentiable(plain_solve):
     """``plain_solve(problem, u_init, options) -> Solution`` made differentiable in ``problem``
     (forward and reverse mode, under ``vmap`` too): the primal is ``plain_solve`` unchanged; the
     tangent is (16.1) and the outputs' recomputation at (theta, u*). Tangents of an unconverged
-    solve (``status`` not converged) are NaN: its nominal is not a root of F."""
-    @partial(jax.custom_jvp, nondiff_argnums=(2,))
+    solve (``status`` not converged) are NaN: its nominal is not a root of F. The options are
+    an argument, not a constant of the rule: their numbers may be traced (``Options`` is a
+    pytree), and the solution is not differentiated in them (their tangents are ignored)."""
+    @jax.custom_jvp
     def run(problem, u_init, options: Options):
         return plain_solve(problem, u_init, options)
 
     @run.defjvp
-    def run_jvp(options, primals, tangents):
-        problem, u_init = primals
-        dproblem, _ = tangents
+    def run_jvp(primals, tangents):
+        problem, u_init, options = primals
+        dproblem = tangents[0]
         sol = run(problem, u_init, options)
         margin = options.limit_margin
         at_lo, at_hi = _held_sides(problem, sol.u, margin)

@@ -36,9 +36,7 @@ the exact cost of the controller on its estimate.
 """
 from __future__ import annotations
 
-import dataclasses
-
-from functools import cache, partial
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -48,7 +46,7 @@ import numpy as np
 from .. import _cpu, _delays, _precision, _validate
 from ..lqg.frame import SlotGains, from_slots
 from ..lqg.r_update import DEFER_MIN_LD
-from ..options import Options
+from ..options import Options, replaced
 from ..problem import Problem
 from ..solution import Policy, Solution, Status, Trace
 from . import implicit, regularization
@@ -366,9 +364,11 @@ def _solve_body(problem: Problem, u_init, options: Options) -> Solution:
 # (``_cpu``), so that XLA compiles each scan of a small problem as one function; from
 # l d = DEFER_MIN_LD on, where the backward pass defers the R update to large products (and the
 # augmented reference's are larger still), those run faster through YNNPACK, and this compilation
-# turns it back on (docs/performance.md#_solve_large).
-_solve = jax.jit(_solve_body, static_argnames=("options",))
-_solve_large = jax.jit(_solve_body, static_argnames=("options",), compiler_options=_cpu.LIBRARY_DOTS)
+# turns it back on (docs/performance.md#_solve_large). The options are a pytree argument: their
+# numbers are traced, their structure is static (``options.STRUCTURE``), so options that differ
+# only in their numbers share the compilation.
+_solve = jax.jit(_solve_body)
+_solve_large = jax.jit(_solve_body, compiler_options=_cpu.LIBRARY_DOTS)
 
 
 def compiled_solver(problem: Problem):
@@ -379,12 +379,9 @@ def compiled_solver(problem: Problem):
         else _solve
 
 
-@cache
-def _one_after_another(options: Options):
-    """``_solve`` with ``options`` as a function of (problem, u_init) whose ``vmap`` solves the
-    problems one after another (`one_after_another`), the faster
-    way on CPU. Elsewhere (GPU) ``solve`` keeps JAX's own batching."""
-    return one_after_another(lambda problem, u_init: _solve(problem, u_init, options))
+#: ``_solve`` whose ``vmap`` solves the problems one after another (`one_after_another`), the
+#: faster way on CPU. Elsewhere (GPU) ``solve`` keeps JAX's own batching.
+_one_after_another = one_after_another(_solve)
 
 
 def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solution:
@@ -422,9 +419,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
     if problem.observation is not None:
         # the controller is designed with the full state; the filter is added to its solution
         # (max_alternations does not change that solve: the default's compiled solver serves all)
-        full_state = dataclasses.replace(options, max_alternations=_DEFAULT_OPTIONS.max_alternations)
+        full_state = replaced(options, max_alternations=_DEFAULT_OPTIONS.max_alternations)
         return with_estimator(problem, solve(without_observation(problem), u_init, full_state), options)
-    if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init))):
+    if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init, options))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return _trimmed(problem, sol._replace(status=Status(int(sol.status))))
     return _differentiable(problem, u_init, options)
@@ -444,7 +441,7 @@ def _traced(problem: Problem, u_init, options: Options) -> Solution:
     (JAX refuses them on a nested jit, so not _solve_large), and on CPU a vmap runs the problems one
     after another."""
     if jax.default_backend() == "cpu":
-        return _one_after_another(options)(problem, u_init)
+        return _one_after_another(problem, u_init, options)
     return _solve(problem, u_init, options)
 
 
