@@ -19,6 +19,7 @@ from delayed_ilqr.experiments import tables
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS
 from delayed_ilqr.ilqg.estimation import with_estimator
 from delayed_ilqr.models import arm2, arm2_muscle6, rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 from sensory_delay_study import timed      # the median wall time after compilation, as there
 
 SEPARATION = di.Options(max_iterations=DEFAULT_OPTIONS.max_iterations, max_alternations=0)
@@ -26,10 +27,10 @@ SEPARATION = di.Options(max_iterations=DEFAULT_OPTIONS.max_iterations, max_alter
 PLANTS = [  # (name, factory, motor delay [s], sensory delay [s])
     ("arm2, P2-noisy (sigma_u 0.2)", lambda lm, ls: arm2(delay=lm, noise=True, sensory_delay=ls), 0.03, 0.05),
     ("arm2, sigma_u 0.05", lambda lm, ls: arm2(delay=lm, noise=True, sigma_u=0.05, sensory_delay=ls), 0.03, 0.05),
-    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.0, 0.0),
-    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.05, 0.05),
-    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.05, 0.1),
-    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(delay=lm, sensory_delay=ls), 0.1, 0.05),
+    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=lm), 0.0, 0.0),
+    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=lm), 0.05, 0.05),
+    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=lm), 0.05, 0.1),
+    ("arm2_muscle6", lambda lm, ls: arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=lm), 0.1, 0.05),
 ]
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr.models import arm2, arm2_muscle6
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 from delayed_ilqr.models.arm2_muscle6 import rest_commands
 
 
@@ -45,7 +46,7 @@ def main():
     cases = [("arm2", d, n, arm2(delay=d, noise=n), None) for n in (False, True) for d in (0.0, 0.05)]
     if args.muscle:
         for n in (False, True):
-            problem = arm2_muscle6(delay=0.0, noise=n)
+            problem = arm2_muscle6(**LI_TODOROV, delay=0.0, noise=n)
             cases.append(("arm2_muscle6", 0.0, n, problem, rest_commands(problem)))
     print(f"{'problem':13} {'delay':>6} {'noise':>6} {'iters':>5} {'status':>16} {'solve':>9} {'gradient':>9} "
           f"{'ratio':>6}")

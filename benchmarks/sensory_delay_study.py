@@ -26,6 +26,7 @@ from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS
 from delayed_ilqr.ilqg.estimation import with_estimator
 from delayed_ilqr.experiments.sensing_study import sensory_delay_study, study_rows
 from delayed_ilqr.models import arm2_muscle6, rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 
 
 def timed(call, repeats=5):
@@ -57,7 +58,7 @@ def main():
     print("\n# item 7: median wall time after compilation [s]")
     rows = []
     for ls in delays:
-        plant = arm2_muscle6(delay=args.delay, sensory_delay=ls)
+        plant = arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=args.delay)
         full = plant.replace(observation=None)
         u0 = rest_commands(plant)
         t_full = timed(lambda: di.solve(full, u_init=u0, options=DEFAULT_OPTIONS))

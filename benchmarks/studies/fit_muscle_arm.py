@@ -31,6 +31,7 @@ import delayed_ilqr as di
 from delayed_ilqr.experiments import fitting
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.models import arm2_muscle6
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 from delayed_ilqr.models.arm2_muscle6 import center_out_targets, rest_commands
 
 TRUTH = dict(r=1e-4, w_v=0.1, sigma_u=0.01)        # sigma_u: the model's calibrated default
@@ -54,7 +55,7 @@ MEAN_SCALE = 1e-3
 def reach(params, target, delay):
     """The six-muscle arm's reach to ``target`` with effort weight r, final velocity weight w_v
     (w_p = 1) and excitation noise sigma_u, all traceable."""
-    base = arm2_muscle6(delay=delay, noise=True)
+    base = arm2_muscle6(**LI_TODOROV, delay=delay, noise=True)
     cost = di.GeneralCost(base.cost.running_fn, base.cost.final_fn,
                           dict(base.cost.params, target=target, r=params["r"], w_v=params["w_v"]))
     return base.replace(cost=cost, noise=dataclasses.replace(base.noise, sigma_u=params["sigma_u"]))
@@ -79,7 +80,7 @@ def main():
     di.enable_compilation_cache()
     delays = [float(d) for d in args.delays.split(",")]
     targets = center_out_targets(n=8, radius=0.08)[CHOSEN]
-    u_init = rest_commands(arm2_muscle6())
+    u_init = rest_commands(arm2_muscle6(**LI_TODOROV))
     truth = {k: jnp.asarray(v) for k, v in TRUTH.items()}
     problems = [reach(truth, t, DELAY) for t in targets]
     solutions = [di.solve(p, u_init, OPTIONS) for p in problems]

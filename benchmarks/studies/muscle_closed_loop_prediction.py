@@ -16,7 +16,7 @@ import numpy as np  # noqa: E402
 
 import delayed_ilqr as di  # noqa: E402
 from delayed_ilqr.experiments.engine import solve_batch  # noqa: E402
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets  # noqa: E402
 from delayed_ilqr.prediction import closed_loop_prediction  # noqa: E402
 from delayed_ilqr.statistics import divergence_bound, diverged_trials, sample_stats  # noqa: E402
 
@@ -27,7 +27,7 @@ def main(delays, trials):
     print("| delay | target | linear / MC | second order / MC | fifth degree / MC | MC mean | MC mean / median |")
     print("|---|---|---|---|---|---|---|")
     for delay in delays:
-        problems = [arm2_muscle6(delay=delay, target=t) for t in targets]
+        problems = [arm2_muscle6(**LI_TODOROV, delay=delay, target=t) for t in targets]
         sols = solve_batch(problems)
         for j, problem in enumerate(problems):
             sol = jax.tree_util.tree_map(lambda a: a[j], sols)

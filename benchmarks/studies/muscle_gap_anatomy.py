@@ -17,11 +17,11 @@ from delayed_ilqr.experiments import designs
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.lqg import Gains, simulate_lqg
 from delayed_ilqr.models.arm2 import hand_position, hand_velocity
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets, rest_commands
 
 delay_ms, j, sigma, n, name = float(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3]), int(sys.argv[4]), sys.argv[5]
 target = tuple(center_out_targets(8, 0.1)[j - 1])
-plant = arm2_muscle6(delay=delay_ms / 1e3, target=target, noise=True, sigma_u=sigma)
+plant = arm2_muscle6(**LI_TODOROV, delay=delay_ms / 1e3, target=target, noise=True, sigma_u=sigma)
 problem, options = designs.design(plant, name, Options(max_iterations=300))
 sol = solve(problem, u_init=rest_commands(plant), options=options)
 pol = sol.policy

@@ -32,7 +32,7 @@ from delayed_ilqr import Options, simulate, solve
 from delayed_ilqr.experiments import designs
 from delayed_ilqr.ilqg.linearize import linearize
 from delayed_ilqr.lqg import Gains, policy_cost, simulate_lqg
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets, rest_commands
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets, rest_commands
 
 
 def unclipped_commands(policy, runs, l):
@@ -54,12 +54,12 @@ def unclipped_commands(policy, runs, l):
 def one(delay_ms, j, sigma, n, name, plant_sigmas=None):
     target = tuple(center_out_targets(8, 0.1)[j - 1])
     floor = float(os.environ.get("U_FLOOR", 0.0))
-    plant = arm2_muscle6(delay=delay_ms / 1e3, target=target, noise=True, sigma_u=sigma).replace(u_min=floor)
+    plant = arm2_muscle6(**LI_TODOROV, delay=delay_ms / 1e3, target=target, noise=True, sigma_u=sigma).replace(u_min=floor)
     margin = float(os.environ.get("LIMIT_MARGIN", Options().limit_margin))
     problem, options = designs.design(plant, name, Options(max_iterations=300, limit_margin=margin))
     sol = solve(problem, u_init=rest_commands(plant), options=options)
     for s in plant_sigmas or [sigma]:
-        evaluate(arm2_muscle6(delay=delay_ms / 1e3, target=target, noise=True, sigma_u=s).replace(u_min=floor), sol, j, n, name,
+        evaluate(arm2_muscle6(**LI_TODOROV, delay=delay_ms / 1e3, target=target, noise=True, sigma_u=s).replace(u_min=floor), sol, j, n, name,
                  f"{delay_ms:g}ms t{j} {name:13s} margin {margin:g} floor {floor:g} design sigma {sigma:g} plant sigma {s:g}")
 
 

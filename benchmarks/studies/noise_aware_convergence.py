@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 
 from delayed_ilqr import Status, solve  # noqa: E402
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS  # noqa: E402
-from delayed_ilqr.models.arm2_muscle6 import SIGMA_U, arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, SIGMA_U, arm2_muscle6, center_out_targets  # noqa: E402
 from delayed_ilqr.models import muscle  # noqa: E402
 from delayed_ilqr.models.arm2 import ARM2_PARAMS, SIGMA_U_HUMAN, arm2  # noqa: E402
 from delayed_ilqr.models.metadata import default_u_init  # noqa: E402
@@ -48,7 +48,7 @@ def joint_target(hand, p=ARM2_PARAMS):
 
 def problems(model, sigma, delay):
     if model == "muscle":
-        return [arm2_muscle6(delay=delay, target=tuple(t), noise=True, sigma_u=sigma) for t in TARGETS]
+        return [arm2_muscle6(**LI_TODOROV, delay=delay, target=tuple(t), noise=True, sigma_u=sigma) for t in TARGETS]
     return [arm2(delay=delay, noise=True, sigma_u=sigma, x0=X0_ARM2, x_target=joint_target(t)) for t in TARGETS]
 
 

@@ -40,7 +40,7 @@ from delayed_ilqr.lqg import Gains  # noqa: E402
 from delayed_ilqr.models import arm2  # noqa: E402
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS  # noqa: E402
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN  # noqa: E402
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets  # noqa: E402
 
 
 def case(name: str, delay: float):
@@ -49,7 +49,7 @@ def case(name: str, delay: float):
         problem = arm2(delay=delay, noise=True, sigma_u=SIGMA_U_HUMAN)
         return problem, di.solve(problem)
     target = center_out_targets(8, 0.1)[int(name.split(":")[1]) - 1]
-    problem = arm2_muscle6(delay=delay, target=tuple(target))
+    problem = arm2_muscle6(**LI_TODOROV, delay=delay, target=tuple(target))
     return problem, di.solve(problem, options=DEFAULT_OPTIONS)
 
 

@@ -38,7 +38,7 @@ from delayed_ilqr.experiments import designs  # noqa: E402
 from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS, reach_shape  # noqa: E402
 from delayed_ilqr.experiments.engine import timed_batched_solve  # noqa: E402
 from delayed_ilqr.models.arm2 import hand_velocity  # noqa: E402
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets  # noqa: E402
 
 
 def main():
@@ -54,7 +54,7 @@ def main():
     args = parser.parse_args()
 
     targets = center_out_targets(8, 0.1)
-    plants = [arm2_muscle6(delay=args.delay, target=tuple(t), noise=True, sigma_u=args.sigma_u,
+    plants = [arm2_muscle6(**LI_TODOROV, delay=args.delay, target=tuple(t), noise=True, sigma_u=args.sigma_u,
                            final_time=args.final_time, r=args.r) for t in targets]
     problems = [designs.design(p, args.design, DEFAULT_OPTIONS)[0] for p in plants]
     if args.force == "linear":

@@ -47,7 +47,7 @@ from delayed_ilqr.experiments.center_out import DEFAULT_OPTIONS  # noqa: E402
 from delayed_ilqr.experiments.engine import solve_batch, take  # noqa: E402
 from delayed_ilqr.models import arm2  # noqa: E402
 from delayed_ilqr.models.arm2 import SIGMA_U_HUMAN  # noqa: E402
-from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, center_out_targets  # noqa: E402
+from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV, arm2_muscle6, center_out_targets  # noqa: E402
 from delayed_ilqr.statistical import statistical_feedback  # noqa: E402
 from delayed_ilqr.statistics import divergence_bound, diverged_trials, sample_stats  # noqa: E402
 
@@ -60,7 +60,7 @@ def designs_of(model: str, delay_ms: float, targets):
         det_problem, options = designs.design(plant, "deterministic", Options())
         return [("-", plant, di.solve(det_problem).policy, di.solve(plant).policy, options)]
     points = center_out_targets(8, 0.1)
-    plants = [arm2_muscle6(delay=delay, target=tuple(points[j - 1])) for j in targets]
+    plants = [arm2_muscle6(**LI_TODOROV, delay=delay, target=tuple(points[j - 1])) for j in targets]
     policies = {}
     for name in ("deterministic", "noise-aware"):
         problems = [designs.design(p, name, DEFAULT_OPTIONS)[0] for p in plants]
