@@ -5,7 +5,6 @@ as a table of published against measured numbers and, with ``--out``, written at
 ``<name>.png`` with its ``manifest.json``."""
 from __future__ import annotations
 
-import math
 import time
 
 import click
@@ -13,6 +12,7 @@ import numpy as np
 
 from .._files import write_text
 from ..experiments import fitts, kick, minimal_intervention, reach_tasks, report, tables, target_jump
+from ..experiments.records import problem_record
 from ..statistics import divergence_bound, diverged_trials, prediction_warning, sample_stats
 from .arguments import SEED, DelayList
 from .output import Output, out_option
@@ -32,22 +32,6 @@ def _check(arm, **kwargs):
         raise click.BadParameter(str(exc), param_hint="'--delay' / '--sensory-delay'") from None
 
 
-def _json(value):
-    if hasattr(value, "to_dict"):              # SampleStats (a NamedTuple: before the tuples)
-        return _json(value.to_dict())
-    if isinstance(value, dict):
-        return {k: _json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _json(value.tolist())
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    return value
-
-
 def _finish(name: str, title: str, rows: list, warned: list, records: dict, figure, out, overwrite_output,
             settings: dict, elapsed: float, statuses=()):
     """Prints the table and the warnings (and one line per solve that did not converge); with --out
@@ -64,7 +48,7 @@ def _finish(name: str, title: str, rows: list, warned: list, records: dict, figu
         return
     staging = overwrite_output.staging
     settings = dict(settings, elapsed_seconds=elapsed)
-    report.write_json(staging / f"{name}.json", _json(dict(settings=settings, warnings=warned,
+    report.write_json(staging / f"{name}.json", report.json_ready(dict(settings=settings, warnings=warned,
                                                             descriptions=report.DESCRIPTIONS, **records)))
     report.save_figures({f"{name}.png": figure}, staging)
     md = [f"# {title}", "", tables.markdown_table(table), ""]
@@ -117,7 +101,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
                        predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_kick
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
-                        trials=trials, seed=seed)
+                        trials=trials, seed=seed, problem=problem_record(r.problem))
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
                 elapsed, [r.solution.status])
 
@@ -148,7 +132,7 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
                        analyses=[a._asdict() for a in r.analyses], predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_target_jump
         settings = dict(arm=arm, delay=delay, jump=jump, times=list(times), final_time=final_time, trials=trials,
-                        seed=seed)
+                        seed=seed, problem=problem_record(r.problem))
         warned = _cost_warnings("target jump, trials without a jump", r.base_cost, r.solution.expected_cost, r.problem)
         _finish("target_jump", "Target jumps", target_jump.comparison(r), warned, records, plot_target_jump(r), out,
                 output, settings, elapsed, [r.solution.status])
@@ -225,7 +209,8 @@ def minimal_intervention_command(arm, delay, sensory_delay, trials, seed, out, o
                        targets=[dict(name=s.name, irrelevant_sd=s.irrelevant, relevant_sd=s.relevant, ratio=s.ratio,
                                      ellipse=s.ellipse._asdict(), status=s.status) for s in scatters])
         from ..plot.gallery import plot_minimal_intervention
-        settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed)
+        settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed,
+                        problems={s.name: problem_record(s.problem) for s in scatters})
         warned = [w for sc in scatters
                   for w in _cost_warnings(f"{sc.name} target", sc.mc_cost, sc.predicted_cost, sc.problem)]
         _finish("minimal_intervention", "Minimal intervention", minimal_intervention.comparison(scatters), warned,
