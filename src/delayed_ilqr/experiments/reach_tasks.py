@@ -31,9 +31,10 @@ from ..models.arm2_muscle6 import Q0, ReachFinalCost, ReachRunningCost, arm2_mus
 from ..models.metadata import CostParameter, ModelMetadata
 from ..problem import GeneralCost
 
-__all__ = ["ARMS", "ARM2_WEIGHTS", "MODEL_DEFAULT", "reach", "loop_latency", "reach_targets", "bar_target", "hold_from", "with_target_state",
-           "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics", "TargetStateNoise",
-           "TargetStateCost", "TARGET_SENSOR_DENSITY", "TARGET_MOTION_DENSITY", "movement_direction", "solver_options"]
+__all__ = ["ARMS", "ARM2_WEIGHTS", "MODEL_DEFAULT", "reach", "loop_latency", "reach_targets", "bar_target",
+           "hold_from", "with_target_state", "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics",
+           "TargetStateNoise", "TargetStateCost", "TARGET_SENSOR_DENSITY", "TARGET_MOTION_DENSITY",
+           "movement_direction", "solver_options"]
 
 #: The arms the gallery runs: the six-muscle arm (its defaults) and the torque-driven arm.
 ARMS = ("arm2_muscle6", "arm2")
