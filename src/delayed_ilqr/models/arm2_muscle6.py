@@ -79,7 +79,7 @@ single-peaked.
 from __future__ import annotations
 
 import dataclasses
-
+import functools
 import math
 from dataclasses import dataclass
 
@@ -91,22 +91,26 @@ from ..problem import GeneralCost, Problem
 from . import _common
 from . import muscle as _muscle
 from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
-                   hand_velocity, joint_acceleration)
+                   hand_velocity, joint_acceleration, mass_matrix_inverse)
 from .metadata import CostParameter, ModelMetadata
 from .sensors import joint_sensors
 
-__all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "default_x0", "Arm2Muscle6Dynamics",
-           "Arm2Muscle6Noise",
-           "ReachRunningCost", "ReachFinalCost", "FINAL_TIME", "SIGMA_U", "A_REST", "Q0", "TARGET",
+__all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "rest_activations", "default_x0",
+           "Arm2Muscle6Dynamics", "Arm2Muscle6Noise", "ReachRunningCost", "ReachFinalCost", "FINAL_TIME",
+           "SIGMA_U", "SIGMA_TAU", "COACTIVATION", "MOTOR_DELAY", "SENSORY_DELAY", "PRESET", "Q0", "TARGET",
            "GEOMETRIES"]
 
 FINAL_TIME = 0.5  # s
-SIGMA_U = 0.01  # excitation noise calibrated to human force variability (module docstring)
+SIGMA_U = 0.01  # signal-dependent excitation noise (module docstring)
+SIGMA_TAU = 0.004  # N m s^1/2, signal-independent joint-torque noise (module docstring)
 NOISE_PRESETS = {"human": SIGMA_U}  # noise=True is "human"; another sigma_u is "custom"
-A_REST = 0.05
+COACTIVATION = 0.15  # tonic co-activation of the rest posture (module docstring)
+MOTOR_DELAY = 0.02  # s, efferent + electromechanical delay of the human preset
+SENSORY_DELAY = 0.04  # s, proprioceptive (afferent) delay of the human preset
+PRESET = "preset"  # the default of ``delay`` and ``sensory_delay``: the human preset's values
 Q0 = (math.pi / 4, math.pi / 2)  # rad, Li 2006 thesis start posture
 TARGET = (0.05, 0.5)  # m, Li 2006 thesis hand target
-R_EFFORT, W_POS, W_VEL, W_ACT = 1e-4, 1.0, 0.1, 0.0
+R_EFFORT, R_FORCE, W_POS, W_VEL, W_ACT = 1e-4, 1e-2, 1.0, 0.1, 0.0
 
 GEOMETRIES = {"angle_dependent": _muscle.ANGLE_DEPENDENT, "constant": _muscle.CONSTANT}
 
@@ -131,29 +135,46 @@ class Arm2Muscle6Dynamics:
 
 @dataclass(frozen=True)
 class Arm2Muscle6Noise:
-    """F(x, u, ud) [10, 6]: F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i), noise proportional to the excitation."""
+    """F(x, u, ud) [10, 8]: columns 0-5 signal-dependent excitation noise, F[4 + i, i] =
+    sigma_u ud_i / t(ud_i, a_i); columns 6-7 signal-independent joint-torque noise,
+    F[2:4, 6:8] = sigma_tau M(q)^{-1}."""
 
     sigma_u: float = SIGMA_U
+    sigma_tau: float = SIGMA_TAU
     t_act: float = _muscle.T_ACT
     t_deact: float = _muscle.T_DEACT
+    arm: Arm2Params = ARM2_PARAMS
 
     def __call__(self, x, u, ud):
-        a = x[4:]
+        q, a = x[:2], x[4:]
         gain = self.sigma_u * ud / _muscle.activation_time_constant(ud, a, self.t_act, self.t_deact)
-        return jnp.concatenate([jnp.zeros((4, 6), gain.dtype), jnp.diag(gain)], axis=0)
+        torque = self.sigma_tau * mass_matrix_inverse(q, self.arm)
+        zeros = jnp.zeros((2, 6), gain.dtype)
+        excitation = jnp.concatenate([zeros, zeros, jnp.diag(gain)], axis=0)
+        additive = jnp.concatenate([jnp.zeros((2, 2), gain.dtype), torque, jnp.zeros((6, 2), gain.dtype)], axis=0)
+        return jnp.concatenate([excitation, additive], axis=1)
 
 
-# sigma_u is data (a pytree leaf): derivatives with respect to the noise scale, and problems that
-# differ only in it share one compiled solver
-jax.tree_util.register_dataclass(Arm2Muscle6Noise, data_fields=["sigma_u"], meta_fields=["t_act", "t_deact"])
+# the noise scales are data (pytree leaves): derivatives with respect to them, and problems that
+# differ only in them share one compiled solver
+jax.tree_util.register_dataclass(Arm2Muscle6Noise, data_fields=["sigma_u", "sigma_tau"],
+                                 meta_fields=["t_act", "t_deact", "arm"])
 
 
 @dataclass(frozen=True)
 class ReachRunningCost:
-    """running(x, u, params) = r |u|^2 (per unit time)."""
+    """running(x, u, params) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A(u_rest, l(q))|^2 (per unit time):
+    the excitations' and the muscles' active forces' (fractions of the maximal force) departures
+    from the tonic rest."""
+
+    geometry: object = _muscle.ANGLE_DEPENDENT
 
     def __call__(self, x, u, params):
-        return params["r"] * (u @ u)
+        q, a, rest = x[:2], x[4:], params["u_rest"]
+        l = self.geometry.lengths(q)
+        du = u - rest
+        df = _muscle.activation_force(a, l) - _muscle.activation_force(rest, l)
+        return params["r"] * (du @ du) + params["r_f"] * (df @ df)
 
 
 @dataclass(frozen=True)
@@ -189,15 +210,32 @@ def _geometry(geometry):
                     f"got {type(geometry).__name__}")
 
 
-def default_x0(q0=Q0, a0=A_REST) -> tuple:
-    """[q1, q2, 0, 0, a0 x 6]."""
+@functools.lru_cache(maxsize=64)
+def _rest(q0: tuple, level: float, geometry, f_max: tuple) -> tuple:
+    return tuple(float(v) for v in _muscle.rest_activations(q0, level, geometry, f_max))
+
+
+def rest_activations(q0=Q0, coactivation=COACTIVATION, geometry="angle_dependent") -> tuple:
+    """[6] the activations of the static equilibrium at posture ``q0`` nearest to the tonic
+    ``coactivation`` level (`delayed_ilqr.models.muscle.rest_activations`; cached)."""
     q0 = _common.vector(q0, "q0", 2)
-    return q0 + (0.0, 0.0) + (float(a0),) * 6
+    return _rest(q0, float(coactivation), _geometry(geometry), _muscle.F_MAX)
 
 
-def rest_commands(problem: Problem, level=A_REST):
-    """A [K, 6] warm start holding every excitation at ``level`` (the activation's equilibrium)."""
-    return jnp.full((problem.horizon, problem.n_controls), float(level))
+def default_x0(q0=Q0, a0=None) -> tuple:
+    """[q1, q2, 0, 0, a0 (6)]; a0 defaults to the rest equilibrium at q0 (`rest_activations`), a
+    scalar gives every muscle that activation."""
+    q0 = _common.vector(q0, "q0", 2)
+    a0 = rest_activations(q0) if a0 is None else a0
+    a0 = (float(a0),) * 6 if np.ndim(a0) == 0 else _common.vector(a0, "a0", 6)
+    return q0 + (0.0, 0.0) + a0
+
+
+def rest_commands(problem: Problem, level=None):
+    """A [K, 6] warm start holding the excitations at the problem's rest (``cost.params["u_rest"]``,
+    where the activations of the rest posture are in equilibrium), or at a scalar ``level``."""
+    rest = problem.cost.params["u_rest"] if level is None else jnp.full(problem.n_controls, float(level))
+    return jnp.broadcast_to(jnp.asarray(rest, jnp.float64), (problem.horizon, problem.n_controls))
 
 
 METADATA = _metadata(ARM2_PARAMS)
@@ -218,58 +256,73 @@ def center_out_targets(n=8, radius=0.1, q0=Q0, arm: Arm2Params = ARM2_PARAMS, st
     return centre + radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
 
 
-def arm2_muscle6(delay=0.0, target=TARGET, noise=True, dt=0.01, horizon=None, final_time=FINAL_TIME,
-                 geometry="angle_dependent", x0=None, sigma_u=SIGMA_U, r=R_EFFORT, w_p=W_POS, w_v=W_VEL,
-                 w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS, t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT,
-                 sensory_delay=None) -> Problem:
-    """Energy-optimal reaching with the six-muscle arm and delayed excitations (Li & Todorov 2004).
+def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None, final_time=FINAL_TIME,
+                 geometry="angle_dependent", x0=None, sigma_u=SIGMA_U, sigma_tau=SIGMA_TAU, r=R_EFFORT,
+                 r_f=R_FORCE, w_p=W_POS, w_v=W_VEL, w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS,
+                 t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT, sensory_delay=PRESET,
+                 coactivation=COACTIVATION) -> Problem:
+    """Reaching with the six-muscle arm, delayed excitations and (by default) the human preset.
 
     Args:
-        delay: input delay tau in seconds (a whole number of steps of ``dt``): the excitation sent at
-            t reaches the muscles' activation dynamics at t + tau.
+        delay: motor (input) delay tau in seconds (a whole number of steps of ``dt``): the
+            excitation sent at t reaches the muscles' activation dynamics at t + tau. Default
+            (`PRESET`): `MOTOR_DELAY` (20 ms) with noise, 0 without.
         target: [2] hand target in metres (shoulder at the origin); see [`center_out_targets`][delayed_ilqr.models.center_out_targets].
-        noise: add signal-dependent excitation noise (F [10, 6], see the module docstring): True
-            or ``"human"`` (its one preset, at ``sigma_u``), or False.
+        noise: True or ``"human"`` (the human preset: excitation and joint-torque noise, see the
+            module docstring) or False (the deterministic arm).
         dt: time step in seconds.
         horizon: K; default ``round(final_time / dt)``.
         final_time: movement time in seconds when ``horizon`` is None.
         geometry: "angle_dependent" (variant B, default), "constant" (variant A) or a geometry object
             from `delayed_ilqr.models.muscle`.
-        x0: [10] initial state; default q = (pi/4, pi/2), dq = 0, a = A_REST (0.05) for all muscles.
-        sigma_u: excitation noise, a diffusion scale (used when ``noise``); default 0.01, calibrated
-            to human force variability (module docstring).
-        r: effort weight per unit time (the cost weights are stored in ``cost.params``).
+        x0: [10] initial state; default q = Q0, dq = 0 and the rest activations (the static
+            equilibrium at Q0 nearest to ``coactivation``, `rest_activations`).
+        sigma_u: signal-dependent excitation noise, a diffusion scale (used when ``noise``).
+        sigma_tau: signal-independent joint-torque noise in N m s^1/2 (used when ``noise``).
+        r: excitation effort weight per unit time (the cost weights are stored in ``cost.params``).
+        r_f: active-force effort weight per unit time.
         w_p: final hand position weight.
         w_v: final hand velocity weight.
         w_a: final activation weight.
         arm: rigid-body parameters ([`Arm2Params`][delayed_ilqr.models.Arm2Params]).
         t_act: activation time constant in seconds.
         t_deact: deactivation time constant in seconds.
-        sensory_delay: None (default): the controller sees the state. A delay in seconds (a
-            whole number of steps of ``dt``, 0 allowed): proprioception, joint angles and
-            velocities seen that late through additive noise (`sensors.joint_sensors`);
-            the activations are not sensed.
+        sensory_delay: None: the controller sees the state. A delay in seconds (a whole number of
+            steps of ``dt``, 0 allowed): proprioception, joint angles and velocities seen that late
+            through additive noise (`sensors.joint_sensors`); the activations are not sensed.
+            Default (`PRESET`): `SENSORY_DELAY` (40 ms) with noise, None without.
+        coactivation: the tonic co-activation level of the rest posture (the rest excitations
+            ``cost.params["u_rest"]`` are the equilibrium activations nearest to it).
 
     Returns:
         A [`Problem`][delayed_ilqr.Problem] named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
-        with ``u_init=rest_commands(problem)`` (see the module docstring on A_REST), the warm start
-        its metadata names; the metadata's task space is the hand position (target: ``target``).
+        with ``u_init=rest_commands(problem)``, the warm start its metadata names; the metadata's
+        task space is the hand position (target: ``target``).
     """
     final_time = _common.positive(final_time, "final_time")
-    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
     preset, sigma_u = _common.noise_setting(noise, sigma_u, NOISE_PRESETS, "human", "arm2_muscle6")
+    if isinstance(delay, str) and delay == PRESET:
+        delay = 0.0 if preset is None else MOTOR_DELAY
+    if isinstance(sensory_delay, str) and sensory_delay == PRESET:
+        sensory_delay = None if preset is None else SENSORY_DELAY
+    dt, delay_steps, horizon = _common.time_grid(dt, delay, horizon, final_time)
     geometry = _geometry(geometry)
     arm = _check_params(arm)
-    x0 = default_x0() if x0 is None else _common.vector(x0, "x0", 10)
+    coactivation = _common.positive(coactivation, "coactivation")
+    x0 = None if x0 is None else _common.vector(x0, "x0", 10)
+    u_rest = _rest(Q0 if x0 is None else x0[:2], coactivation, geometry, _muscle.F_MAX)
+    x0 = Q0 + (0.0, 0.0) + u_rest if x0 is None else x0
     if any(v < 0 or v > 1 for v in x0[4:]):
         raise ValueError(f"x0's activations x0[4:] must lie in [0, 1]; got {x0[4:]}")
     target = _common.vector(target, "target", 2)
     t_act, t_deact = _common.positive(t_act, "t_act"), _common.positive(t_deact, "t_deact")
-    params = {"target": jnp.asarray(target), "r": _common.positive(r, "r"), "w_p": _common.non_negative(w_p, "w_p"),
+    sigma_tau = _common.non_negative(sigma_tau, "sigma_tau")
+    params = {"target": jnp.asarray(target), "u_rest": jnp.asarray(u_rest), "r": _common.positive(r, "r"),
+              "r_f": _common.non_negative(r_f, "r_f"), "w_p": _common.non_negative(w_p, "w_p"),
               "w_v": _common.non_negative(w_v, "w_v"), "w_a": _common.non_negative(w_a, "w_a")}
-    cost = GeneralCost(ReachRunningCost(), ReachFinalCost(arm), params)
+    cost = GeneralCost(ReachRunningCost(geometry), ReachFinalCost(arm), params)
     dynamics = Arm2Muscle6Dynamics(arm, geometry, _muscle.F_MAX, t_act, t_deact)
-    noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, t_act, t_deact)
+    noise_fn = None if preset is None else Arm2Muscle6Noise(sigma_u, sigma_tau, t_act, t_deact, arm)
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
                    metadata=dataclasses.replace(METADATA if arm == ARM2_PARAMS else _metadata(arm), noise=preset),

@@ -78,13 +78,15 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from scipy.optimize import minimize
 
 from .._kernels.dense import small_matvec
 
 __all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "SWITCH_WIDTH", "A_EPS", "L_MIN", "L_MAX_NF",
            "activation_time_constant", "activation_rate", "n_f", "force_length", "force_velocity",
            "passive_force", "activation_force", "tension", "AngleDependentGeometry", "ConstantGeometry",
-           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques"]
+           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques", "rest_activations"]
 
 MUSCLES = ("brachialis", "lateral triceps", "anterior deltoid", "posterior deltoid", "biceps", "long triceps")
 
@@ -298,3 +300,42 @@ def joint_torques(q, dq, a, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
     T = tension(a, geometry.lengths(q), geometry.velocities(q, dq))
     force = jnp.asarray(f_max) * T
     return small_matvec(geometry.moment_arms(q), force)
+
+
+# ------------------------------------------------------------------------------------------------
+# posture
+# ------------------------------------------------------------------------------------------------
+def rest_activations(q, level, geometry=ANGLE_DEPENDENT, f_max=F_MAX, tol=1e-12):
+    """The activations a [6] nearest to the co-activation ``level`` whose net joint torque at
+    posture q [2] (at rest, dq = 0) is zero: min |a - level|^2 subject to tau(q, 0, a) = 0 and
+    0 <= a <= 1, solved by SciPy's SLSQP with the exact JAX derivatives.
+
+    Held with the excitations u = a (the activation's own equilibrium), the arm stays at q: a
+    static equilibrium with every muscle active, so each can both raise and lower its force.
+
+    Raises:
+        ValueError: ``level`` outside (0, 1), or no equilibrium found (the residual torque is
+            named).
+    """
+    level = float(level)
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"level (the co-activation) must lie in (0, 1); got {level!r}")
+    q = jnp.asarray(q, dtype=jnp.float64)
+    torque = jax.jit(lambda a: joint_torques(q, jnp.zeros(2, q.dtype), a, geometry, f_max))
+    jac = jax.jit(jax.jacfwd(torque))
+    # scaled: the constraint in N m is O(1), the objective O(0.01); SLSQP's tolerance is on both
+    result = minimize(lambda a: float(np.sum((a - level) ** 2)), np.full(6, level),
+                      jac=lambda a: 2.0 * (a - level), method="SLSQP", bounds=[(1e-3, 1.0)] * 6,
+                      constraints={"type": "eq", "fun": lambda a: np.asarray(torque(jnp.asarray(a))),
+                                   "jac": lambda a: np.asarray(jac(jnp.asarray(a)))},
+                      options={"ftol": 1e-15, "maxiter": 200})
+    a = jnp.asarray(result.x)
+    # polish: Newton steps on the torque along the least-norm direction (SLSQP stops near 1e-9 N m)
+    for _ in range(3):
+        J = jac(a)
+        a = a - J.T @ jnp.linalg.solve(J @ J.T, torque(a))
+    residual = float(jnp.max(jnp.abs(torque(a))))
+    if not result.success and residual > 1e-6 or residual > tol or np.any(np.asarray(a) <= 0):
+        raise ValueError(f"no static equilibrium near the co-activation level {level} at q = {np.asarray(q)}: "
+                         f"residual torque {residual:.3g} N m ({result.message})")
+    return a
