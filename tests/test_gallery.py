@@ -90,57 +90,82 @@ def test_minimal_intervention_ratio_of_a_known_scatter():
     assert abs(s.ellipse.angle) < 0.05
 
 
-# -- end to end, small, on the torque-driven arm -------------------------------------------------
+# -- the findings, on the six-muscle arm with its defaults --------------------------------------
+# Each experiment runs once per module (module-scoped fixtures) at a size that resolves its
+# assertion; the full-size runs are the `full` tests at the end (make bench) and the docs' commands.
+# A finding the defaults do not reproduce yet is marked xfail(strict=True) with what was measured:
+# its published range stays, and the mark must go when the defaults reproduce it.
 
-def test_kick_never_responds_before_the_loop_latency_and_ends_finite():
+ARM = "arm2_muscle6"
+SEED = 0
+
+
+@pytest.fixture(scope="module")
+def kick_result():
     from delayed_ilqr.experiments.kick import kick_experiment
-    r = kick_experiment("arm2", delay=0.03, sensory_delay=0.02, kick=0.15, trials=8, final_time=0.4)
-    a = r.analysis
-    assert r.solution.converged
-    assert a.loop_latency == pytest.approx(0.05)
-    # causality: the first command that can see x_{kp+1} is issued l_s steps later and acts l_m later
-    assert a.first_change is not None and a.first_change >= a.loop_latency - 1e-12
-    assert a.first_change == pytest.approx(a.loop_latency)          # and with common noise it does respond then
-    assert a.onset >= a.first_change
-    assert np.all(np.isfinite(r.kicked.errors)) and a.peak_displacement > 0.005
-    # before the kick acts the runs are identical
-    kp = r.pulse_step
-    np.testing.assert_array_equal(np.asarray(r.kicked.runs.x)[:, :kp + 1], np.asarray(r.base.runs.x)[:, :kp + 1])
-    from delayed_ilqr.plot.gallery import plot_kick
-    fig = plot_kick(r)
-    line = next(l for l in fig.axes[1].lines if l.get_label().startswith("model"))
-    t, resp = line.get_data()
-    assert np.all(resp[t < 1e3 * a.loop_latency - 1e-9] == 0)         # the figure shows the causal bound too
+    return kick_experiment(ARM, trials=40, seed=SEED)
 
 
-def test_target_jump_correction_waits_for_the_delay_and_an_early_jump_reaches_the_new_target():
+@pytest.fixture(scope="module")
+def jump_result():
     from delayed_ilqr.experiments.target_jump import target_jump_experiment
-    r = target_jump_experiment("arm2", delay=0.05, jump=0.02, times_before_end=(0.04, 0.3), trials=5,
-                               final_time=0.5)
-    late, early = r.analyses
-    assert r.solution.converged
-    # a jump 40 ms before the end, with a 50 ms loop: no command that sees it acts before the end
-    assert late.first_change is None or late.first_change >= late.loop_latency
-    assert late.corrected < 0.05
-    assert early.first_change == pytest.approx(early.loop_latency)
-    assert early.error_new.median < 0.01 and early.corrected > 0.8
+    return target_jump_experiment(ARM, times_before_end=(0.1, 0.2, 0.3), trials=30, seed=SEED)
 
 
-def test_minimal_intervention_and_fitts_run_end_to_end():
-    from delayed_ilqr.experiments.fitts import fitts_experiment
+@pytest.fixture(scope="module")
+def scatter_result():
     from delayed_ilqr.experiments.minimal_intervention import minimal_intervention_experiment
-    point, bar = minimal_intervention_experiment("arm2", delay=0.03, sensory_delay=None, trials=30, final_time=0.4)
-    assert point.status.startswith("CONVERGED") and bar.status.startswith("CONVERGED")
-    assert np.isfinite(point.ratio) and np.isfinite(bar.ratio)
-    (r,) = fitts_experiment("arm2", distances=(0.04, 0.16), widths=(0.002, 0.02), movement_times=(0.2, 0.3, 0.4),
-                            delays=(0.03,), sensory_delay=0.02, hold=0.05, trials=20)
-    assert r.sd.shape == (2, 3) and np.all(np.isfinite(r.sd))
-    # the 4x longer reach needs more force: more signal-dependent noise (about 2x the SD, measured at
-    # 60 trials; 20 trials estimate an SD within about 16 %)
-    assert r.sd[1].mean() > 1.3 * r.sd[0].mean()
-    # a wider target is never slower to meet
-    met = np.isfinite(r.mt[:, 0])
-    assert np.all(r.mt[met, 1] <= r.mt[met, 0])
+    return minimal_intervention_experiment(ARM, trials=150, seed=SEED)
+
+
+def test_kick_response_starts_at_the_loop_latency_measured_from_the_commands(kick_result):
+    from delayed_ilqr.experiments.reach_tasks import loop_latency
+    a = kick_result.analysis
+    assert kick_result.solution.converged
+    assert a.loop_latency == pytest.approx(loop_latency(kick_result.problem)) and a.loop_latency > 0
+    # causality, then the measurement: the first applied command that differs (any trial, common noise)
+    assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
+    assert a.onset >= a.first_change
+    kp = kick_result.pulse_step
+    np.testing.assert_array_equal(np.asarray(kick_result.kicked.runs.x)[:, :kp + 1],
+                                  np.asarray(kick_result.base.runs.x)[:, :kp + 1])
+    from delayed_ilqr.plot.gallery import plot_kick
+    line = next(l for l in plot_kick(kick_result).axes[1].lines if l.get_label().startswith("model"))
+    t, resp = line.get_data()
+    assert np.all(resp[t < 1e3 * a.loop_latency - 1e-9] == 0)
+
+
+KICK_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "not reproduced with the six-muscle arm's defaults: median final error 27 mm kicked against 3.1 mm "
+    "unperturbed (8.6x; Nashed et al. 2012: within about 2x) at 100 trials; docs/gallery/kick.md"))
+
+
+@KICK_NOT_YET
+def test_kicked_hand_ends_within_twice_the_unperturbed_error(kick_result):
+    a = kick_result.analysis
+    assert a.peak_displacement > 0.005                          # the kick moved the hand
+    assert a.error_ratio <= 2.0, (a.error_kicked.median, a.error_base.median)
+
+
+def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
+    assert jump_result.solution.converged
+    for a in jump_result.analyses:
+        assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
+
+
+def test_early_target_jumps_are_reached_and_late_ones_corrected_harder(jump_result):
+    late, mid, early = jump_result.analyses                   # 100, 200, 300 ms before the end
+    assert mid.error_new.median < 0.01 and early.error_new.median < 0.01
+    # Liu & Todorov 2007: the later the jump, the more vigorous (and less complete) the correction
+    assert late.peak_speed > mid.peak_speed > early.peak_speed
+    assert late.corrected < mid.corrected
+
+
+def test_bar_target_scatters_along_the_bar(scatter_result):
+    point, bar = scatter_result
+    assert bar.status.startswith("CONVERGED")
+    assert bar.ratio >= 1.5, (bar.irrelevant, bar.relevant)     # Todorov & Jordan 2002; Knill et al. 2011
+    assert bar.ratio > point.ratio
 
 
 def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path):
@@ -150,15 +175,58 @@ def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path)
 
     from delayed_ilqr import cli
     out = tmp_path / "jump"
-    result = CliRunner().invoke(cli.main, ["--no-cache", "target-jump", "--delay", "0.05", "--times", "0.04,0.3",
-                                           "--final-time", "0.5", "--trials", "3", "--out", str(out)],
-                                catch_exceptions=False)
+    result = CliRunner().invoke(cli.main, ["--no-cache", "target-jump", "--arm", "arm2", "--delay", "0.05",
+                                           "--sensory-delay", "none", "--times", "0.04,0.3", "--final-time", "0.5",
+                                           "--trials", "3", "--out", str(out)], catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "Liu & Todorov 2007" in result.output
     manifest = json.loads((out / "manifest.json").read_text())
     assert set(manifest["files"]) == {"target_jump.json", "target_jump.md", "target_jump.png"}
+    assert manifest["settings"]["problem"]["delay_steps"] == 5
+    assert manifest["settings"]["problem"]["n_states"] == 6          # the arm and the target
     data = json.loads((out / "target_jump.json").read_text())
     late, early = data["analyses"]
     assert early["first_change"] == pytest.approx(0.05) and early["error_new"]["median"] < 0.01
+    # a jump 40 ms before the end with a 50 ms loop: no command that sees it acts before the end
+    assert late["first_change"] is None and late["corrected"] < 0.05
     bad = CliRunner().invoke(cli.main, ["target-jump", "--times", "0.7", "--final-time", "0.6"])
     assert bad.exit_code == 2 and "--times" in bad.output
+
+
+@pytest.fixture(scope="module")
+def fitts_result():
+    from delayed_ilqr.experiments.fitts import fitts_experiment
+    (r,) = fitts_experiment(ARM, distances=(0.04, 0.08, 0.16), widths=(0.01, 0.02, 0.04),
+                            movement_times=(0.2, 0.3, 0.4, 0.5, 0.6, 0.7), delays=("model",), trials=40, seed=SEED)
+    return r
+
+
+FITTS_NOT_YET = pytest.mark.xfail(strict=True, reason="not reproduced with the six-muscle arm's defaults; "
+                                  "docs/gallery/fitts.md has what was measured")
+
+
+@FITTS_NOT_YET
+def test_chosen_movement_time_follows_fitts_law(fitts_result):
+    from delayed_ilqr.experiments.fitts import SLOPE_RANGE
+    r = fitts_result
+    inside = np.isfinite(r.mt) & (r.mt > r.movement_times[0])
+    assert inside.sum() >= 6, r.mt                              # enough conditions to fit
+    assert r.fit is not None and r.fit.r2 >= 0.9, r.fit         # Fitts 1954: MT linear in log2(2D/W)
+    assert SLOPE_RANGE[0] <= r.fit.b <= SLOPE_RANGE[1], r.fit   # 100-200 ms/bit (MacKenzie 1992)
+
+
+@pytest.fixture(scope="module")
+def growth_result():
+    from delayed_ilqr.experiments.delay_growth import delay_growth_experiment
+    return delay_growth_experiment(ARM, motor_delays=(0.0, 0.06), sensory_delays=(0.0, 0.08), targets=1,
+                                   trials=60, seed=SEED)
+
+
+def test_cost_error_and_scatter_grow_with_each_delay(growth_result):
+    from delayed_ilqr.experiments.delay_growth import monotone
+    for points in (growth_result.motor, growth_result.sensory):
+        assert all(s.startswith("CONVERGED") for p in points for s in p.statuses)
+        assert monotone([p.cost.mean for p in points])
+        assert monotone([p.error_median for p in points])
+        assert monotone([p.scatter for p in points])
+        assert monotone([p.predicted_cost for p in points])     # the local (linearised) prediction too

@@ -27,12 +27,12 @@ import numpy as np
 from .. import Options, Problem
 from ..models.arm2 import arm2 as _arm2_factory
 from ..models.arm2 import ARM2_PARAMS, ARM_STATE_LABELS, hand_position, hand_task, hand_velocity
-from ..models.arm2_muscle6 import Q0, ReachFinalCost, ReachRunningCost, arm2_muscle6, center_out_targets
+from ..models.arm2_muscle6 import Q0, ReachFinalCost, arm2_muscle6, center_out_targets
 from ..models.metadata import CostParameter, ModelMetadata
 from ..problem import GeneralCost
 
 __all__ = ["ARMS", "ARM2_WEIGHTS", "MODEL_DEFAULT", "reach", "loop_latency", "reach_targets", "bar_target",
-           "hold_from", "with_target_state", "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics",
+           "hold_from", "with_target_state", "TorqueEffort", "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics",
            "TargetStateNoise", "TargetStateCost", "TARGET_SENSOR_DENSITY", "TARGET_MOTION_DENSITY",
            "movement_direction", "solver_options"]
 
@@ -56,6 +56,14 @@ def solver_options(arm: str, options: Optional[Options] = None) -> Options:
 def reach_targets(n: int = 8, radius: float = 0.1, start_angle: float = 0.0) -> np.ndarray:
     """[n, 2] hand targets (m) on a circle around the start hand position (both arms share it)."""
     return center_out_targets(n, radius, start_angle=start_angle)
+
+
+@dataclass(frozen=True)
+class TorqueEffort:
+    """running(x, u, params) = r |u|^2 (per unit time): the torque arm's effort on its joint torques."""
+
+    def __call__(self, x, u, params):
+        return params["r"] * (u @ u)
 
 
 #: The value of ``delay`` / ``sensory_delay`` that keeps the model's own default (its human preset).
@@ -97,7 +105,7 @@ def reach(arm: str = "arm2", target=None, delay=MODEL_DEFAULT, noise: bool = Tru
     horizon = int(round(final_time / dt))
     base = _arm2_factory(noise=noise, dt=dt, horizon=horizon, x0=Q0 + (0.0, 0.0), **given)
     params = dict(target=jnp.asarray(target), **{k: jnp.asarray(v) for k, v in ARM2_WEIGHTS.items()})
-    cost = GeneralCost(ReachRunningCost(), ReachFinalCost(ARM2_PARAMS), params)
+    cost = GeneralCost(TorqueEffort(), ReachFinalCost(ARM2_PARAMS), params)
     meta = ModelMetadata(state_labels=ARM_STATE_LABELS, control_labels=base.metadata.control_labels,
                          task=hand_task(ARM2_PARAMS, target=CostParameter("target")), noise=base.metadata.noise)
     return base.replace(cost=cost, metadata=meta)
@@ -136,10 +144,11 @@ def bar_target(problem: Problem, along) -> Problem:
 
 @dataclass(frozen=True)
 class HoldRunningCost:
-    """running(x, u, params, t) = r |u|^2 + [t >= T] (w_p |e - target|^2 + w_v |de/dt|^2) / T_hold:
-    from the movement time T = ``params["T"]`` on, the hand must stay on the target at rest (the
-    final cost's weights spread over a hold of ``params["hold"]`` seconds)."""
+    """running(x, u, params, t) = running_base(x, u, params) + [t >= T] (w_p |e - target|^2 +
+    w_v |de/dt|^2) / T_hold: from the movement time T = ``params["T"]`` on, the hand must stay on the
+    target at rest (the final cost's weights spread over a hold of ``params["hold"]`` seconds)."""
 
+    base: Any
     arm: Any = ARM2_PARAMS
 
     def __call__(self, x, u, params, t):
@@ -147,7 +156,8 @@ class HoldRunningCost:
         err = hand_position(q, self.arm) - params["target"]
         vel = hand_velocity(q, dq, self.arm)
         on = (t >= params["T"] - 1e-9).astype(x.dtype)
-        return params["r"] * (u @ u) + on * (params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel)) / params["hold"]
+        hold = on * (params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel)) / params["hold"]
+        return self.base(x, u, params) + hold
 
 
 @dataclass(frozen=True)
@@ -169,7 +179,8 @@ def hold_from(problem: Problem, movement_time: float, hold: float) -> Problem:
         raise ValueError(f"movement_time + hold must fit in the horizon {problem.horizon * problem.dt:g} s; "
                          f"got {movement_time:g} + {hold:g}")
     params = dict(problem.cost.params, T=jnp.asarray(float(movement_time)), hold=jnp.asarray(float(hold)))
-    cost = GeneralCost(HoldRunningCost(problem.cost.final_fn.arm), HoldFinalCost(problem.cost.final_fn), params,
+    cost = GeneralCost(HoldRunningCost(problem.cost.running_fn, problem.cost.final_fn.arm),
+                       HoldFinalCost(problem.cost.final_fn), params,
                        time_dependent=True)
     return problem.replace(cost=cost)
 
