@@ -90,6 +90,37 @@ def test_minimal_intervention_ratio_of_a_known_scatter():
     assert abs(s.ellipse.angle) < 0.05
 
 
+def test_json_ready_makes_strict_json_of_numbers_arrays_and_statistics():
+    import json
+
+    import jax.numpy as jnp
+
+    from delayed_ilqr.experiments.report import json_ready
+    from delayed_ilqr.statistics import sample_stats
+    data = json_ready(dict(a=float("nan"), b=np.array([1.0, np.inf]), c=jnp.asarray(2.5), d=(np.int64(3), None),
+                           e=sample_stats(np.array([1.0, 2.0, 3.0])), f="text"))
+    assert data["a"] is None and data["b"] == [1.0, None] and data["c"] == 2.5 and data["d"] == [3, None]
+    assert data["e"]["median"] == 2.0 and data["f"] == "text"
+    json.dumps(data, allow_nan=False)                           # strict: raises on a NaN left behind
+
+
+def test_target_state_with_sensors_sees_the_target_as_late_as_the_arm():
+    from delayed_ilqr.experiments import reach_tasks
+    base = reach_tasks.reach("arm2", delay=0.02, sensory_delay=0.04)
+    plant, design = reach_tasks.with_target_state(base), reach_tasks.with_target_state(base, 0.02)
+    obs = plant.observation
+    assert plant.n_states == 6 and obs.delay_steps == base.observation.delay_steps
+    np.testing.assert_array_equal(np.asarray(obs.H)[-2:], np.c_[np.zeros((2, 4)), np.eye(2)])
+    np.testing.assert_array_equal(np.asarray(obs.H)[:-2, :4], np.asarray(base.observation.H))
+    x, u = np.asarray(plant.x0), np.zeros(2)
+    assert plant.noise(x, u, u).shape == (6, 2)                 # the plant's target moves only when jumped
+    F = np.asarray(design.noise(x, u, u))
+    np.testing.assert_allclose(F[-2:, -2:], 0.02 * np.eye(2))  # the design expects it to move
+    assert reach_tasks.loop_latency(plant) == pytest.approx(0.06)
+    with pytest.raises(ValueError, match="target_motion must be"):
+        reach_tasks.with_target_state(base, -1.0)
+
+
 # -- the findings, on the six-muscle arm with its defaults --------------------------------------
 # Each experiment runs once per module (module-scoped fixtures) at a size that resolves its
 # assertion; the full-size runs are the `full` tests at the end (make bench) and the docs' commands.

@@ -9,15 +9,18 @@ optimal feedback control predicts). Visual corrections start 100-150 ms after th
 
 The model: the reach's target is part of the state (`reach_tasks.with_target_state`), so the
 delayed feedback policy's gains on it are the optimal response to a displaced target, and a jump of
-``jump`` metres perpendicular to the movement at step kp is a disturbance of those states. The
-policy sees the state at once; its commands act ``delay`` seconds later, so the motor delay is the
-loop latency of this experiment (a visual loop: use 0.1-0.15 s). The same trials run with and
-without each jump on the same noise.
+``jump`` metres perpendicular to the movement at step kp is a disturbance of those states. With the
+model's default sensors the target is seen through them, as late as the arm (the library has one
+sensory delay; human vision is slower, 100-150 ms), and the design expects targets to move
+(`reach_tasks.TARGET_MOTION_DENSITY`) so that its delayed filter believes a seen jump; the plant's
+target moves only by the jump. The loop latency is the sensory plus the motor delay (the motor delay
+alone when the state is seen). The same trials run with and without each jump on the same noise.
 
 Measured per jump time (`analyse`, rules in `responses`): the first change of the
 applied command and the onset of the mean hand response (10 % of its peak lateral displacement),
-both after the jump; the median final distance to the new target and the fraction of the jump the
-hand made up.
+both after the jump; the median final distance to the new target, the fraction of the jump the
+hand made up, and the peak speed of the mean correction (its vigour: Liu & Todorov found later
+jumps corrected more vigorously).
 """
 from __future__ import annotations
 
