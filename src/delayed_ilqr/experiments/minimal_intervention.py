@@ -27,7 +27,7 @@ from .responses import Ellipse, axis_sd, ellipse
 __all__ = ["PUBLISHED", "TargetScatter", "analyse", "minimal_intervention_experiment", "comparison"]
 
 PUBLISHED = (
-    ("task-irrelevant / task-relevant variability", "Todorov & Jordan 2002", "> 1 (larger along the bar)"),
+    ("task-irrelevant / task-relevant variability", "Todorov & Jordan 2002", "> 1, about 2 (bar target)"),
     ("corrections across / along the narrow dimension", "Knill, Bondada & Chhabra 2011", "about 2x"),
 )
 
