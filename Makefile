@@ -22,10 +22,13 @@ $(STAMP): pyproject.toml
 # 100 ms. The full study (also the statistical re-design, which is most of its time, and 0, 50, 100,
 # 150 ms) is `delayed-ilqr center-out --allow-unconverged --out center_out_full`
 # (docs/guide/delay_sweeps.md).
+# Last, the gallery's mid-reach kick on the six-muscle arm with its defaults, small (20 trials); the
+# full size is `delayed-ilqr kick --trials 200 --out kick` (docs/gallery/kick.md).
 demo: $(STAMP)
 	$(BIN)/delayed-ilqr demo --overwrite --out out
 	$(BIN)/delayed-ilqr center-out --design noise-aware --design deterministic --delays 0,0.1 \
 		--allow-unconverged --overwrite --out out/center_out
+	$(BIN)/delayed-ilqr kick --trials 20 --overwrite --out out/kick
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15 tests

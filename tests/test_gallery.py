@@ -90,57 +90,126 @@ def test_minimal_intervention_ratio_of_a_known_scatter():
     assert abs(s.ellipse.angle) < 0.05
 
 
-# -- end to end, small, on the torque-driven arm -------------------------------------------------
+def test_json_ready_makes_strict_json_of_numbers_arrays_and_statistics():
+    import json
 
-def test_kick_never_responds_before_the_loop_latency_and_ends_finite():
+    import jax.numpy as jnp
+
+    from delayed_ilqr.experiments.report import json_ready
+    from delayed_ilqr.statistics import sample_stats
+    data = json_ready(dict(a=float("nan"), b=np.array([1.0, np.inf]), c=jnp.asarray(2.5), d=(np.int64(3), None),
+                           e=sample_stats(np.array([1.0, 2.0, 3.0])), f="text"))
+    assert data["a"] is None and data["b"] == [1.0, None] and data["c"] == 2.5 and data["d"] == [3, None]
+    assert data["e"]["median"] == 2.0 and data["f"] == "text"
+    json.dumps(data, allow_nan=False)                           # strict: raises on a NaN left behind
+
+
+def test_target_state_with_sensors_sees_the_target_as_late_as_the_arm():
+    from delayed_ilqr.experiments import reach_tasks
+    base = reach_tasks.reach("arm2", delay=0.02, sensory_delay=0.04)
+    plant, design = reach_tasks.with_target_state(base), reach_tasks.with_target_state(base, 0.02)
+    obs = plant.observation
+    assert plant.n_states == 6 and obs.delay_steps == base.observation.delay_steps
+    np.testing.assert_array_equal(np.asarray(obs.H)[-2:], np.c_[np.zeros((2, 4)), np.eye(2)])
+    np.testing.assert_array_equal(np.asarray(obs.H)[:-2, :4], np.asarray(base.observation.H))
+    x, u = np.asarray(plant.x0), np.zeros(2)
+    assert plant.noise(x, u, u).shape == (6, 2)                 # the plant's target moves only when jumped
+    F = np.asarray(design.noise(x, u, u))
+    np.testing.assert_allclose(F[-2:, -2:], 0.02 * np.eye(2))  # the design expects it to move
+    assert reach_tasks.loop_latency(plant) == pytest.approx(0.06)
+    with pytest.raises(ValueError, match="target_motion must be"):
+        reach_tasks.with_target_state(base, -1.0)
+
+
+# -- the findings, on the six-muscle arm with its defaults --------------------------------------
+# Each experiment runs once per module (module-scoped fixtures) at a size that resolves its
+# assertion; the full-size runs are the `full` tests at the end (make bench) and the docs' commands.
+# A finding the defaults do not reproduce yet is marked xfail(strict=True) with what was measured:
+# its published range stays, and the mark must go when the defaults reproduce it.
+
+ARM = "arm2_muscle6"
+SEED = 0
+
+
+@pytest.fixture(scope="module")
+def kick_result():
     from delayed_ilqr.experiments.kick import kick_experiment
-    r = kick_experiment("arm2", delay=0.03, sensory_delay=0.02, kick=0.15, trials=8, final_time=0.4)
-    a = r.analysis
-    assert r.solution.converged
-    assert a.loop_latency == pytest.approx(0.05)
-    # causality: the first command that can see x_{kp+1} is issued l_s steps later and acts l_m later
-    assert a.first_change is not None and a.first_change >= a.loop_latency - 1e-12
-    assert a.first_change == pytest.approx(a.loop_latency)          # and with common noise it does respond then
-    assert a.onset >= a.first_change
-    assert np.all(np.isfinite(r.kicked.errors)) and a.peak_displacement > 0.005
-    # before the kick acts the runs are identical
-    kp = r.pulse_step
-    np.testing.assert_array_equal(np.asarray(r.kicked.runs.x)[:, :kp + 1], np.asarray(r.base.runs.x)[:, :kp + 1])
-    from delayed_ilqr.plot.gallery import plot_kick
-    fig = plot_kick(r)
-    line = next(l for l in fig.axes[1].lines if l.get_label().startswith("model"))
-    t, resp = line.get_data()
-    assert np.all(resp[t < 1e3 * a.loop_latency - 1e-9] == 0)         # the figure shows the causal bound too
+    return kick_experiment(ARM, trials=40, seed=SEED)
 
 
-def test_target_jump_correction_waits_for_the_delay_and_an_early_jump_reaches_the_new_target():
+@pytest.fixture(scope="module")
+def jump_result():
     from delayed_ilqr.experiments.target_jump import target_jump_experiment
-    r = target_jump_experiment("arm2", delay=0.05, jump=0.02, times_before_end=(0.04, 0.3), trials=5,
-                               final_time=0.5)
-    late, early = r.analyses
-    assert r.solution.converged
-    # a jump 40 ms before the end, with a 50 ms loop: no command that sees it acts before the end
-    assert late.first_change is None or late.first_change >= late.loop_latency
-    assert late.corrected < 0.05
-    assert early.first_change == pytest.approx(early.loop_latency)
-    assert early.error_new.median < 0.01 and early.corrected > 0.8
+    return target_jump_experiment(ARM, times_before_end=(0.1, 0.2, 0.3), trials=30, seed=SEED)
 
 
-def test_minimal_intervention_and_fitts_run_end_to_end():
-    from delayed_ilqr.experiments.fitts import fitts_experiment
+@pytest.fixture(scope="module")
+def scatter_result():
     from delayed_ilqr.experiments.minimal_intervention import minimal_intervention_experiment
-    point, bar = minimal_intervention_experiment("arm2", delay=0.03, sensory_delay=None, trials=30, final_time=0.4)
-    assert point.status.startswith("CONVERGED") and bar.status.startswith("CONVERGED")
-    assert np.isfinite(point.ratio) and np.isfinite(bar.ratio)
-    (r,) = fitts_experiment("arm2", distances=(0.04, 0.16), widths=(0.002, 0.02), movement_times=(0.2, 0.3, 0.4),
-                            delays=(0.03,), sensory_delay=0.02, hold=0.05, trials=20)
-    assert r.sd.shape == (2, 3) and np.all(np.isfinite(r.sd))
-    # the 4x longer reach needs more force: more signal-dependent noise (about 2x the SD, measured at
-    # 60 trials; 20 trials estimate an SD within about 16 %)
-    assert r.sd[1].mean() > 1.3 * r.sd[0].mean()
-    # a wider target is never slower to meet
-    met = np.isfinite(r.mt[:, 0])
-    assert np.all(r.mt[met, 1] <= r.mt[met, 0])
+    return minimal_intervention_experiment(ARM, trials=150, seed=SEED)
+
+
+def test_kick_response_starts_at_the_loop_latency_measured_from_the_commands(kick_result):
+    from delayed_ilqr.experiments.reach_tasks import loop_latency
+    a = kick_result.analysis
+    assert kick_result.solution.converged
+    assert a.loop_latency == pytest.approx(loop_latency(kick_result.problem)) and a.loop_latency > 0
+    # causality, then the measurement: the first applied command that differs (any trial, common noise)
+    assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
+    assert a.onset >= a.first_change
+    kp = kick_result.pulse_step
+    np.testing.assert_array_equal(np.asarray(kick_result.kicked.runs.x)[:, :kp + 1],
+                                  np.asarray(kick_result.base.runs.x)[:, :kp + 1])
+    from delayed_ilqr.plot.gallery import plot_kick
+    line = next(l for l in plot_kick(kick_result).axes[1].lines if l.get_label().startswith("model"))
+    t, resp = line.get_data()
+    assert np.all(resp[t < 1e3 * a.loop_latency - 1e-9] == 0)
+
+
+KICK_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "not reproduced with the six-muscle arm's defaults: median final error 26.9 mm kicked against 3.0 mm "
+    "unperturbed (9.0x; Nashed et al. 2012: within about 2x) at 200 trials; docs/gallery/kick.md"))
+
+
+@KICK_NOT_YET
+def test_kicked_hand_ends_within_twice_the_unperturbed_error(kick_result):
+    a = kick_result.analysis
+    assert a.peak_displacement > 0.005                          # the kick moved the hand
+    assert a.error_ratio <= 2.0, (a.error_kicked.median, a.error_base.median)
+
+
+def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
+    assert jump_result.solution.converged
+    for a in jump_result.analyses:
+        assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
+
+
+JUMP_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "not reproduced with the six-muscle arm's defaults: the corrections overshoot (266 % and 551 % of a 2 cm "
+    "jump 200 and 300 ms before the end, median 47 and 89 mm from the new target, 50 trials; 156 % for a 2 mm "
+    "jump, 120 % for 2 cm with the state seen): docs/gallery/target_jump.md"))
+
+
+@JUMP_NOT_YET
+def test_early_target_jumps_are_reached_and_late_ones_corrected_harder(jump_result):
+    late, mid, early = jump_result.analyses                   # 100, 200, 300 ms before the end
+    assert mid.error_new.median < 0.01 and early.error_new.median < 0.01
+    # Liu & Todorov 2007: the later the jump, the more vigorous (and less complete) the correction
+    assert late.peak_speed > mid.peak_speed > early.peak_speed
+    assert late.corrected < mid.corrected
+
+
+BAR_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "the bar target's solve ends NON_FINITE_GAINS on the six-muscle arm (cost stalled at 300 iterations: the "
+    "final cost has no curvature along the bar); docs/gallery/minimal_intervention.md"))
+
+
+@BAR_NOT_YET
+def test_bar_target_scatters_along_the_bar(scatter_result):
+    point, bar = scatter_result
+    assert bar.status.startswith("CONVERGED")
+    assert bar.ratio >= 1.5, (bar.irrelevant, bar.relevant)     # Todorov & Jordan 2002; Knill et al. 2011
+    assert bar.ratio > point.ratio
 
 
 def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path):
@@ -150,15 +219,109 @@ def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path)
 
     from delayed_ilqr import cli
     out = tmp_path / "jump"
-    result = CliRunner().invoke(cli.main, ["--no-cache", "target-jump", "--delay", "0.05", "--times", "0.04,0.3",
-                                           "--final-time", "0.5", "--trials", "3", "--out", str(out)],
-                                catch_exceptions=False)
+    result = CliRunner().invoke(cli.main, ["--no-cache", "target-jump", "--arm", "arm2", "--delay", "0.05",
+                                           "--sensory-delay", "none", "--times", "0.04,0.3", "--final-time", "0.5",
+                                           "--trials", "3", "--out", str(out)], catch_exceptions=False)
     assert result.exit_code == 0, result.output
     assert "Liu & Todorov 2007" in result.output
     manifest = json.loads((out / "manifest.json").read_text())
     assert set(manifest["files"]) == {"target_jump.json", "target_jump.md", "target_jump.png"}
+    assert manifest["settings"]["problem"]["delay_steps"] == 5
+    assert manifest["settings"]["problem"]["n_states"] == 6          # the arm and the target
     data = json.loads((out / "target_jump.json").read_text())
     late, early = data["analyses"]
     assert early["first_change"] == pytest.approx(0.05) and early["error_new"]["median"] < 0.01
+    # a jump 40 ms before the end with a 50 ms loop: no command that sees it acts before the end
+    assert late["first_change"] is None and late["corrected"] < 0.05
     bad = CliRunner().invoke(cli.main, ["target-jump", "--times", "0.7", "--final-time", "0.6"])
     assert bad.exit_code == 2 and "--times" in bad.output
+
+
+@pytest.fixture(scope="module")
+def fitts_result():
+    from delayed_ilqr.experiments.fitts import fitts_experiment
+    (r,) = fitts_experiment(ARM, distances=(0.04, 0.08, 0.16), widths=(0.01, 0.02, 0.04),
+                            movement_times=(0.2, 0.3, 0.4, 0.5, 0.6, 0.7), delays=("model",), trials=40, seed=SEED)
+    return r
+
+
+FITTS_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "not reproduced with the six-muscle arm's defaults: b = 153 ms/bit but R^2 = 0.86 over 4 of 9 conditions at "
+    "the default delay (the endpoint SD stops at 2.2-3.6 mm, so the 10 mm width is never met); docs/gallery/fitts.md"))
+
+
+@FITTS_NOT_YET
+def test_chosen_movement_time_follows_fitts_law(fitts_result):
+    from delayed_ilqr.experiments.fitts import SLOPE_RANGE
+    r = fitts_result
+    inside = np.isfinite(r.mt) & (r.mt > r.movement_times[0])
+    assert inside.sum() >= 6, r.mt                              # enough conditions to fit
+    assert r.fit is not None and r.fit.r2 >= 0.9, r.fit         # Fitts 1954: MT linear in log2(2D/W)
+    assert SLOPE_RANGE[0] <= r.fit.b <= SLOPE_RANGE[1], r.fit   # 100-200 ms/bit (MacKenzie 1992)
+
+
+@pytest.fixture(scope="module")
+def growth_result():
+    from delayed_ilqr.experiments.delay_growth import delay_growth_experiment
+    return delay_growth_experiment(ARM, motor_delays=(0.0, 0.06), sensory_delays=(0.0, 0.08), targets=1,
+                                   trials=60, seed=SEED)
+
+
+def test_cost_error_and_scatter_grow_with_each_delay(growth_result):
+    from delayed_ilqr.experiments.delay_growth import monotone
+    for points in (growth_result.motor, growth_result.sensory):
+        assert all(s.startswith("CONVERGED") for p in points for s in p.statuses)
+        assert monotone([p.cost.mean for p in points])
+        assert monotone([p.error_median for p in points])
+        assert monotone([p.scatter for p in points])
+        assert monotone([p.predicted_cost for p in points])     # the local (linearised) prediction too
+
+
+# -- full size (make bench): the docs' numbers ----------------------------------------------------
+
+@pytest.mark.full
+@KICK_NOT_YET
+def test_full_kick_ends_within_twice_the_unperturbed_error():
+    from delayed_ilqr.experiments.kick import kick_experiment
+    a = kick_experiment(ARM, trials=200, seed=SEED).analysis
+    assert a.first_change == pytest.approx(a.loop_latency)
+    assert a.error_ratio <= 2.0, (a.error_kicked.median, a.error_base.median)
+
+
+@pytest.mark.full
+@JUMP_NOT_YET
+def test_full_target_jumps():
+    from delayed_ilqr.experiments.target_jump import target_jump_experiment
+    r = target_jump_experiment(ARM, times_before_end=(0.1, 0.2, 0.3, 0.4), trials=100, seed=SEED)
+    assert all(a.first_change == pytest.approx(a.loop_latency) for a in r.analyses)
+    assert all(a.error_new.median < 0.01 for a in r.analyses if a.time_before_end >= 0.2)
+    speeds = [a.peak_speed for a in r.analyses]
+    assert all(x > y for x, y in zip(speeds, speeds[1:]))
+
+
+@pytest.mark.full
+@BAR_NOT_YET
+def test_full_bar_target_scatters_along_the_bar():
+    from delayed_ilqr.experiments.minimal_intervention import minimal_intervention_experiment
+    point, bar = minimal_intervention_experiment(ARM, trials=300, seed=SEED)
+    assert bar.status.startswith("CONVERGED") and bar.ratio >= 1.5
+
+
+@pytest.mark.full
+@FITTS_NOT_YET
+def test_full_fitts_law_at_two_delays():
+    from delayed_ilqr.experiments.fitts import SLOPE_RANGE, fitts_experiment
+    results = fitts_experiment(ARM, trials=100, seed=SEED)
+    for r in results:
+        assert r.fit is not None and r.fit.r2 >= 0.9 and SLOPE_RANGE[0] <= r.fit.b <= SLOPE_RANGE[1], r.fit
+    assert np.nanmean(results[1].mt) > np.nanmean(results[0].mt)       # a longer delay, slower
+
+
+@pytest.mark.full
+def test_full_delay_growth():
+    from delayed_ilqr.experiments.delay_growth import delay_growth_experiment, monotone
+    r = delay_growth_experiment(ARM, trials=100, seed=SEED)
+    for points in (r.motor, r.sensory):
+        for values in ([p.cost.mean for p in points], [p.error_median for p in points],
+                       [p.scatter for p in points], [p.predicted_cost for p in points]):
+            assert monotone(values), values

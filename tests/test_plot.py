@@ -426,6 +426,52 @@ def fake_sweep():
         attrs=dict(model="arm2", trials=20))
 
 
+def fake_gallery():
+    """The gallery's results (kick, target jump, Fitts, minimal intervention, delay growth) built
+    from synthetic runs of the reach problems (no solve): {name: Figure} of `plot.gallery`."""
+    from delayed_ilqr.experiments import delay_growth, fitts, kick, minimal_intervention, reach_tasks, target_jump
+    from delayed_ilqr.plot import gallery
+    muscle = reach_tasks.reach("arm2_muscle6", delay=0.03, sensory_delay=0.05)
+    x, _ = nominal(arm2(delay=0.03))
+    mx = np.concatenate([x, np.full((x.shape[0], 6), 0.05)], axis=1)
+    mu = np.full((muscle.horizon, 6), 0.05)
+    base = synthetic_runs(muscle, mx, mu, 0.01, seed=0)
+    kicked = base._replace(x=np.asarray(base.x) + 0.02 * np.linspace(0, 1, muscle.horizon + 1)[None, :, None],
+                           u=np.asarray(base.u) + np.where(np.arange(muscle.horizon) >= 30, 0.2, 0.0)[None, :, None])
+    trials = lambda runs: SimpleNamespace(runs=runs, errors=np.abs(np.asarray(runs.x)[:, -1, 0]))  # noqa: E731
+    errors = sample_stats(np.abs(np.asarray(base.x)[:, -1, 0]))
+    analysis = kick.KickAnalysis(0.08, 0.09, 0.08, 0.02, errors, errors, 1.0)
+    kick_result = kick.KickResult(muscle, None, None, 24, trials(base), trials(kicked), analysis, 0.15)
+    torque = reach_tasks.with_target_state(reach_tasks.reach("arm2", delay=0.03, sensory_delay=0.05))
+    tx = np.concatenate([x, np.tile(np.asarray(torque.x0)[-2:], (x.shape[0], 1))], axis=1)
+    jx = np.asarray(synthetic_runs(torque, tx, np.zeros((torque.horizon, 2)), 0.01, seed=1).x)
+    jumps = [target_jump.JumpAnalysis(t, 0.08, 0.1, 0.08, errors, 0.9, 0.1) for t in (0.1, 0.3)]
+    jump_result = target_jump.JumpResult(torque, None, np.array([0.0, 0.02]), jx, [jx + 0.001, jx + 0.002], jumps)
+    ds, ws, ts = np.array([0.04, 0.08, 0.16]), np.array([0.01, 0.02, 0.04]), np.array([0.2, 0.3, 0.4])
+    index = np.log2(2 * ds[:, None] / ws[None, :])
+    fitts_results = [fitts.FittsResult(d, 0.05, ds, ws, ts, np.zeros((3, 3)), np.ones((3, 3)), None,
+                                       a + 0.15 * index, index, responses_fit(index, a + 0.15 * index))
+                     for d, a in ((0.03, 0.1), (0.09, 0.2))]
+    rng = np.random.default_rng(3)
+    scatters = [minimal_intervention.analyse(name, np.asarray(muscle.cost.params["target"])
+                                             + 1e-3 * rng.standard_normal((50, 2)) * scale, [1.0, 0.0],
+                                             problem=muscle)
+                for name, scale in (("point", [1.0, 1.0]), ("bar", [2.0, 1.0]))]
+    point = lambda d, s, c: delay_growth.DelayPoint(d, s, d + (s or 0), sample_stats(c + rng.random(20)),  # noqa: E731
+                                                    1e-3 * c, 2e-3 * c, c, None if s else 1e-3 * c, None if s else 2e-3 * c, ())
+    growth = delay_growth.DelayGrowth([point(d, None, 1 + 10 * d) for d in (0.0, 0.04, 0.08)],
+                                      [point(0.03, s, 1 + 5 * s) for s in (0.0, 0.04, 0.08)], muscle)
+    return {"kick.png": gallery.plot_kick(kick_result), "target_jump.png": gallery.plot_target_jump(jump_result),
+            "fitts.png": gallery.plot_fitts(fitts_results),
+            "minimal_intervention.png": gallery.plot_minimal_intervention(scatters),
+            "delay_growth.png": gallery.plot_delay_growth(growth)}
+
+
+def responses_fit(index, mt):
+    from delayed_ilqr.experiments.responses import fitts_fit
+    return fitts_fit(index, mt)
+
+
 def every_figure(results, reaches):
     """Every figure the plot module makes, by a name, from synthetic inputs: {group: {name: Figure}}
     (a group is what one call or one command writes together)."""
@@ -459,6 +505,7 @@ def every_figure(results, reaches):
         "center-out, one delay and design (narrow figures)": plot.center_out_figures(reaches[:1]),
         "perturbation": plot.perturbation_figures(fake_perturbation()),
         "sweep": {"sweep.png": plot.plot_sweep(fake_sweep())},
+        "gallery": fake_gallery(),
     }
 
 

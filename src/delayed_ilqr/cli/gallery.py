@@ -12,13 +12,48 @@ import click
 import numpy as np
 
 from .._files import write_text
-from ..experiments import fitts, kick, minimal_intervention, reach_tasks, report, tables, target_jump
+from ..experiments import (delay_growth, fitts, kick, minimal_intervention, reach_tasks, report, tables,
+                           target_jump)
+from ..experiments.records import problem_record
 from ..statistics import divergence_bound, diverged_trials, prediction_warning, sample_stats
 from .arguments import SEED, DelayList
 from .output import Output, out_option
 
-ARM = click.option("--arm", type=click.Choice(reach_tasks.ARMS), default="arm2", show_default=True,
-                   help="arm2 (torque-driven, human torque noise) or arm2_muscle6 (six muscles, its defaults; slower).")
+ARM = click.option("--arm", type=click.Choice(reach_tasks.ARMS), default="arm2_muscle6", show_default=True,
+                   help="arm2_muscle6 (six muscles, its defaults) or arm2 (torque-driven, its human preset; faster).")
+
+
+class ModelDelay(click.ParamType):
+    """A delay in seconds, ``model`` (the model's default) or, where ``none`` is allowed, ``none``
+    (no sensors: the state is seen)."""
+
+    name = "SECONDS|model"
+
+    def __init__(self, allow_none: bool = False):
+        self.allow_none = allow_none
+        if allow_none:
+            self.name = "SECONDS|model|none"
+
+    def convert(self, value, param, ctx):
+        if value is None or (isinstance(value, str) and value.strip().lower() == "none" and self.allow_none):
+            return None
+        if isinstance(value, str) and value.strip().lower() == reach_tasks.MODEL_DEFAULT:
+            return reach_tasks.MODEL_DEFAULT
+        try:
+            seconds = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"must be a delay in seconds or 'model'{' or none' if self.allow_none else ''}; got {value!r}",
+                      param, ctx)
+        if not math.isfinite(seconds) or seconds < 0:
+            self.fail(f"must be a non-negative number of seconds; got {value!r}", param, ctx)
+        return seconds
+
+
+DELAY = click.option("--delay", type=ModelDelay(), default=reach_tasks.MODEL_DEFAULT, show_default=True,
+                     help="Motor delay (s), or 'model': the model's default.")
+SENSORY_DELAY = click.option("--sensory-delay", type=ModelDelay(allow_none=True), default=reach_tasks.MODEL_DEFAULT,
+                             show_default=True, help="Sensory delay (s), 'model' (the model's default sensors) or "
+                                                     "'none' (the state is seen).")
 TRIALS = click.option("--trials", type=click.IntRange(min=2), default=200, show_default=True,
                       help="Monte Carlo trials (each condition runs on the same noise).")
 SEED_OPTION = click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the noise.")
@@ -30,22 +65,6 @@ def _check(arm, **kwargs):
         reach_tasks.reach(arm, **kwargs)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="'--delay' / '--sensory-delay'") from None
-
-
-def _json(value):
-    if hasattr(value, "to_dict"):              # SampleStats (a NamedTuple: before the tuples)
-        return _json(value.to_dict())
-    if isinstance(value, dict):
-        return {k: _json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _json(value.tolist())
-    if isinstance(value, (float, np.floating)):
-        return float(value) if math.isfinite(value) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    return value
 
 
 def _finish(name: str, title: str, rows: list, warned: list, records: dict, figure, out, overwrite_output,
@@ -64,7 +83,7 @@ def _finish(name: str, title: str, rows: list, warned: list, records: dict, figu
         return
     staging = overwrite_output.staging
     settings = dict(settings, elapsed_seconds=elapsed)
-    report.write_json(staging / f"{name}.json", _json(dict(settings=settings, warnings=warned,
+    report.write_json(staging / f"{name}.json", report.json_ready(dict(settings=settings, warnings=warned,
                                                             descriptions=report.DESCRIPTIONS, **records)))
     report.save_figures({f"{name}.png": figure}, staging)
     md = [f"# {title}", "", tables.markdown_table(table), ""]
@@ -87,9 +106,8 @@ def _cost_warnings(label, cost, predicted, problem) -> list:
 
 @click.command("kick")
 @ARM
-@click.option("--delay", type=click.FloatRange(min=0.0), default=0.03, show_default=True, help="Motor delay (s).")
-@click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
-              help="Proprioceptive delay (s), through the delayed Kalman filter.")
+@DELAY
+@SENSORY_DELAY
 @click.option("--kick", "size", type=click.FloatRange(min=0.0, min_open=True), default=0.15, show_default=True,
               help="Change of the hand's speed (m/s), perpendicular to the movement.")
 @click.option("--pulse-time", type=click.FloatRange(min=0.0), default=None,
@@ -117,15 +135,15 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
                        predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_kick
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
-                        trials=trials, seed=seed)
+                        trials=trials, seed=seed, problem=problem_record(r.problem))
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
                 elapsed, [r.solution.status])
 
 
 @click.command("target-jump")
 @ARM
-@click.option("--delay", type=click.FloatRange(min=0.0), default=0.1, show_default=True,
-              help="Motor delay (s), the loop latency of this experiment (the state is seen).")
+@DELAY
+@SENSORY_DELAY
 @click.option("--jump", type=click.FloatRange(min=0.0, min_open=True), default=0.02, show_default=True,
               help="Target displacement (m), perpendicular to the movement.")
 @click.option("--times", type=DelayList(), default="0.1,0.2,0.3,0.4", show_default=True,
@@ -135,20 +153,25 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
 @TRIALS
 @SEED_OPTION
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (target_jump.*).")
-def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, overwrite):
-    """Target jumps (Liu & Todorov 2007) at several times before the end of the reach."""
-    _check(arm, delay=delay, final_time=final_time)
+def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, trials, seed, out, overwrite):
+    """Target jumps (Liu & Todorov 2007) at several times before the end of the reach.
+
+    The target is seen through the arm's sensors (same delay), so the correction can start one
+    loop latency (sensory + motor delay) after the jump.
+    """
+    _check(arm, delay=delay, sensory_delay=sensory_delay, final_time=final_time)
     if any(not 0 < t < final_time for t in times):
         raise click.BadParameter(f"each time must lie in (0, {final_time:g}) s; got {times}", param_hint="'--times'")
     with Output(out, overwrite) as output:
         start = time.perf_counter()
-        r = target_jump.target_jump_experiment(arm, delay, jump, times, trials, seed, final_time=final_time)
+        r = target_jump.target_jump_experiment(arm, delay, sensory_delay, jump, times, trials, seed,
+                                               final_time=final_time)
         elapsed = time.perf_counter() - start
         records = dict(comparison=target_jump.comparison(r), status=str(r.solution.status),
                        analyses=[a._asdict() for a in r.analyses], predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_target_jump
-        settings = dict(arm=arm, delay=delay, jump=jump, times=list(times), final_time=final_time, trials=trials,
-                        seed=seed)
+        settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, jump=jump, times=list(times),
+                        final_time=final_time, trials=trials, seed=seed, problem=problem_record(r.problem))
         warned = _cost_warnings("target jump, trials without a jump", r.base_cost, r.solution.expected_cost, r.problem)
         _finish("target_jump", "Target jumps", target_jump.comparison(r), warned, records, plot_target_jump(r), out,
                 output, settings, elapsed, [r.solution.status])
@@ -156,10 +179,9 @@ def target_jump_command(arm, delay, jump, times, final_time, trials, seed, out, 
 
 @click.command("fitts")
 @ARM
-@click.option("--delays", type=DelayList(), default="0.03,0.09", show_default=True,
-              help="Comma-separated motor delays (s); one fit per delay.")
-@click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
-              help="Proprioceptive delay (s).")
+@click.option("--delays", type=DelayList(), default=None,
+              help="Comma-separated motor delays (s); one fit per delay.  [default: the model's, and 0.12]")
+@SENSORY_DELAY
 @click.option("--distances", type=DelayList(), default=",".join(f"{d:g}" for d in fitts.DISTANCES), show_default=True,
               help="Comma-separated movement distances (m).")
 @click.option("--widths", type=DelayList(), default=",".join(f"{w:g}" for w in fitts.WIDTHS), show_default=True,
@@ -176,6 +198,7 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
 
     All distances and movement times at one delay are solved in one vmapped call.
     """
+    delays = [reach_tasks.MODEL_DEFAULT, 0.12] if delays is None else delays
     for d in delays:
         _check(arm, delay=d, sensory_delay=sensory_delay)
     with Output(out, overwrite) as output:
@@ -188,7 +211,9 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
         elapsed = time.perf_counter() - start
         records = dict(comparison=fitts.comparison(results),
                        results=[dict(delay=r.delay, distances=r.distances, widths=r.widths,
-                                     movement_times=r.movement_times, bias=r.bias, sd=r.sd,
+                                     sensory_delay=r.sensory_delay, movement_times=r.movement_times, bias=r.bias,
+                                     sd=r.sd, problem=problem_record(r.problem), mc_cost=r.mc_cost,
+                                     predicted_cost=r.predicted_cost,
                                      status=r.status.tolist(), mt=r.mt, index=r.index,
                                      fit=None if r.fit is None else r.fit._asdict()) for r in results])
         from ..plot.gallery import plot_fitts
@@ -208,9 +233,8 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
 
 @click.command("minimal-intervention")
 @ARM
-@click.option("--delay", type=click.FloatRange(min=0.0), default=0.03, show_default=True, help="Motor delay (s).")
-@click.option("--sensory-delay", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
-              help="Proprioceptive delay (s).")
+@DELAY
+@SENSORY_DELAY
 @TRIALS
 @SEED_OPTION
 @out_option(default=None, help="Folder for minimal_intervention.json, .md, .png.")
@@ -225,7 +249,8 @@ def minimal_intervention_command(arm, delay, sensory_delay, trials, seed, out, o
                        targets=[dict(name=s.name, irrelevant_sd=s.irrelevant, relevant_sd=s.relevant, ratio=s.ratio,
                                      ellipse=s.ellipse._asdict(), status=s.status) for s in scatters])
         from ..plot.gallery import plot_minimal_intervention
-        settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed)
+        settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, trials=trials, seed=seed,
+                        problems={s.name: problem_record(s.problem) for s in scatters})
         warned = [w for sc in scatters
                   for w in _cost_warnings(f"{sc.name} target", sc.mc_cost, sc.predicted_cost, sc.problem)]
         _finish("minimal_intervention", "Minimal intervention", minimal_intervention.comparison(scatters), warned,
@@ -233,5 +258,47 @@ def minimal_intervention_command(arm, delay, sensory_delay, trials, seed, out, o
                 [s.status for s in scatters])
 
 
-COMMANDS = (kick_command, target_jump_command, fitts_command, minimal_intervention_command)
+@click.command("delay-growth")
+@ARM
+@click.option("--delays", type=DelayList(), default=",".join(f"{d:g}" for d in delay_growth.MOTOR_DELAYS),
+              show_default=True, help="Comma-separated motor delays (s), at the model's sensory delay.")
+@click.option("--sensory-delays", type=DelayList(), show_default=True,
+              default=",".join(f"{d:g}" for d in delay_growth.SENSORY_DELAYS),
+              help="Comma-separated sensory delays (s), at the model's motor delay.")
+@click.option("--targets", type=click.IntRange(min=1), default=4, show_default=True,
+              help="Hand targets on the 10 cm circle, pooled (one batched solve per delay).")
+@click.option("--trials", type=click.IntRange(min=2), default=100, show_default=True,
+              help="Monte Carlo trials per target and delay (the same noise at every delay).")
+@SEED_OPTION
+@out_option(default=None, help="Folder for delay_growth.json, .md, .png.")
+def delay_growth_command(arm, delays, sensory_delays, targets, trials, seed, out, overwrite):
+    """Cost, endpoint error and scatter against the motor and the sensory delay.
+
+    Monte Carlo (common noise across delays) beside the local (linearised) prediction; each
+    quantity should grow monotonically with each delay.
+    """
+    for d in delays:
+        _check(arm, delay=d)
+    for d in sensory_delays:
+        _check(arm, sensory_delay=d)
+    with Output(out, overwrite) as output:
+        start = time.perf_counter()
+        r = delay_growth.delay_growth_experiment(arm, delays, sensory_delays, targets, trials, seed)
+        elapsed = time.perf_counter() - start
+        rows = delay_growth.comparison(r)
+        records = dict(comparison=rows, motor=[p._asdict() for p in r.motor], sensory=[p._asdict() for p in r.sensory])
+        from ..plot.gallery import plot_delay_growth
+        settings = dict(arm=arm, delays=list(delays), sensory_delays=list(sensory_delays), targets=targets,
+                        trials=trials, seed=seed, problem=problem_record(r.problem))
+        def label(p):
+            sensory = "none" if p.sensory_delay is None else f"{1e3 * p.sensory_delay:.0f} ms"
+            return f"delay growth at motor {1e3 * p.delay:.0f} ms, sensory {sensory}"
+        warned = [w for w in (prediction_warning(label(p), p.cost.mean, p.predicted_cost)
+                              for p in r.motor + r.sensory) if w]
+        _finish("delay_growth", "Cost, error and scatter against the delay", rows, warned, records,
+                plot_delay_growth(r), out, output, settings, elapsed,
+                [s for p in r.motor + r.sensory for s in p.statuses])
+
+
+COMMANDS = (kick_command, target_jump_command, fitts_command, minimal_intervention_command, delay_growth_command)
 

@@ -15,7 +15,8 @@ on the plant -> statistics -> tables and files (figures: [`delayed_ilqr.plot`][d
 | `report` | JSON records, NPZ arrays, markdown reports and figures on disk |
 
 The gallery, classic experiments of human motor control (each with its published numbers,
-an analysis function, a figure in `delayed_ilqr.plot.gallery` and a `delayed-ilqr` command):
+an analysis function, a figure in `delayed_ilqr.plot.gallery` and a `delayed-ilqr` command), all
+on the models' default delays, sensors and noise (`reach_tasks.reach`):
 
 |  |  |
 |---|---|
@@ -25,5 +26,6 @@ an analysis function, a figure in `delayed_ilqr.plot.gallery` and a `delayed-ilq
 | `target_jump` | target jumps at several times before the end (Liu & Todorov 2007) |
 | `fitts` | the movement time the model chooses against log2(2D/W), per delay |
 | `minimal_intervention` | bar against point target: task-irrelevant / relevant endpoint SD |
+| `delay_growth` | cost, endpoint error and scatter against the motor and the sensory delay, beside the linearised prediction |
 
 """

@@ -27,11 +27,11 @@ from typing import NamedTuple, Optional, Sequence
 
 import numpy as np
 
-from .. import Options, Status
+from .. import Options, Problem, Status
 from ..models.arm2 import hand_position
 from ..statistics import divergence_bound, diverged_trials, sample_stats
 from .engine import monte_carlo, solve_batch, take
-from .reach_tasks import hold_from, reach, reach_targets, solver_options
+from .reach_tasks import MODEL_DEFAULT, hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
 
 __all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin",
@@ -62,6 +62,8 @@ class FittsResult(NamedTuple):
         status [D, T]: the solves' Status names.
         mt [D, W]: the chosen movement time (s), NaN where no T on the grid meets the criterion.
         index [D, W]: log2(2D/W) (bits); fit: the `responses.FittsFit` over finite MT.
+        mc_cost [D, T]: Monte Carlo mean cost; predicted_cost [D, T]: the local (linearised) prediction.
+        problem: the first condition's problem (its record).
     """
 
     delay: float
@@ -77,6 +79,7 @@ class FittsResult(NamedTuple):
     fit: Optional[FittsFit]
     mc_cost: Optional[np.ndarray] = None
     predicted_cost: Optional[np.ndarray] = None
+    problem: Optional[Problem] = None
 
 
 def criterion_margin(bias, sd, width) -> np.ndarray:
@@ -86,7 +89,7 @@ def criterion_margin(bias, sd, width) -> np.ndarray:
 
 def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, widths: Sequence[float] = WIDTHS,
                      movement_times: Sequence[float] = MOVEMENT_TIMES,
-                     delays: Sequence[float] = (0.03, 0.09), sensory_delay: Optional[float] = 0.05,
+                     delays: Sequence = (MODEL_DEFAULT, 0.12), sensory_delay=MODEL_DEFAULT,
                      hold: float = 0.1, trials: int = 100, seed: int = 0, direction: float = 0.0,
                      options: Optional[Options] = None) -> list[FittsResult]:
     """Runs the experiment of the module docstring, one `FittsResult` per motor delay.
@@ -96,8 +99,8 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
         distances: movement distances (m).
         widths: target widths (m).
         movement_times: the grid of movement times (s, increasing) the model chooses from.
-        delays: motor delays (s), one result each.
-        sensory_delay: proprioceptive delay (s) or None (the state is seen).
+        delays: motor delays (s, or `reach_tasks.MODEL_DEFAULT`: the model's), one result each.
+        sensory_delay: proprioceptive delay (s), None (the state is seen) or the model's default.
         hold: how long (s) the hand must stay on the target after T; the horizon is max(T) + hold.
         trials: Monte Carlo trials per (distance, movement time).
         seed: their seed (condition n uses seed + n).
@@ -139,8 +142,10 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
         except ValueError:
             fit = None
         predicted = np.asarray(sols.expected_cost, dtype=float).reshape(ds.size, ts.size)
-        results.append(FittsResult(float(delay), sensory_delay, ds, ws, ts, bias, sd, status, mt, index, fit,
-                                   mc_cost, predicted))
+        p0 = problems[0]
+        results.append(FittsResult(p0.delay_steps * p0.dt, None if p0.observation is None
+                                   else p0.observation.delay_steps * p0.dt, ds, ws, ts, bias, sd, status, mt, index,
+                                   fit, mc_cost, predicted, p0))
     return results
 
 

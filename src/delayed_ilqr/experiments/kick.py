@@ -34,7 +34,7 @@ from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import Trials, monte_carlo
 from .perturbation import lateral_kick
-from .reach_tasks import reach, solver_options
+from .reach_tasks import MODEL_DEFAULT, reach, solver_options
 from .responses import first_change, onset
 
 __all__ = ["PUBLISHED", "KickAnalysis", "KickResult", "analyse", "kick_experiment", "comparison"]
@@ -73,7 +73,8 @@ class KickAnalysis(NamedTuple):
 
 class KickResult(NamedTuple):
     """The experiment: ``problem`` (the plant), ``solution``, ``disturbance`` W [K, n], ``pulse_step`` kp
-    (W_kp enters x_{kp+1}), ``base`` and ``kicked`` `engine.Trials` and the `KickAnalysis`."""
+    (W_kp enters x_{kp+1}), ``base`` and ``kicked`` `engine.Trials`, the `KickAnalysis` and the
+    ``kick_speed`` (m/s)."""
 
     problem: Problem
     solution: Solution
@@ -82,6 +83,7 @@ class KickResult(NamedTuple):
     base: Trials
     kicked: Trials
     analysis: KickAnalysis
+    kick_speed: float = float("nan")
 
 
 def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: int, sensory_steps: int,
@@ -111,15 +113,16 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
                         eb, ek, float(ek.median / eb.median) if eb.median > 0 else float("inf"))
 
 
-def kick_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optional[float] = 0.05,
+def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                     kick: float = 0.15, pulse_time: Optional[float] = None, trials: int = 200, seed: int = 0,
                     target=None, final_time: float = 0.5, options: Optional[Options] = None) -> KickResult:
     """Runs the experiment of the module docstring.
 
     Args:
         arm: "arm2" or "arm2_muscle6" (`reach_tasks.reach`).
-        delay: motor delay l_m dt (s).
-        sensory_delay: proprioceptive delay l_s dt (s), or None (the state is seen, l_s = 0).
+        delay: motor delay l_m dt (s); default the model's.
+        sensory_delay: proprioceptive delay l_s dt (s), None (the state is seen, l_s = 0) or the
+            model's default.
         kick: the change of the hand's speed (m/s), perpendicular (counter-clockwise) to the movement.
         pulse_time: when (s); default mid-movement.
         trials: Monte Carlo trials (each runs without and with the kick on the same noise).
@@ -141,7 +144,7 @@ def kick_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optio
     hand = lambda runs: np.asarray(hand_position(np.asarray(runs.x)[..., :2]))        # noqa: E731
     analysis = analyse(base.runs, kicked.runs, kp, problem.dt, problem.delay_steps, ls, base.errors, kicked.errors,
                        hand(base.runs), hand(kicked.runs))
-    return KickResult(problem, sol, W, kp, base, kicked, analysis)
+    return KickResult(problem, sol, W, kp, base, kicked, analysis, float(kick))
 
 
 def _ms(v) -> str:

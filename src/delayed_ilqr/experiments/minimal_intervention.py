@@ -21,13 +21,13 @@ import numpy as np
 from .. import Options, Problem, solve
 from ..models.metadata import default_u_init
 from .engine import monte_carlo
-from .reach_tasks import bar_target, movement_direction, reach, solver_options
+from .reach_tasks import MODEL_DEFAULT, bar_target, movement_direction, reach, solver_options
 from .responses import Ellipse, axis_sd, ellipse
 
 __all__ = ["PUBLISHED", "TargetScatter", "analyse", "minimal_intervention_experiment", "comparison"]
 
 PUBLISHED = (
-    ("task-irrelevant / task-relevant variability", "Todorov & Jordan 2002", "> 1 (larger along the bar)"),
+    ("task-irrelevant / task-relevant variability", "Todorov & Jordan 2002", "> 1, about 2 (bar target)"),
     ("corrections across / along the narrow dimension", "Knill, Bondada & Chhabra 2011", "about 2x"),
 )
 
@@ -59,15 +59,15 @@ def analyse(name: str, endpoints, bar_direction, status: str = "", problem=None,
                          np.asarray(endpoints), status, problem, mc_cost, float(predicted_cost))
 
 
-def minimal_intervention_experiment(arm: str = "arm2", delay: float = 0.03, sensory_delay: Optional[float] = 0.05,
+def minimal_intervention_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                                     trials: int = 200, seed: int = 0, target=None, final_time: float = 0.5,
                                     options: Optional[Options] = None) -> list[TargetScatter]:
     """[point, bar]: the scatter of the two targets (module docstring); same noise for both.
 
     Args:
         arm: "arm2" or "arm2_muscle6".
-        delay: motor delay (s).
-        sensory_delay: proprioceptive delay (s), or None (the state is seen).
+        delay: motor delay (s); default the model's.
+        sensory_delay: proprioceptive delay (s), None (the state is seen) or the model's default.
         trials: Monte Carlo trials per target (the same noise for both).
         seed: their seed.
         target: [2] the hand target (default 10 cm ahead).

@@ -26,14 +26,15 @@ import numpy as np
 
 from .. import Options, Problem
 from ..models.arm2 import arm2 as _arm2_factory
-from ..models.arm2 import ARM2_PARAMS, ARM_STATE_LABELS, SIGMA_U_HUMAN, hand_position, hand_task, hand_velocity
-from ..models.arm2_muscle6 import Q0, ReachFinalCost, ReachRunningCost, arm2_muscle6, center_out_targets
+from ..models.arm2 import ARM2_PARAMS, ARM_STATE_LABELS, hand_position, hand_task, hand_velocity
+from ..models.arm2_muscle6 import Q0, ReachFinalCost, arm2_muscle6, center_out_targets
 from ..models.metadata import CostParameter, ModelMetadata
 from ..problem import GeneralCost
 
-__all__ = ["ARMS", "ARM2_WEIGHTS", "reach", "reach_targets", "bar_target", "hold_from", "with_target_state",
-           "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics", "TargetStateNoise",
-           "TargetStateCost", "movement_direction", "solver_options"]
+__all__ = ["ARMS", "ARM2_WEIGHTS", "MODEL_DEFAULT", "reach", "loop_latency", "reach_targets", "bar_target",
+           "hold_from", "with_target_state", "TorqueEffort", "BarFinalCost", "HoldRunningCost", "HoldFinalCost", "TargetStateDynamics",
+           "TargetStateNoise", "TargetStateCost", "TARGET_SENSOR_DENSITY", "TARGET_MOTION_DENSITY",
+           "movement_direction", "solver_options"]
 
 #: The arms the gallery runs: the six-muscle arm (its defaults) and the torque-driven arm.
 ARMS = ("arm2_muscle6", "arm2")
@@ -57,20 +58,36 @@ def reach_targets(n: int = 8, radius: float = 0.1, start_angle: float = 0.0) -> 
     return center_out_targets(n, radius, start_angle=start_angle)
 
 
-def reach(arm: str = "arm2", target=None, delay: float = 0.0, noise: bool = True, final_time: float = 0.5,
-          dt: float = 0.01, sensory_delay: Optional[float] = None) -> Problem:
+@dataclass(frozen=True)
+class TorqueEffort:
+    """running(x, u, params) = r |u|^2 (per unit time): the torque arm's effort on its joint torques."""
+
+    def __call__(self, x, u, params):
+        return params["r"] * (u @ u)
+
+
+#: The value of ``delay`` / ``sensory_delay`` that keeps the model's own default (its human preset).
+MODEL_DEFAULT = "model"
+
+
+def reach(arm: str = "arm2", target=None, delay=MODEL_DEFAULT, noise: bool = True, final_time: float = 0.5,
+          dt: float = 0.01, sensory_delay=MODEL_DEFAULT) -> Problem:
     """A reach of ``arm`` to the hand ``target`` [2] (m; default the 10 cm target straight ahead).
 
+    Every experiment of the gallery builds its plant here, with the models' defaults (no weight
+    or noise chosen per experiment): ``delay`` and ``sensory_delay`` are the model's own unless
+    given.
+
     Args:
-        arm: "arm2_muscle6" (its defaults, ``sigma_u`` 0.01 on the excitations) or "arm2" (P2's body,
-            torque noise ``SIGMA_U_HUMAN``, the weights `ARM2_WEIGHTS`), see `ARMS`.
+        arm: "arm2_muscle6" (its defaults) or "arm2" (P2's body with its ``noise=True`` preset and
+            the hand-space weights `ARM2_WEIGHTS`), see `ARMS`.
         target: [2] hand target in metres.
-        delay: motor (input) delay in seconds, a whole number of ``dt``.
-        noise: signal-dependent motor noise in the plant.
+        delay: motor (input) delay in seconds, a whole number of ``dt``; `MODEL_DEFAULT`: the model's.
+        noise: the model's ``noise=True`` preset in the plant (False: none).
         final_time: movement time (s), the horizon K = final_time / dt.
         dt: the time step (s).
-        sensory_delay: None (the state is seen) or the proprioceptive delay in seconds, a whole
-            number of ``dt``.
+        sensory_delay: the proprioceptive delay in seconds (a whole number of ``dt``), None (the
+            state is seen) or `MODEL_DEFAULT` (the model's).
 
     Returns:
         The `Problem`; its metadata's task space is the hand, its target the
@@ -81,17 +98,24 @@ def reach(arm: str = "arm2", target=None, delay: float = 0.0, noise: bool = True
     if target is None:
         target = reach_targets(4, 0.1)[1]
     target = tuple(float(v) for v in np.asarray(target, dtype=float).reshape(2))
+    given = {k: v for k, v in (("delay", delay), ("sensory_delay", sensory_delay))
+             if not (isinstance(v, str) and v == MODEL_DEFAULT)}
     if arm == "arm2_muscle6":
-        return arm2_muscle6(delay=delay, target=target, noise=noise, dt=dt, final_time=final_time,
-                                     sensory_delay=sensory_delay)
+        return arm2_muscle6(target=target, noise=noise, dt=dt, final_time=final_time, **given)
     horizon = int(round(final_time / dt))
-    base = _arm2_factory(delay=delay, noise=noise, dt=dt, horizon=horizon, x0=Q0 + (0.0, 0.0),
-                      sigma_u=SIGMA_U_HUMAN, sensory_delay=sensory_delay)
+    base = _arm2_factory(noise=noise, dt=dt, horizon=horizon, x0=Q0 + (0.0, 0.0), **given)
     params = dict(target=jnp.asarray(target), **{k: jnp.asarray(v) for k, v in ARM2_WEIGHTS.items()})
-    cost = GeneralCost(ReachRunningCost(), ReachFinalCost(ARM2_PARAMS), params)
+    cost = GeneralCost(TorqueEffort(), ReachFinalCost(ARM2_PARAMS), params)
     meta = ModelMetadata(state_labels=ARM_STATE_LABELS, control_labels=base.metadata.control_labels,
-                         task=hand_task(ARM2_PARAMS, target=CostParameter("target")))
+                         task=hand_task(ARM2_PARAMS, target=CostParameter("target")), noise=base.metadata.noise)
     return base.replace(cost=cost, metadata=meta)
+
+
+def loop_latency(problem: Problem) -> float:
+    """(l_s + l_m) dt in seconds: the sensory delay (0 when the state is seen) plus the motor delay,
+    the earliest a response to a disturbance can reach the plant."""
+    ls = 0 if problem.observation is None else int(problem.observation.delay_steps)
+    return (ls + int(problem.delay_steps)) * problem.dt
 
 
 @dataclass(frozen=True)
@@ -120,10 +144,11 @@ def bar_target(problem: Problem, along) -> Problem:
 
 @dataclass(frozen=True)
 class HoldRunningCost:
-    """running(x, u, params, t) = r |u|^2 + [t >= T] (w_p |e - target|^2 + w_v |de/dt|^2) / T_hold:
-    from the movement time T = ``params["T"]`` on, the hand must stay on the target at rest (the
-    final cost's weights spread over a hold of ``params["hold"]`` seconds)."""
+    """running(x, u, params, t) = running_base(x, u, params) + [t >= T] (w_p |e - target|^2 +
+    w_v |de/dt|^2) / T_hold: from the movement time T = ``params["T"]`` on, the hand must stay on the
+    target at rest (the final cost's weights spread over a hold of ``params["hold"]`` seconds)."""
 
+    base: Any
     arm: Any = ARM2_PARAMS
 
     def __call__(self, x, u, params, t):
@@ -131,7 +156,8 @@ class HoldRunningCost:
         err = hand_position(q, self.arm) - params["target"]
         vel = hand_velocity(q, dq, self.arm)
         on = (t >= params["T"] - 1e-9).astype(x.dtype)
-        return params["r"] * (u @ u) + on * (params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel)) / params["hold"]
+        hold = on * (params["w_p"] * (err @ err) + params["w_v"] * (vel @ vel)) / params["hold"]
+        return self.base(x, u, params) + hold
 
 
 @dataclass(frozen=True)
@@ -153,7 +179,8 @@ def hold_from(problem: Problem, movement_time: float, hold: float) -> Problem:
         raise ValueError(f"movement_time + hold must fit in the horizon {problem.horizon * problem.dt:g} s; "
                          f"got {movement_time:g} + {hold:g}")
     params = dict(problem.cost.params, T=jnp.asarray(float(movement_time)), hold=jnp.asarray(float(hold)))
-    cost = GeneralCost(HoldRunningCost(problem.cost.final_fn.arm), HoldFinalCost(problem.cost.final_fn), params,
+    cost = GeneralCost(HoldRunningCost(problem.cost.running_fn, problem.cost.final_fn.arm),
+                       HoldFinalCost(problem.cost.final_fn), params,
                        time_dependent=True)
     return problem.replace(cost=cost)
 
@@ -170,13 +197,20 @@ class TargetStateDynamics:
 
 @dataclass(frozen=True)
 class TargetStateNoise:
-    """F([x, g], u, ud) = [F_base(x, u, ud); 0]: no noise on the target."""
+    """F([x, g], u, ud) = [[F_base(x, u, ud), 0], [0, motion I_2]] (the columns of F_base alone when
+    ``motion`` is 0): the target moves as a random walk of density ``motion`` (m / sqrt(s))."""
 
     base: Any
+    n_base: int
+    motion: float = 0.0
 
     def __call__(self, x, u, ud):
-        F = self.base(x[:-2], u, ud)
-        return jnp.concatenate([F, jnp.zeros((2, F.shape[1]), F.dtype)])
+        F = (jnp.zeros((self.n_base, 0), x.dtype) if self.base is None else self.base(x[:-2], u, ud))
+        F = jnp.concatenate([F, jnp.zeros((2, F.shape[1]), F.dtype)])
+        if self.motion == 0.0:
+            return F
+        walk = jnp.concatenate([jnp.zeros((self.n_base, 2), F.dtype), self.motion * jnp.eye(2, dtype=F.dtype)])
+        return jnp.concatenate([F, walk], axis=1)
 
 
 @dataclass(frozen=True)
@@ -197,26 +231,59 @@ class _RunningOnBase:
         return self.base(x[:-2], u, params)
 
 
-def with_target_state(problem: Problem) -> Problem:
-    """``problem`` (a `reach` with full-state feedback) with its target as the last two states
-    (zero dynamics, no noise), which the cost reads instead of the parameter: the policy's feedback
-    on them is the optimal response to a target displacement (the target-jump model of Liu &
-    Todorov 2007). The state-feedback policy sees a jump at once; the motor delay is the loop latency."""
-    if problem.observation is not None:
-        raise ValueError("with_target_state needs full-state feedback (no sensory_delay): the sensors do not see "
-                         "the target states")
+#: Vision of the target: per-sample SD 1 mm at dt = 10 ms (a density, m sqrt(s)) [D].
+TARGET_SENSOR_DENSITY = 1e-4
+#: What the controller expects of a target: a random walk of 2 mm per 10 ms step (m / sqrt(s)) [D];
+#: with it the delayed filter believes a seen jump within a step or two (the plant's target moves
+#: only when the experiment moves it).
+TARGET_MOTION_DENSITY = 0.02
+
+
+def _target_observation(observation, n_base: int, dt: float):
+    """The sensors of [x, g]: ``observation``'s rows on x (arrays H, G), and g seen with the same
+    delay through noise of density `TARGET_SENSOR_DENSITY`."""
+    from .. import Observation
+    if observation.output_fn is not None or observation.noise_fn is not None:
+        raise ValueError("with_target_state needs sensors given as arrays H and G (the models' defaults); got "
+                         f"{observation!r}")
+    H, G = np.asarray(observation.H), np.asarray(observation.G)
+    m, q = H.shape[0], G.shape[1]
+    H2 = np.zeros((m + 2, n_base + 2))
+    H2[:m, :n_base], H2[m:, n_base:] = H, np.eye(2)
+    G2 = np.zeros((m + 2, q + 2))
+    G2[:m, :q], G2[m:, q:] = G, TARGET_SENSOR_DENSITY / np.sqrt(dt) * np.eye(2)
+    return Observation(H2, G2, delay_steps=observation.delay_steps)
+
+
+def with_target_state(problem: Problem, target_motion: float = 0.0) -> Problem:
+    """``problem`` (a `reach`) with its target as the last two states g, which the cost reads
+    instead of the parameter: the policy's feedback on them is the optimal response to a target
+    displacement (the target-jump model of Liu & Todorov 2007).
+
+    The target has zero dynamics; ``target_motion`` > 0 (m / sqrt(s)) makes it a random walk of that
+    density (the design problem: what the controller expects of a target, `TARGET_MOTION_DENSITY`),
+    0 keeps it still but for a disturbance (the plant: a jump). With full-state feedback the policy
+    sees a jump at once and the motor delay is the loop latency; with the problem's sensors the
+    target is seen with the same delay (`TARGET_SENSOR_DENSITY`), and the loop latency is the
+    sensory plus the motor delay."""
+    if not target_motion >= 0:
+        raise ValueError(f"target_motion must be a non-negative density (m / sqrt(s)); got {target_motion!r}")
+    n = problem.n_states
     g = jnp.asarray(problem.cost.params["target"])
     meta = problem.metadata
     meta = ModelMetadata(state_labels=meta.state_labels + ("target x [m]", "target y [m]"),
-                         control_labels=meta.control_labels, task=meta.task, u_init=meta.u_init)
+                         control_labels=meta.control_labels, task=meta.task, u_init=meta.u_init, noise=meta.noise)
     cost = GeneralCost(_RunningOnBase(problem.cost.running_fn), TargetStateCost(problem.cost.final_fn),
                        problem.cost.params)
+    noise = (None if problem.noise is None and target_motion == 0.0
+             else TargetStateNoise(problem.noise, n, float(target_motion)))
+    observation = (None if problem.observation is None
+                   else _target_observation(problem.observation, n, problem.dt))
     return Problem(dynamics=TargetStateDynamics(problem.dynamics), x0=jnp.concatenate([problem.x0, g]),
                    dt=problem.dt, horizon=problem.horizon, delay_steps=problem.delay_steps, cost=cost,
-                   noise=None if problem.noise is None else TargetStateNoise(problem.noise),
-                   u_min=problem.u_min if problem._has_limits else None,
+                   noise=noise, u_min=problem.u_min if problem._has_limits else None,
                    u_max=problem.u_max if problem._has_limits else None, n_controls=problem.n_controls,
-                   name=problem.name + "+target", metadata=meta)
+                   name=problem.name + "+target", metadata=meta, observation=observation)
 
 
 def movement_direction(problem: Problem) -> np.ndarray:

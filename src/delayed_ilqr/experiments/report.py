@@ -6,10 +6,9 @@ caller, saved by `save_figures`).
 """
 from __future__ import annotations
 
-import json
 import math
 import pathlib
-from typing import Mapping, Optional, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -19,7 +18,7 @@ from .designs import REGISTRY
 from .records import problem_record
 from .tables import delay_study_rows, delay_study_warnings, markdown_table
 
-__all__ = ["DESCRIPTIONS", "DPI", "write_json", "save_figures", "policy_arrays", "delay_study_records",
+__all__ = ["DESCRIPTIONS", "DPI", "json_ready", "write_json", "save_figures", "policy_arrays", "delay_study_records",
            "center_out_records",
            "write_solution", "write_runs", "write_delay_study", "write_demo_report", "write_center_out_report"]
 
@@ -43,13 +42,23 @@ def write_json(path: pathlib.Path, data) -> None:
     _files.write_json(path, data)
 
 
-def _json_float(value) -> Optional[float]:
-    value = float(value)
-    return value if math.isfinite(value) else None
-
-
-def _json_list(values) -> list:
-    return [_json_float(v) for v in values]
+def json_ready(value):
+    """``value`` as strict JSON data: non-finite floats become None (null), NumPy and JAX arrays and
+    scalars plain lists and numbers, dicts, lists and tuples converted item by item, and an object with a
+    ``to_dict`` (e.g. [`SampleStats`][delayed_ilqr.statistics.SampleStats]) by its dict; anything else
+    is returned as it is."""
+    if hasattr(value, "to_dict"):              # SampleStats (a NamedTuple: before the tuples)
+        return json_ready(value.to_dict())
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if hasattr(value, "shape") and hasattr(value, "dtype"):       # NumPy and JAX arrays and scalars
+        array = np.asarray(value)
+        return json_ready(array.tolist() if array.ndim else array.item())
+    return value
 
 
 def save_figures(figures: Mapping[str, object], out: pathlib.Path) -> list[str]:
@@ -91,9 +100,9 @@ def center_out_records(results: Sequence) -> list[dict]:
                  targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
                                predicted_cost=t.predicted_cost, mc_cost=t.cost_stats.to_dict(),
                                hand_error=t.hand_error, hand_speed=t.hand_speed, mc_error=t.error_stats.to_dict(),
-                               endpoint_mean=_json_list(t.endpoints[~t.diverged].mean(axis=0)),
-                               endpoint_cov=[_json_list(row) for row in t.endpoint_cov], spread=_json_float(t.spread),
-                               **({} if t.sl_change is None else dict(sl_change=_json_float(t.sl_change))))
+                               endpoint_mean=json_ready(t.endpoints[~t.diverged].mean(axis=0)),
+                               endpoint_cov=[json_ready(row) for row in t.endpoint_cov], spread=json_ready(t.spread),
+                               **({} if t.sl_change is None else dict(sl_change=json_ready(t.sl_change))))
                           for t in r.targets])
             for r in results]
 
@@ -112,8 +121,8 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
         descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=problem.delay,
         delay_steps=problem.delay_steps, dt=problem.dt,
         noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
-        message=status.message, iterations=int(sol.iterations), cost=_json_float(sol.cost),
-        expected_cost=_json_float(sol.expected_cost), endpoint_label=label, endpoint_error=_json_float(value),
+        message=status.message, iterations=int(sol.iterations), cost=json_ready(sol.cost),
+        expected_cost=json_ready(sol.expected_cost), endpoint_label=label, endpoint_error=json_ready(value),
         endpoint_unit=unit, solve_time=solve_time, first_solve_time=first, problem=record))
     sol.save(out / "solution.npz", problem, info=dict(model=model, method=method, problem=record))
     return ["solution.json", "solution.npz"]

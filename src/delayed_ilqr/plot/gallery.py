@@ -10,11 +10,27 @@ import numpy as np
 from ..models.arm2 import hand_position
 from ._common import ellipse, figure
 
-__all__ = ["plot_kick", "plot_target_jump", "plot_fitts", "plot_minimal_intervention"]
+__all__ = ["plot_kick", "plot_target_jump", "plot_fitts", "plot_minimal_intervention", "plot_delay_growth"]
 
 
 def _hand(x):
     return np.asarray(hand_position(np.asarray(x)[..., :2]))
+
+
+def _command_axis(problem) -> str:
+    """The y label of a command response: what the commands are and their unit, from the model's
+    control labels (e.g. "excitation u1 [-]": a fraction of the maximal excitation)."""
+    labels = getattr(problem.metadata, "control_labels", None) or ("command [-]",)
+    name, _, unit = labels[0].rpartition(" [")
+    unit = unit.rstrip("]")
+    kind = name.split()[0] if name else "command"
+    return f"|mean {kind} change| [{'fraction of maximum' if unit == '-' else unit}]"
+
+
+def _delays(problem) -> str:
+    ls = None if problem.observation is None else problem.observation.delay_steps * problem.dt
+    sensory = "state seen" if ls is None else f"sensory {1e3 * ls:.0f} ms"
+    return f"{problem.name}, motor delay {1e3 * problem.delay_steps * problem.dt:.0f} ms, {sensory}"
 
 
 def plot_kick(result):
@@ -43,14 +59,16 @@ def plot_kick(result):
     ax_u.plot(t_after, resp, color="tab:red", lw=2, drawstyle="steps-post", label="model (held over each step)")
     ax_u.axvline(1e3 * a.loop_latency, color="k", ls=":", label=f"loop latency {1e3 * a.loop_latency:.0f} ms")
     ax_u.set_xlim(-50, max(300, t_after[-1]))
-    ax_u.set_xlabel("time after the kick [ms] (applied command)")
-    ax_u.set_ylabel("|mean command response|")
+    ax_u.set_xlabel("time after the kick, applied command [ms]")
+    ax_u.set_ylabel(_command_axis(p))
     ax_u.legend(fontsize=7)
     eb, ek = 1e3 * np.asarray(result.base.errors), 1e3 * np.asarray(result.kicked.errors)
     ax_err.boxplot([eb, ek])
     ax_err.set_xticks([1, 2], ["unperturbed", "kicked"])
+    ax_err.set_xlabel("trials on the same noise [-]")
     ax_err.set_ylabel("final hand error [mm]")
-    ax_err.set_title(f"median ratio {a.error_ratio:.2g} (published: about 1-2)", fontsize=9)
+    ax_err.set_title(f"median ratio {a.error_ratio:.2g} (published: at most about 2)", fontsize=9)
+    fig.suptitle(f"A mid-reach kick of {1e3 * float(np.abs(result.kick_speed)):.0f} mm/s ({_delays(p)})")
     return fig
 
 
@@ -82,6 +100,8 @@ def plot_target_jump(result):
     ax_err.set_xlabel("jump time before the end [ms]")
     ax_err.set_ylabel("final distance to the new target [mm]")
     ax_err.legend(fontsize=8)
+    fig.suptitle(f"Target jumps of {1e3 * float(np.linalg.norm(result.jump)):.0f} mm ({_delays(result.problem)}); "
+                 "Liu & Todorov 2007")
     return fig
 
 
@@ -107,6 +127,7 @@ def plot_fitts(results: Sequence):
     ax.set_xlabel("index of difficulty log2(2D/W) [bit]")
     ax.set_ylabel("movement time [s]")
     ax.legend(fontsize=8)
+    ax.set_title("Fitts' law: the movement time the model chooses", fontsize=10)
     return fig
 
 
@@ -123,6 +144,39 @@ def plot_minimal_intervention(scatters: Sequence):
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("hand x - target [mm]")
     ax.set_ylabel("hand y - target [mm]")
-    ax.set_title("bar across the movement; published ratio about 2", fontsize=9)
+    ax.set_title("Minimal intervention: bar across the movement (published ratio about 2)", fontsize=9)
     ax.legend(fontsize=8)
+    return fig
+
+
+def plot_delay_growth(result):
+    """Cost, median endpoint error and endpoint scatter against the motor delay (top row) and the
+    sensory delay (bottom row): the Monte Carlo (mean with its 95 % interval for the cost) beside
+    the local (linearised) prediction, where there is one."""
+    rows = [(name, pts, key) for name, pts, key in (("motor", result.motor, "delay"),
+                                                     ("sensory", result.sensory, "sensory_delay")) if pts]
+    fig = figure(figsize=(13, 3.6 * len(rows)), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(len(rows), 3))
+    for (name, pts, key), row in zip(rows, axes):
+        d = np.array([1e3 * (getattr(p, key) or 0.0) for p in pts])
+        mean = np.array([p.cost.mean for p in pts])
+        lo, hi = (np.array([p.cost.ci95[i] for p in pts]) for i in (0, 1))
+        row[0].errorbar(d, mean, yerr=[mean - lo, hi - mean], fmt="o-", color="tab:blue", capsize=3,
+                        label="Monte Carlo mean, 95 % CI")
+        row[0].plot(d, [p.predicted_cost for p in pts], "s--", color="tab:orange", label="linearised prediction")
+        row[0].set_yscale("log")
+        row[0].set_ylabel("cost [-]")
+        row[1].plot(d, [1e3 * p.error_median for p in pts], "o-", color="tab:blue", label="Monte Carlo median")
+        row[2].plot(d, [1e3 * p.scatter for p in pts], "o-", color="tab:blue", label="Monte Carlo RMS")
+        if all(p.predicted_scatter is not None for p in pts):
+            row[1].plot(d, [1e3 * p.predicted_error for p in pts], "s--", color="tab:orange",
+                        label="linearised prediction (RMS)")
+            row[2].plot(d, [1e3 * p.predicted_scatter for p in pts], "s--", color="tab:orange",
+                        label="linearised prediction")
+        row[1].set_ylabel("endpoint error [mm]")
+        row[2].set_ylabel("endpoint scatter [mm]")
+        for ax in row:
+            ax.set_xlabel(f"{name} delay [ms]")
+            ax.legend(fontsize=8)
+    fig.suptitle(f"Cost, endpoint error and scatter against the delay ({result.problem.name})")
     return fig
