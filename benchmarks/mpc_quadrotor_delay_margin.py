@@ -10,7 +10,7 @@ compensation and the gain of the command it sends.
    sends from hover at the waypoint, nothing in flight, a converged tick (40 iterations), by
    central differences.
 
-Run ``python benchmarks/mpc_quadrotor_delay_margin.py [--trials 4]``: about 3 minutes on the
+Run ``python benchmarks/mpc_quadrotor_delay_margin.py [--trials 4]``: about 8 minutes on the
 shared 2-core machine under load.
 """
 from __future__ import annotations
