@@ -227,10 +227,10 @@ def default_x0(q0=Q0, a0=None) -> tuple:
 
 
 def rest_commands(problem: Problem, level=None):
-    """A [K, 6] warm start holding the excitations at the start activations ``problem.x0[4:]``
+    """A [K, 6] warm start holding the excitations at the start activations ``problem.x0[4:10]``
     (the activations' equilibrium: with the default start, the rest posture held), or at a
     scalar ``level``."""
-    rest = problem.x0[4:] if level is None else jnp.full(problem.n_controls, float(level))
+    rest = problem.x0[4:10] if level is None else jnp.full(problem.n_controls, float(level))
     return jnp.broadcast_to(jnp.asarray(rest, jnp.float64), (problem.horizon, problem.n_controls))
 
 
