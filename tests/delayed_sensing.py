@@ -149,6 +149,30 @@ class Augmented:
                     Lz[k, self.block(i)] = self.transport(k, i) @ Kd[k]
         return Kh, Lz, Lz[:, self.block(0)]
 
+    def _advance(self, a, k, X, Kh, Z, Zh, n, N, d):
+        """Step k of the pair's second moment X [2N + 1, 2N + 1] under the law Kh: its stage cost,
+        X at k + 1 (the motor noise of the commands added) and that noise [n, n]."""
+        Tc = np.zeros((N + 1 + d, 2 * N + 1))          # [Z; 1; du] from xi
+        Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
+        Tc[N + 1:, Zh], Tc[N + 1:, -1] = Kh[k, :, :N], Kh[k, :, N]
+        stage = np.sum(self._stage_weight(k) * (Tc @ X @ Tc.T))
+        noise = np.zeros((n, n))
+        for j in range(a["c"].shape[1]):
+            Gj = np.zeros((n, 2 * N + 1))
+            Gj[:, -1] = a["c"][k, j]
+            Gj += a["C0"][k, j] @ Tc[N + 1:]
+            if self.l > 0:                                # du_{k-l}: the oldest command in flight
+                xs = n * (self.ls + 1)
+                Gj[:, xs:xs + d] += a["C1"][k, j]
+            noise += Gj @ X @ Gj.T
+        T = np.zeros((2 * N + 1, 2 * N + 1))
+        T[Z, Z], T[Zh, Zh], T[-1, -1] = self.Az[k], self.Az[k], 1.0
+        T[Z] += self.Bz[k] @ Tc[N + 1:]
+        T[Zh] += self.Bz[k] @ Tc[N + 1:]
+        X = T @ X @ T.T
+        X[:n, :n] += noise
+        return stage, X, noise
+
     def output_feedback_cost(self, Kh, Lz):
         """Exact E[cost] of du_k = Kh_k [Z_hat_k; 1] with the filter gains Lz, by the second
         moment of xi = [Z; Z_hat; 1], with the motor noise columns c_j + C0_j du_k + C1_j du_{k-l}."""
@@ -164,25 +188,8 @@ class Augmented:
             V = np.zeros((2 * N + 1, self.R.shape[1]))
             V[Zh] = Lz[k]
             X = U @ X @ U.T + V @ self.R[k] @ V.T
-            Tc = np.zeros((N + 1 + d, 2 * N + 1))          # [Z; 1; du] from xi
-            Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
-            Tc[N + 1:, Zh], Tc[N + 1:, -1] = Kh[k, :, :N], Kh[k, :, N]
-            total += np.sum(self._stage_weight(k) * (Tc @ X @ Tc.T))
-            noise = np.zeros((n, n))
-            for j in range(a["c"].shape[1]):
-                Gj = np.zeros((n, 2 * N + 1))
-                Gj[:, -1] = a["c"][k, j]
-                Gj += a["C0"][k, j] @ Tc[N + 1:]
-                if self.l > 0:                                # du_{k-l}: the oldest command in flight
-                    xs = n * (self.ls + 1)
-                    Gj[:, xs:xs + d] += a["C1"][k, j]
-                noise += Gj @ X @ Gj.T
-            T = np.zeros((2 * N + 1, 2 * N + 1))
-            T[Z, Z], T[Zh, Zh], T[-1, -1] = self.Az[k], self.Az[k], 1.0
-            T[Z] += self.Bz[k] @ Tc[N + 1:]
-            T[Zh] += self.Bz[k] @ Tc[N + 1:]
-            X = T @ X @ T.T
-            X[:n, :n] += noise
+            stage, X, _ = self._advance(a, k, X, Kh, Z, Zh, n, N, d)
+            total += stage
         Tc = np.zeros((N + 1, 2 * N + 1))
         Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
         return total + np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T))

@@ -82,25 +82,8 @@ class AugmentedSensors(Augmented):
             V = np.zeros((2 * N + 1, self.R.shape[1]))
             V[Zh] = Lz
             X = U @ X @ U.T + V @ self.R[k] @ V.T
-            Tc = np.zeros((N + 1 + d, 2 * N + 1))
-            Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
-            Tc[N + 1:, Zh], Tc[N + 1:, -1] = Kh[k, :, :N], Kh[k, :, N]
-            total += np.sum(self._stage_weight(k) * (Tc @ X @ Tc.T))
-            noise = np.zeros((n, n))
-            for j in range(a["c"].shape[1]):
-                Gj = np.zeros((n, 2 * N + 1))
-                Gj[:, -1] = a["c"][k, j]
-                Gj += a["C0"][k, j] @ Tc[N + 1:]
-                if self.l > 0:
-                    xs = n * (self.ls + 1)
-                    Gj[:, xs:xs + d] += a["C1"][k, j]
-                noise += Gj @ X @ Gj.T
-            T = np.zeros((2 * N + 1, 2 * N + 1))
-            T[Z, Z], T[Zh, Zh], T[-1, -1] = self.Az[k], self.Az[k], 1.0
-            T[Z] += self.Bz[k] @ Tc[N + 1:]
-            T[Zh] += self.Bz[k] @ Tc[N + 1:]
-            X = T @ X @ T.T
-            X[:n, :n] += noise
+            stage, X, noise = self._advance(a, k, X, Kh, Z, Zh, n, N, d)
+            total += stage
             Qz = np.zeros((N, N))
             Qz[:n, :n] = noise
             P = self.Az[k] @ P @ self.Az[k].T + Qz
