@@ -116,6 +116,8 @@ LONGEST_FIRST = (
     "test_limits_family.py",
     "test_gradients.py",
     "test_mpc.py",
+    "test_gallery.py",
+    "test_human_reaches.py",
     "test_gradients_muscle.py",
     "test_continuation.py",
     "test_reach_shape.py",
