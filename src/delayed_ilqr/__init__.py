@@ -39,6 +39,7 @@ from . import lqg, models, mpc
 from ._cache import default_cache_dir, enable_compilation_cache
 from ._cpu import configure_cpu
 from .problem import GeneralCost, Problem, QuadraticCost
+from .delay_jitter import DelayJitter
 from .observation import Observation
 from .solution import Estimator, Policy, Solution, Status, Trace
 from .fused_estimator import FusedEstimator
@@ -49,7 +50,7 @@ from .simulate import Runs, simulate
 from .saving import load, load_metadata
 
 __all__ = ["lqg", "models", "mpc", "configure_cpu", "enable_compilation_cache", "default_cache_dir", "sweep", "open_sweep",
-           "Problem", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve",
+           "Problem", "DelayJitter", "QuadraticCost", "GeneralCost", "Observation", "Options", "solve",
            "solve_from_starts", "augmented_lagrangian_start", "Starts", "Continuation", "Solution", "Policy",
            "Estimator", "FusedEstimator", "Status", "Trace", "simulate", "Runs", "load", "load_metadata"]
 __version__ = "0.1.0"

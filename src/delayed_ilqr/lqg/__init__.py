@@ -38,6 +38,7 @@ Modules (the solver's internals are imported from them, not from here):
 | estimator | [`delayed_kalman`][delayed_ilqr.lqg.delayed_kalman]: the delayed Kalman filter without augmentation, and its run |
 | output_feedback | [`separation_design`][delayed_ilqr.lqg.separation_design], [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost] (exact, any pair), [`separation_cost`][delayed_ilqr.lqg.separation_cost], [`simulate_output_feedback`][delayed_ilqr.lqg.simulate_output_feedback] |
 | fusion | [`fused_kalman`][delayed_ilqr.lqg.fused_kalman]: several sensors with their own delays and periods, fused without augmentation; [`fused_estimates`][delayed_ilqr.lqg.fused_estimates], [`fused_design`][delayed_ilqr.lqg.fused_design] |
+| jitter | a jittered input delay (the delay drawn at every step from a known distribution): [`jittered_backward_pass`][delayed_ilqr.lqg.jittered_backward_pass] (structured), [`jittered_augmented_pass`][delayed_ilqr.lqg.jittered_augmented_pass] (reference), [`jittered_policy_cost`][delayed_ilqr.lqg.jittered_policy_cost] (exact), [`simulate_jittered_lqg`][delayed_ilqr.lqg.simulate_jittered_lqg] |
 | alternation | [`alternate`][delayed_ilqr.lqg.alternate]: Todorov's alternation of filter and controller for signal-dependent noise ([`filter_step`][delayed_ilqr.lqg.filter_step], [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]) |
 
 """
@@ -49,6 +50,7 @@ from .estimator import FilterCovariances, FilterGains, delayed_kalman, filter_es
 from .output_feedback import (OutputFeedback, OutputFeedbackRuns, output_feedback_cost, separation_cost,
                               separation_design, simulate_output_feedback)
 from .structured import backward_pass
+from .jitter import jittered_augmented_pass, jittered_backward_pass, jittered_policy_cost, simulate_jittered_lqg
 from .alternation import Alternation, alternate, controller_sweep, filter_step
 from .fusion import (FusedFeedback, FusedLoop, FusionCovariances, FusionGains, fused_design, fused_estimates,
                      fused_kalman, fused_loop)
@@ -87,4 +89,8 @@ __all__ = [
     "fused_design",
     "FusedLoop",
     "fused_loop",
+    "jittered_backward_pass",
+    "jittered_augmented_pass",
+    "jittered_policy_cost",
+    "simulate_jittered_lqg",
 ]

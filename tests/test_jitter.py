@@ -1,0 +1,148 @@
+"""A jittered input delay (``DelayJitter``, docs/derivation.md §21): the delay of the acting command
+drawn at every step from a known distribution.
+
+References, independent of the structured pass (``lqg.jittered_backward_pass``): the Riccati
+recursion on the augmented state with the expectation over the delay (``jittered_augmented_pass``,
+built from the library's augmentation at each delay); the exact second moments of the closed
+loop (``jittered_policy_cost``, no recursion on the value); the library's delayed pass for a
+point mass (no jitter); and Monte Carlo with the delay drawn per step (``simulate_jittered_lqg``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from delayed_ilqr import DelayJitter
+from delayed_ilqr import lqg as _lqg
+from delayed_ilqr.lqg import DelayedLQG
+
+from comparisons import WorstDifference, rel_err   # tests/comparisons.py
+from test_lqg import random_arrays                  # tests/test_lqg.py
+
+RTOL = 1e-9
+_WORST = WorstDifference("test_jitter: worst jittered structured-vs-reference relative difference")
+_report_worst = _WORST.fixture()
+
+# (K, n, d, p, L): each shape compiles each pass once (the distribution over 0..L is data). The
+# second has L >= K: commands that may act after the horizon.
+SHAPES = [(6, 2, 2, 2, 3), (3, 3, 1, 1, 4)]
+VALUE_FIELDS = ("s_tilde", "s", "S", "r", "Rt", "R")
+
+
+def _distribution(data, L: int) -> DelayJitter:
+    """A random distribution over a random subset of 0..L that contains L (a point mass among them)."""
+    steps = sorted(set(data.draw(st.lists(st.integers(0, L - 1), max_size=L), label="steps")) | {L})
+    weights = np.asarray(data.draw(st.lists(st.floats(0.05, 1.0), min_size=len(steps), max_size=len(steps)),
+                                   label="weights"))
+    return DelayJitter(steps, weights / weights.sum())
+
+
+def _errors(gains, value, ref_gains, ref_value):
+    errs = {f: rel_err(getattr(gains, f), getattr(ref_gains, f)) for f in gains._fields}
+    errs.update({f: rel_err(getattr(value, f), getattr(ref_value, f)) for f in VALUE_FIELDS})
+    return errs
+
+
+@settings(max_examples=8, deadline=None)
+@given(shape=st.sampled_from(SHAPES), data=st.data(), seed=st.integers(0, 2 ** 31 - 1),
+       reg=st.sampled_from([0.0, 0.3]), offsets=st.booleans())
+def test_jittered_pass_equals_augmentation(shape, data, seed, reg, offsets):
+    """Random time-varying data, random delay distributions (with 0, 1, L >= K, point masses) and
+    offsets: every gain and value block of the structured pass equals the augmented reference's
+    to round-off, and J(0) is the exact expected cost of the returned law (second moments)."""
+    K, n, d, p, L = shape
+    jitter = _distribution(data, L)
+    lqg = DelayedLQG(**random_arrays(seed, K, n, d, p, L))
+    delta = np.random.default_rng(seed).standard_normal((K, L + 1, d)) if offsets else None
+    gains, value = _lqg.jittered_backward_pass(lqg, jitter, reg, delta)
+    ref_gains, ref_value = _lqg.jittered_augmented_pass(lqg, jitter, reg, delta)
+    assert bool(value.positive_definite) and bool(ref_value.positive_definite)
+    errs = _errors(gains, value, ref_gains, ref_value)
+    errs["J0 vs moments"] = rel_err(value.expected_cost, _lqg.jittered_policy_cost(lqg, jitter, gains, delta))
+    worst = max(errs, key=errs.get)
+    _WORST.record(errs[worst], f"{worst}, {jitter}, {shape}, reg={reg}")
+    assert errs[worst] < RTOL, (worst, errs[worst], jitter)
+
+
+@pytest.mark.parametrize("l", [0, 1, 3, 7])
+def test_point_mass_equals_the_delayed_pass(l):
+    """No jitter (a point mass at l, l >= K included): the jittered pass is the library's delayed
+    pass at delay l (Theorem 1), gain by gain and block by block, and its exact cost the
+    second-moment cost of the delayed system (``policy_cost``)."""
+    lqg = DelayedLQG(**random_arrays(11 + l, 6, 2, 2, 2, l))
+    gains, value = _lqg.jittered_backward_pass(lqg, DelayJitter.fixed(l))
+    ref_gains, ref_value = _lqg.backward_pass(lqg)
+    errs = _errors(gains, value, ref_gains, ref_value)
+    errs["cost"] = rel_err(_lqg.jittered_policy_cost(lqg, DelayJitter.fixed(l), gains), _lqg.policy_cost(lqg, gains))
+    worst = max(errs, key=errs.get)
+    _WORST.record(errs[worst], f"{worst}, point mass at {l}")
+    assert errs[worst] < RTOL, (worst, errs[worst])
+
+
+@pytest.mark.parametrize("offsets", [False, True])
+def test_monte_carlo_agrees_with_the_exact_cost(offsets):
+    """The exact expected cost (J(0) of the pass, = the second moments) lies in the Monte Carlo's
+    99.9 % interval: 4000 trials, the delay drawn per step and trial, signal-dependent noise."""
+    K, n, d, p, L = SHAPES[0]
+    jitter = DelayJitter([1, 2, 3], [0.3, 0.3, 0.4])
+    lqg = DelayedLQG(**random_arrays(5, K, n, d, p, L))
+    delta = np.random.default_rng(5).standard_normal((K, L + 1, d)) if offsets else None
+    gains, value = _lqg.jittered_backward_pass(lqg, jitter, 0.0, delta)
+    cost = np.asarray(_lqg.simulate_jittered_lqg(lqg, jitter, gains, 4000, seed=3, offsets=delta).cost)
+    mean, se = cost.mean(), cost.std(ddof=1) / np.sqrt(cost.size)
+    assert abs(mean - float(value.expected_cost)) < 3.3 * se, (mean, se, float(value.expected_cost))
+
+
+def test_point_mass_monte_carlo_is_the_delayed_one():
+    """Without jitter the Monte Carlo is the delayed system's (``simulate_lqg``, same noise from the
+    same seed): trial by trial, to round-off."""
+    K, n, d, p, L = SHAPES[0]
+    lqg = DelayedLQG(**random_arrays(6, K, n, d, p, L))
+    gains, _ = _lqg.backward_pass(lqg)
+    runs = _lqg.simulate_jittered_lqg(lqg, DelayJitter.fixed(L), gains, 50, seed=4)
+    ref = _lqg.simulate_lqg(lqg, gains, 50, seed=4)
+    assert rel_err(runs.dx, ref.dx) < RTOL and rel_err(runs.cost, ref.cost) < RTOL
+
+
+def test_monte_carlo_is_reproducible_and_draws_the_distribution():
+    """Same seed, same trials; the delays drawn by ``DelayJitter.sample`` follow p (a chi-square
+    bound on 20000 draws)."""
+    import jax
+    jitter = DelayJitter([0, 2, 3], [0.5, 0.2, 0.3])
+    lqg = DelayedLQG(**random_arrays(2, 4, 2, 1, 1, 3))
+    gains, _ = _lqg.jittered_backward_pass(lqg, jitter)
+    a, b = (_lqg.simulate_jittered_lqg(lqg, jitter, gains, 5, seed=9) for _ in range(2))
+    np.testing.assert_array_equal(np.asarray(a.cost), np.asarray(b.cost))
+    draws = np.asarray(jitter.sample(jax.random.PRNGKey(0), (20000,)))
+    counts = np.array([(draws == s).sum() for s in jitter.steps])
+    expected = 20000 * np.asarray(jitter.probabilities)
+    assert set(np.unique(draws)) <= set(jitter.steps)
+    assert np.sum((counts - expected) ** 2 / expected) < 13.8      # chi-square, 2 dof, p = 0.001
+
+
+@pytest.mark.parametrize("steps, probabilities, match", [
+    ([1, 2], [0.5, 0.6], "must sum to 1"),
+    ([1, 2], [1.2, -0.2], "non-negative"),
+    ([1, 2], [0.5, np.nan], "finite"),
+    ([1, -2], [0.5, 0.5], r"steps\[1\] must be a non-negative integer"),
+    ([1, 2.5], [0.5, 0.5], r"steps\[1\] must be a non-negative integer"),
+    ([2, 2], [0.5, 0.5], "must not repeat"),
+    ([1, 2, 3], [0.5, 0.5], "one probability per delay"),
+    ([], [], "at least one delay"),
+])
+def test_bad_distributions_are_refused(steps, probabilities, match):
+    with pytest.raises(ValueError, match=match):
+        DelayJitter(steps, probabilities)
+
+
+def test_the_model_must_hold_the_commands_in_flight():
+    """The LQG's delay_steps is the longest delay (the commands in flight), named in the error."""
+    lqg = DelayedLQG(**random_arrays(0, 4, 2, 1, 1, 2))
+    with pytest.raises(ValueError, match="longest delay L = 3"):
+        _lqg.jittered_backward_pass(lqg, DelayJitter([1, 3], [0.5, 0.5]))
+    with pytest.raises(TypeError, match="DelayJitter"):
+        _lqg.jittered_backward_pass(lqg, [0.5, 0.5])
+    with pytest.raises(ValueError, match="offsets"):
+        _lqg.jittered_backward_pass(lqg, DelayJitter([1, 2], [0.5, 0.5]), offsets=np.zeros((4, 2, 1)))
