@@ -175,11 +175,19 @@ class Problem:
             solve then costs what a solve at delay L costs; the policy's ``delay_feedback`` has L
             entries, of which those of the L - l commands that have acted are zero ([`solve`][delayed_ilqr.solve]
             trims them when l is known). Not with ``observation``.
+        delay_jitter: optional [`DelayJitter`][delayed_ilqr.DelayJitter]: the delay jitters, the command
+            acting at step k is u_{k-l_k} with l_k drawn independently at every step from its
+            distribution (docs/derivation.md §21, docs/guide/own_plant.md); ``delay_steps`` is then
+            its longest delay L, the number of commands in flight that the policy's
+            ``delay_feedback`` spans (u_{k-L}..u_{k-1}). [`solve`][delayed_ilqr.solve] designs for the
+            jitter and [`simulate`][delayed_ilqr.simulate] draws it. Not with ``observation``,
+            ``delay_frame`` or per-channel delays.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
                  u_min=None, u_max=None, n_controls: Optional[int] = None, name: str = "problem",
-                 metadata=None, time_dependent: bool = False, observation=None, delay_frame=None):
+                 metadata=None, time_dependent: bool = False, observation=None, delay_frame=None,
+                 delay_jitter=None):
         _precision.require_x64("Problem")
         if not isinstance(time_dependent, (bool, np.bool_)):
             raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
@@ -226,6 +234,7 @@ class Problem:
         self._check_callables()
         self.observation = _observation(observation, self.x0, self.horizon)
         self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation, self.horizon)
+        self.delay_jitter = _jitter(delay_jitter, self.delay_steps, self)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -298,14 +307,14 @@ class Problem:
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``,
         ``delay_frame=15``). Changing only the delay and the frame checks only them; in a frame the
         delay may then be traced (a fit's delay as data), and is not checked."""
-        if changes and set(changes) <= {"delay_steps", "delay_frame"}:
+        if changes and set(changes) <= {"delay_steps", "delay_frame"} and self.delay_jitter is None:
             return self._with_delay(changes.get("delay_steps", self.delay_steps),
                                     changes.get("delay_frame", self.delay_frame))
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
                       delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
                       metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation,
-                      delay_frame=self.delay_frame)
+                      delay_frame=self.delay_frame, delay_jitter=self.delay_jitter)
         fields.update(changes)
         x0 = changes.get("x0")
         if x0 is not None and "cost" not in changes and np.shape(x0) != (self.n_states,):
@@ -368,7 +377,8 @@ class Problem:
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
                 f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps}"
-                + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}") + ")")
+                + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}")
+                + ("" if self.delay_jitter is None else f", delay_jitter={self.delay_jitter!r}") + ")")
 
 
 def _delay_below_horizon(delay_steps, horizon: int, n_controls: int):
@@ -396,6 +406,23 @@ def _frame(delay_frame, delay_steps: int, observation, horizon: int):
         raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
                          f"layer needs a static delay; got delay_frame={delay_frame} with an observation")
     return delay_frame
+
+
+def _jitter(delay_jitter, delay_steps, problem: "Problem"):
+    """A valid delay_jitter (None, or a DelayJitter whose longest delay is ``delay_steps``)."""
+    if delay_jitter is None:
+        return None
+    from .delay_jitter import DelayJitter
+    if not isinstance(delay_jitter, DelayJitter):
+        raise TypeError(f"delay_jitter must be None or a delayed_ilqr.DelayJitter; got {type(delay_jitter).__name__}")
+    if _delays.is_per_channel(delay_steps) or delay_steps != delay_jitter.longest:
+        raise ValueError("with delay_jitter, delay_steps must be the jitter's longest delay (the commands in flight "
+                         f"the policy keeps); got delay_steps={_delays.as_json(delay_steps)} with {delay_jitter!r}")
+    for name, value in (("observation", problem.observation), ("delay_frame", problem.delay_frame)):
+        if value is not None:
+            raise ValueError(f"delay_jitter is not available with {name} (the jittered solver takes full-state "
+                             f"feedback and a static delay); got {name}={value!r}")
+    return delay_jitter
 
 
 def shared_delay_frame(problems) -> Optional[int]:
@@ -486,7 +513,7 @@ def _problem_flatten(p: Problem):
     return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise)
             + ((_delay_leaf(p.delay_steps),) if framed else ()),
             (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
-             p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
+             p._has_limits, p.metadata, p.time_dependent, p.delay_frame, p.delay_jitter))
 
 
 def _delay_leaf(delay_steps):
@@ -510,7 +537,7 @@ def _delay_from_leaf(leaf):
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
+     new._has_limits, new.metadata, new.time_dependent, new.delay_frame, new.delay_jitter) = aux
     if new.delay_frame is not None:
         *data, leaf = data
         new.delay_steps = _delay_from_leaf(leaf)

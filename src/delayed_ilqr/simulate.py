@@ -102,12 +102,15 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
 
     def step(carry, data):
         x, sent, nominal = carry                 # sent[j] = u_{k-m+j}, nominal[j] = u_nominal_{k-m+j}
-        # xi: [substeps, p]; t: t_k, None without time; disturbance: [W_k] or []
-        x_bar, u_bar, I, LM, xi, t, *disturbance = data
+        # xi: [substeps, p]; t: t_k, None without time; lk: the step's jittered delay, None without
+        # jitter; disturbance: [W_k] or []
+        x_bar, u_bar, I, LM, xi, t, lk, *disturbance = data
         pending = (sent[m - l_p:] - nominal[m - l_p:]).reshape(-1)        # u_{k+i-l_p} - u_nominal, i < l_p
         du = delayed_law(I, LM, jnp.concatenate([x - x_bar, pending]))
         u = jnp.clip(u_bar + du, problem.u_min, problem.u_max)
-        if framed and m == 0:   # every delay 0
+        if lk is not None:      # a jittered delay, drawn for this step (derivation §21)
+            ud = jnp.where(lk == 0, u, sent[jnp.clip(m - lk, 0, max(m - 1, 0))]) if m > 0 else u
+        elif framed and m == 0:   # every delay 0
             ud = u
         elif framed:    # l is data (Problem.delay_frame <= m): a dynamic index, and u itself for l = 0
             acting = jnp.minimum(m - l, m - 1)
@@ -140,8 +143,11 @@ def _simulate(problem: Problem, policy: Policy, n_trials: int, substeps: int, ke
     def trial(trial_key):
         xi = jax.random.normal(trial_key, (K, substeps, p), dtype)
         init = (problem.x0, jnp.zeros((m, nd), dtype), jnp.zeros((m, nd), dtype))
+        # a jittered delay is drawn per step from its own key: the motor noise is the fixed-delay run's
+        delays = None if problem.delay_jitter is None else \
+            problem.delay_jitter.sample(jax.random.fold_in(trial_key, 2), (K,))
         data = (policy.x_nominal[:-1], policy.u_nominal, gains.feedforward, augmented_feedback(gains), xi,
-                problem.step_times(dtype))
+                problem.step_times(dtype), delays)
         if disturbance is not None:
             data = data + (disturbance,)
         _, (xs, us) = jax.lax.scan(step, init, data)

@@ -52,6 +52,7 @@ from ..solution import Policy, Solution, Status, Trace
 from . import implicit, regularization
 from .backward import BackwardPass, backward
 from .batching import one_after_another
+from .jittered import solve_jittered
 from .estimation import all_finite as _all_finite, with_estimator, without_observation
 from .line_search import LineSearch, line_search, merit, no_step
 from .linearize import rollout, trajectory_cost
@@ -421,6 +422,9 @@ def solve(problem: Problem, u_init=None, options: Options | None = None) -> Solu
         # (max_alternations does not change that solve: the default's compiled solver serves all)
         full_state = replaced(options, max_alternations=_DEFAULT_OPTIONS.max_alternations)
         return with_estimator(problem, solve(without_observation(problem), u_init, full_state), options)
+    if problem.delay_jitter is not None:     # the delay drawn at every step (derivation §21)
+        sol = solve_jittered(problem, u_init, options)
+        return sol if isinstance(sol.status, jax.core.Tracer) else sol._replace(status=Status(int(sol.status)))
     if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves((problem, u_init, options))):
         sol = compiled_solver(problem)(problem, u_init, options)
         return _trimmed(problem, sol._replace(status=Status(int(sol.status))))
