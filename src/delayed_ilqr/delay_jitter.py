@@ -6,8 +6,8 @@ independently of every other step and of the noise, from a known distribution p 
 u_k; it keeps the last l_max commands it sent, since any of them may still act.
 
 This is the independent-delay model of networked control (Nilsson 1998, "Real-time control systems
-with delays", ch. 5; Nilsson, Bernhardsson & Wittenmark, Automatica 34(1), 1998): the actuator
-applies the command whose age is the step's delay, drawn independently each step. A command may
+with delays", PhD thesis, Lund; Nilsson, Bernhardsson & Wittenmark, Automatica 34(1), 1998): the
+actuator applies the command whose age is the step's delay, drawn independently each step. A command may
 then act after a younger one has acted already, which an actuator that holds the latest arrived
 command would not do; derivation §21 says why the independent model is the one built here and what
 the other one would need.
