@@ -14,6 +14,10 @@ terms, without the feedforward, see [`Policy`][delayed_ilqr.Policy]; the law is 
     u_k  = clip(u_nominal_k + L_k (x_k - x_nominal_k) + sum_i M_k^i (u_{k+i-l_p} - u_nominal_{k+i-l_p}))
     ud_k = u_{k-l}                       (l = problem.delay_steps; u_k = u_nominal_k = 0 for k < 0)
 
+(with ``problem.delay_jitter``, l = l_k is drawn at every step of every trial from its distribution,
+docs/derivation.md §21, from ``jax.random.fold_in(trial_key, 2)``: the motor noise stays the
+trial's)
+
 where l_p = ``policy.delay_feedback.shape[1]`` is the delay the policy was designed for. It may
 differ from the plant's l: a delay-ignorant policy (designed with l_p = 0) can be run on a delayed
 plant, which is how the cost of ignoring the delay is measured.

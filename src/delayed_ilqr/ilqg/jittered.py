@@ -16,9 +16,11 @@ its J(0) is the exact expected cost of the law on that linearisation.
 One iteration: linearise at the nominal, the jittered backward pass with H + lambda I, roll out the
 law with its feedforward scaled by every alpha of ``Options.alphas`` (clipped to the limits), keep
 the best nominal cost; accept when it decreases (lambda falls), else lambda rises by
-``reg_factor``. The iteration stops when the accepted decrease is below ``tol_cost`` (relative),
-the feedforward below ``tol_grad`` (Tassa's measure, lambda < 1e-5), at ``max_iterations`` or when
-lambda passes ``reg_max``. The line search scores the nominal cost, not the noise-aware merit of
+``reg_factor``. The iteration stops when the best step changes the cost by less than
+``tol_cost`` (relative, up or down: at the optimum no step decreases it), the feedforward is
+below ``tol_grad`` (Tassa's measure, lambda < 1e-5), at ``max_iterations`` or when lambda passes
+``reg_max``. The solve runs under ``jit`` and ``vmap``; it has no implicit derivative (the fixed-
+delay solver's, ``ilqg.implicit``), so ``jax.grad`` through it is not supported. The line search scores the nominal cost, not the noise-aware merit of
 the fixed-delay solver (derivation §12): the jitter shapes the feedback law and the expected cost,
 not the nominal (a limitation, stated in derivation §21). Limits are enforced by clipping the
 commands in the rollouts (the gains are not box-constrained).
