@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _delays, _precision, _validate
+from .delay_jitter import DelayJitter
 from .lqg.model import frame_delay_leaf
 
 __all__ = ["Problem", "QuadraticCost", "GeneralCost"]
@@ -412,7 +413,6 @@ def _jitter(delay_jitter, delay_steps, problem: "Problem"):
     """A valid delay_jitter (None, or a DelayJitter whose longest delay is ``delay_steps``)."""
     if delay_jitter is None:
         return None
-    from .delay_jitter import DelayJitter
     if not isinstance(delay_jitter, DelayJitter):
         raise TypeError(f"delay_jitter must be None or a delayed_ilqr.DelayJitter; got {type(delay_jitter).__name__}")
     if _delays.is_per_channel(delay_steps) or delay_steps != delay_jitter.longest:

@@ -20,7 +20,9 @@ the best nominal cost; accept when it decreases (lambda falls), else lambda rise
 ``tol_cost`` (relative, up or down: at the optimum no step decreases it), the feedforward is
 below ``tol_grad`` (Tassa's measure, lambda < 1e-5), at ``max_iterations`` or when lambda passes
 ``reg_max``. The solve runs under ``jit`` and ``vmap``; it has no implicit derivative (the fixed-
-delay solver's, ``ilqg.implicit``), so ``jax.grad`` through it is not supported. The line search scores the nominal cost, not the noise-aware merit of
+delay solver's, ``ilqg.implicit``), so ``jax.grad`` through it is not supported. ``Options.method``
+is not read: the pass is the structured one (its augmented reference is
+``lqg.jittered_augmented_pass``), and ``max_alternations`` does not apply (no sensors). The line search scores the nominal cost, not the noise-aware merit of
 the fixed-delay solver (derivation §12): the jitter shapes the feedback law and the expected cost,
 not the nominal (a limitation, stated in derivation §21). Limits are enforced by clipping the
 commands in the rollouts (the gains are not box-constrained).
