@@ -111,6 +111,29 @@ def test_point_mass_monte_carlo_is_the_delayed_one():
     assert rel_err(runs.dx, ref.dx) < RTOL and rel_err(runs.cost, ref.cost) < RTOL
 
 
+def test_clamped_jittered_pass_equals_its_augmented_version():
+    """With limits (the box QP's gain rule, the nonlinear solver's with limits) the jittered pass
+    agrees with its augmented version, and its J(0) is the exact cost of its law."""
+    import jax.numpy as jnp
+    from delayed_ilqr.lqg.gains import boxed_gains
+    from delayed_ilqr.lqg.jitter import jittered_augmented_scan, jittered_scan
+    K, n, d, p, L = SHAPES[0]
+    jitter = DelayJitter([0, 2, 3], [0.3, 0.3, 0.4])
+    lqg = DelayedLQG(**random_arrays(8, K, n, d, p, L))
+    delta = jnp.asarray(np.random.default_rng(8).standard_normal((K, L + 1, d)))
+    probs = jnp.asarray(jitter.by_delay())
+    half = 0.5 * float(jnp.max(jnp.abs(_lqg.jittered_backward_pass(lqg, jitter, 0.0, delta)[0].feedforward)))
+    bounds = (jnp.full((K, d), -half), jnp.full((K, d), half))
+    gains, value = jittered_scan(lqg, probs, delta, 0.0, boxed_gains, bounds)
+    ref_gains, ref_value = jittered_augmented_scan(lqg, probs, delta, 0.0, boxed_gains, bounds)
+    assert bool(value.positive_definite) and np.any(np.abs(np.asarray(gains.feedforward)) >= half * (1 - 1e-12))
+    errs = _errors(gains, value, ref_gains, ref_value)
+    errs["J0 vs moments"] = rel_err(value.expected_cost, _lqg.jittered_policy_cost(lqg, jitter, gains, delta))
+    worst = max(errs, key=errs.get)
+    _WORST.record(errs[worst], f"clamped, {worst}")
+    assert errs[worst] < RTOL, (worst, errs[worst])
+
+
 def test_the_delays_drawn_follow_the_distribution():
     """``DelayJitter.sample`` draws from p (a chi-square bound on 20000 draws), from the key alone."""
     import jax

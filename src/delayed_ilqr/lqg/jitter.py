@@ -239,29 +239,30 @@ def _mode_quadratic(v, V, Az, Bz, bz, cz, Cz, Cu):
             2 * bz @ v + bz @ V @ bz + jnp.sum(cz * Vc))
 
 
-def jittered_augmented_scan(lqg: DelayedLQG, p, offsets, reg=0.0, gains_fn=unconstrained_gains):
+def jittered_augmented_scan(lqg: DelayedLQG, p, offsets, reg=0.0, gains_fn=unconstrained_gains, bounds=None):
     """The Riccati recursion on z with E over l_k: each term of the quadratic in (z, u) is the
-    p-weighted sum of those of the L + 1 augmented systems. (Gains, Value) (traced, no checks)."""
+    p-weighted sum of those of the L + 1 augmented systems; ``gains_fn``/``bounds`` as in
+    `jittered_scan`. (Gains, Value) (traced, no checks)."""
     nx, nd, L = lqg.n_states, lqg.n_controls, lqg.delay_steps
     modes = _modes(lqg, offsets)
     per_step = {name: jnp.moveaxis(modes[name], 0, 1) for name in ("Az", "Bz", "bz", "cz", "Cz", "Cu")}
 
     def step(carry, data):
-        v0, v, V, ok = carry
-        Az, Bz, bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E, Nz = data
+        v0, v, V, ok, warm = carry
+        Az, Bz, bz, cz, Cz, Cu, d_tilde, dz, Dz, e, E, Nz, bound = data
         terms = jax.vmap(_mode_quadratic, in_axes=(None, None, 0, 0, 0, 0, 0, 0))(v, V, Az, Bz, bz, cz, Cz, Cu)
         Quu, Quz, Qzz, qu, qz, q0 = (jnp.tensordot(p, t, axes=1) for t in terms)
         Quu, Quz, Qzz = _sym(E + Quu), Quz + Nz, Dz + Qzz
         qu, qz, q0 = e + qu, dz + qz, d_tilde + v0 + q0
-        step_ok, I, Kz = gains_fn(Quu, reg, qu, Quz, None, None)
+        step_ok, I, Kz = gains_fn(Quu, reg, qu, Quz, bound, warm)
         W = 0.5 * Quu @ Kz + Quz
         carry = (q0 + I @ (Quu @ I + 2.0 * qu), qz + Kz.T @ (Quu @ I + qu) + Quz.T @ I,
-                 _sym(Qzz + Kz.T @ W + W.T @ Kz), ok & step_ok)
+                 _sym(Qzz + Kz.T @ W + W.T @ Kz), ok & step_ok, I)
         return carry, (I, Kz) + carry[:3]
 
     data = tuple(per_step[name] for name in ("Az", "Bz", "bz", "cz", "Cz", "Cu")) + (
-        lqg.d_tilde[:-1], modes["dz"][:-1], modes["Dz"][:-1], lqg.e, lqg.E, modes["Nz"])
-    init = (lqg.d_tilde[-1], modes["dz"][-1], modes["Dz"][-1], jnp.asarray(True))
+        lqg.d_tilde[:-1], modes["dz"][:-1], modes["Dz"][:-1], lqg.e, lqg.E, modes["Nz"], bounds)
+    init = (lqg.d_tilde[-1], modes["dz"][-1], modes["Dz"][-1], jnp.asarray(True), jnp.zeros(nd, lqg.A.dtype))
     carry, (I, Kz, v0, v, V) = jax.lax.scan(step, init, data, reverse=True)
     v0, v, V = (jnp.concatenate([x, f[None]]) for x, f in zip((v0, v, V), init[:3]))
     K1 = v.shape[0]
