@@ -11,7 +11,12 @@ cost with its 95 % interval, the median with its interval, the trials that diver
 paired difference of each fixed-delay design from the jitter design (mean, 95 % interval, over the
 trials finite under both).
 
+Then, for some cases, the same packet delays on a plant that holds the latest arrived command (the
+other semantics of derivation §21): the designs for the independent model (with p, and with the
+stationary distribution of the acting command's age) and for the fixed mean delay or mean age.
+
 Run: .venv/bin/python benchmarks/jitter_study.py [--trials N] [--seed S] [--cases arm-narrow,arm-wide,cart-pole]
+     [--latest arm-wide,cart-pole]
 """
 import argparse
 import time
@@ -83,16 +88,80 @@ def study(name, trials, seed):
           f"compilation included: {solve_time:.0f} s)")
 
 
+class LatestArrived(di.DelayJitter):
+    """A measuring device, not a model the solver designs for: the same packet delays, but the
+    plant holds the latest arrived command (derivation §21). ``sample`` draws each command's own
+    delay tau_j from p and returns the age of the command acting at each step, the smallest i with
+    tau_{k-i} <= i (commands before t = 0, zero, count as arrived), so that ``simulate`` runs this
+    plant unchanged."""
+
+    def sample(self, key, shape=()):
+        import jax.numpy as jnp
+        (K,) = shape
+        tau = super().sample(key, (K,))
+        i = jnp.arange(self.longest + 1)
+        sent = jnp.arange(K)[:, None] - i[None, :]                          # [K, L+1] index k - i
+        arrived = (sent < 0) | (tau[jnp.clip(sent, 0, K - 1)] <= i[None, :])
+        return jnp.argmax(arrived, axis=1).astype(jnp.int32)                 # the first i that arrived
+
+    def __eq__(self, other):
+        return type(other) is LatestArrived and super().__eq__(other)
+
+    def __hash__(self):
+        return hash(("latest", super().__hash__()))
+
+
+def ages(jitter, K=200_000):
+    """The stationary distribution of the acting command's age under LatestArrived(jitter)."""
+    latest = LatestArrived(jitter.steps, jitter.probabilities)
+    drawn = np.asarray(latest.sample(jax.random.PRNGKey(1), (K,)))[jitter.longest:]
+    steps = sorted(set(drawn.tolist()))
+    return di.DelayJitter(steps, [float(np.mean(drawn == s)) for s in steps])
+
+
+def latest_arrived(name, trials, seed):
+    """The designs on a plant that holds the latest arrived command (packet delays p)."""
+    make, jitter = CASES[name]
+    base = make()
+    latest = LatestArrived(jitter.steps, jitter.probabilities)
+    age = ages(jitter)
+    plant = base.replace(delay_steps=jitter.longest, delay_jitter=latest)
+    print(f"\n## {name}, the plant holds the latest arrived command: packet delays p as above; the acting "
+          f"command's age is then {list(age.steps)} with frequencies {[round(q, 3) for q in age.probabilities]} "
+          f"(mean {age.mean:.2f} steps)\n")
+    mean_delay = int(round(jitter.mean))
+    designs = {"jitter (independent model, packet delays p)": base.replace(delay_steps=jitter.longest,
+                                                                           delay_jitter=jitter),
+               "jitter (independent model, the ages' distribution)": base.replace(delay_steps=age.longest,
+                                                                                  delay_jitter=age),
+               f"mean delay ({mean_delay})": base.replace(delay_steps=mean_delay),
+               f"mean age ({int(round(age.mean))})": base.replace(delay_steps=int(round(age.mean)))}
+    bound = divergence_bound(base)
+    print("| design | MC mean [95 % CI] | MC median [95 % CI] | diverged |")
+    print("|---|---|---|---|")
+    for label, problem in designs.items():
+        policy = di.solve(problem).policy
+        s = summarize(np.asarray(di.simulate(plant, policy, trials, seed=seed).cost), np.zeros((trials, 1)), bound)
+        print(f"| {label} | {s.mean_cost:.4g} [{s.ci95[0]:.4g}, {s.ci95[1]:.4g}] "
+              f"| {s.median_cost:.4g} [{s.median_ci95[0]:.4g}, {s.median_ci95[1]:.4g}] | {s.n_diverged} |")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", default=",".join(CASES))
+    parser.add_argument("--latest", default="arm-wide,cart-pole",
+                        help="cases also run on a plant that holds the latest arrived command")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     di.configure_cpu()
     for name in args.cases.split(","):
-        study(name, args.trials, args.seed)
+        if name:
+            study(name, args.trials, args.seed)
+    for name in args.latest.split(","):
+        if name:
+            latest_arrived(name, args.trials, args.seed)
 
 
 if __name__ == "__main__":
