@@ -16,7 +16,7 @@ other semantics of derivation §21): the designs for the independent model (with
 stationary distribution of the acting command's age) and for the fixed mean delay or mean age.
 
 Run: .venv/bin/python benchmarks/jitter_study.py [--trials N] [--seed S] [--cases arm-narrow,arm-wide,cart-pole]
-     [--latest arm-wide,cart-pole]
+     [--latest arm-narrow,arm-wide,cart-pole]
 """
 import argparse
 import time
@@ -151,7 +151,7 @@ def main():
     parser.add_argument("--trials", type=int, default=1000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cases", default=",".join(CASES))
-    parser.add_argument("--latest", default="arm-wide,cart-pole",
+    parser.add_argument("--latest", default="",
                         help="cases also run on a plant that holds the latest arrived command")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
