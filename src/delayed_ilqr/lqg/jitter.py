@@ -159,7 +159,7 @@ def _jittered_step(stage: Stage, J: CostToGo, p, delta, reg, gains_fn=unconstrai
 
 def jittered_scan(lqg: DelayedLQG, p, offsets, reg=0.0, gains_fn=unconstrained_gains, bounds=None):
     """The reverse scan of `_jittered_step` over a stored ``lqg``: (Gains, Value) (traced data, no checks)."""
-    K, n, nd, L = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps
+    n, nd, L = lqg.n_states, lqg.n_controls, lqg.delay_steps
     dt = lqg.A.dtype
     rows = Stage(lqg.A, lqg.B0, lqg.B1, lqg.c, lqg.C0, lqg.C1, lqg.d_tilde[:-1], lqg.d[:-1], lqg.D[:-1], lqg.e,
                  lqg.E, lqg.N)
