@@ -228,8 +228,8 @@ def test_point_mass_jitter_is_the_delayed_problem(point_mass_solves):
 
 
 def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
-    """The delay_steps of a jittered problem is its longest delay; no sensors; a DelayJitter; the
-    support within the horizon (delay_steps < K)."""
+    """The delay_steps of a jittered problem is its longest delay; no frame; a DelayJitter; the
+    support within the horizon (delay_steps < K); the receding-horizon controller refuses it."""
     noisy = point_mass_solves["noisy"]
     with pytest.raises(ValueError, match="longest delay"):
         noisy.replace(delay_steps=2, delay_jitter=JITTER)
@@ -239,6 +239,9 @@ def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
         noisy.replace(delay_steps=25, delay_jitter=DelayJitter([1, 25], [0.5, 0.5]))
     with pytest.raises(ValueError, match="not available with delay_frame"):
         noisy.replace(delay_steps=3, delay_frame=4, delay_jitter=JITTER)
+    from delayed_ilqr import mpc
+    with pytest.raises(ValueError, match="fixed input delay"):        # the receding horizon refuses it
+        mpc.MPC(noisy.replace(delay_steps=3, delay_jitter=JITTER))
 
 
 @pytest.mark.full

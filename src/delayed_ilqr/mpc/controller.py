@@ -156,6 +156,9 @@ class MPC:
         if replay_history not in REPLAY_HISTORIES:
             raise ValueError(f"replay_history must be 'sent' or 'planned'; got {replay_history!r}")
         process_cov, initial_cov = _filter_covariances(problem, process_cov, initial_cov)
+        if problem.delay_jitter is not None:
+            raise ValueError("mpc.MPC takes a fixed input delay: its tick problems and replay assume the command sent "
+                             f"l steps ago acts now; got a problem with delay_jitter={problem.delay_jitter!r}")
         if problem.delay_frame is not None:
             problem = problem.without_frame("mpc.MPC")
         options = Options() if options is None else options
