@@ -65,17 +65,42 @@ def richardson(f, h):
     return {k: (4 * fine[k] - coarse[k]) / 3 for k in fine}
 
 
+def _derivatives(problem: Problem, tangent: Problem, u_init, options: Options, weights_seed=None):
+    """One compiled function of t: (the solution's outputs at ``problem`` + t ``tangent``, their
+    derivative along ``tangent`` in forward mode, the solution's status, and with ``weights_seed``
+    random weights in [0.5, 1] for every output with the derivative of each output's weighted
+    sum in reverse mode, stacked). One program serves the re-solves of the finite differences and
+    both modes (jax.linearize, then the transpose of the same linear map, as jax.vjp does), so a
+    problem compiles its differentiated solve once, not once per mode."""
+    def at(t):
+        sol = solve(along(problem, tangent, t), u_init, options)
+        return outputs(sol), sol.status
+
+    @jax.jit
+    def run(t):
+        values, forward_at, status = jax.linearize(at, t, has_aux=True)
+        forward = forward_at(jnp.ones_like(t))
+        if weights_seed is None:
+            return values, forward, status, None, None
+        rng = np.random.default_rng(weights_seed)           # the outputs' shapes are known when tracing
+        weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in values.items()}
+        # the cotangent of output k's weighted sum: its weights on k, zero on the others
+        cotangents = {k: jnp.stack([weights[k] if i == j else jnp.zeros_like(weights[k]) for i in range(len(weights))])
+                      for j, k in enumerate(weights)}
+        backward = jax.vmap(lambda c: jax.linear_transpose(forward_at, t)(c)[0])(cotangents)
+        return values, forward, status, weights, backward
+
+    return run
+
+
 def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
     """Forward mode (every output) along one random direction against Richardson-extrapolated
     finite differences and, with ``reverse``, reverse mode (random weighted sums of every output)
     against forward mode."""
-    tangent = direction(problem, seed)
-    solve_at = jax.jit(lambda t: solve(along(problem, tangent, t), u_init, TIGHT))
-    base = solve_at(0.0)
-    assert Status(int(base.status)).converged, base.status
-    fd = richardson(lambda t: outputs(solve_at(t)), h)
-    _, forward = jax.jit(lambda t: jax.jvp(lambda s: outputs(solve(along(problem, tangent, s), u_init, TIGHT)),
-                                           (t,), (1.0,)))(0.0)
+    derivatives = _derivatives(problem, direction(problem, seed), u_init, TIGHT, seed + 1 if reverse else None)
+    _, forward, status, weights, backward = derivatives(0.0)
+    assert Status(int(status)).converged, status
+    fd = richardson(lambda t: derivatives(t)[0], h)
     for key, value in fd.items():
         if value.size == 0 or not np.any(value):
             continue
@@ -86,12 +111,8 @@ def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
         return
     # reverse mode against forward mode: the transposed computation, checked to the Krylov solve's
     # accuracy (the finite differences above already tie forward mode to the re-solves)
-    rng = np.random.default_rng(seed + 1)
-    weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in fd.items()}
-    sums = lambda sol: jnp.stack([jnp.sum(weights[k] * v) for k, v in outputs(sol).items()])
-    backward = jax.jit(jax.jacrev(lambda t: sums(solve(along(problem, tangent, t), u_init, TIGHT))))(0.0)
-    for key, got in zip(fd, np.asarray(backward)):
-        products = weights[key] * np.asarray(forward[key])
+    for key, got in zip(weights, np.asarray(backward)):
+        products = np.asarray(weights[key]) * np.asarray(forward[key])
         if not np.any(products):
             continue
         err = abs(got - np.sum(products)) / np.sum(np.abs(products))
@@ -253,14 +274,9 @@ def test_solve_with_sensors_matches_finite_differences(noise):
     # the alternation keeps or rejects each redesign by comparing exact costs, so its result is only
     # piecewise smooth in the problem (finite differences across those choices differ by 1.6e-4):
     # reverse mode is checked against forward mode, the derivative of the same computation
-    tangent = direction(problem)
-    rng = np.random.default_rng(1)
-    sol = solve(problem)
-    weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in outputs(sol).items()}
-    sums = lambda t: jnp.stack([jnp.sum(weights[k] * v) for k, v in outputs(solve(along(problem, tangent, t))).items()])
-    forward = jax.jit(lambda t: jax.jvp(sums, (t,), (1.0,))[1])(0.0)
-    backward = jax.jit(jax.jacrev(sums))(0.0)
-    assert np.all(np.isfinite(np.asarray(forward))) and np.any(np.asarray(forward) != 0)
+    _, forward, _, weights, backward = _derivatives(problem, direction(problem), None, Options(), 1)(0.0)
+    forward = np.array([np.sum(np.asarray(weights[k]) * np.asarray(forward[k])) for k in weights])
+    assert np.all(np.isfinite(forward)) and np.any(forward != 0)
     assert rel_err(backward, forward) < 1e-8, (backward, forward)
 
 
