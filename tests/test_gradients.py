@@ -295,9 +295,9 @@ def test_grad_over_a_framed_problem_equals_the_unframed_one():
     the unframed problem's, and the delay's own entry is zero (a whole number of steps)."""
     from delayed_ilqr.models import point_mass
     problem = point_mass(delay=0.02, noise=True)
-    cost = lambda p: solve(p, None, TIGHT).expected_cost
-    framed = jax.grad(cost)(problem.replace(delay_frame=4))
-    plain = jax.grad(cost)(problem)
+    gradient = jax.jit(jax.grad(lambda p: solve(p, None, TIGHT).expected_cost))
+    framed = gradient(problem.replace(delay_frame=4))
+    plain = gradient(problem)
     for got, want in zip(jax.tree_util.tree_leaves((framed.x0, framed.cost)),
                          jax.tree_util.tree_leaves((plain.x0, plain.cost))):
         assert rel_err(got, want) < 1e-8
