@@ -89,6 +89,11 @@ def _phi(us, upper, lower, rho, lo, hi):
     return total
 
 
+# the gradient of J(u) through the rollout, compiled whole (outside a jit, the scan's derivative
+# and its transpose compile apart, with every small operation around them)
+_cost_gradient = jax.jit(jax.grad(lambda v, p: trajectory_cost(p, rollout(p, v), v)))
+
+
 @pytest.mark.parametrize("case", ["quadratic, delay", "general", "general, time-dependent, one-sided"])
 def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
     rng = np.random.default_rng(3)
@@ -113,7 +118,7 @@ def test_lifted_cost_is_the_cost_plus_the_augmented_lagrangian_term(case):
     # and its gradient in the commands: the cost's plus dphi/du = max(0, nu + rho g) dg/du
     lo, hi = np.asarray(problem.u_min), np.asarray(problem.u_max)
     dphi = np.maximum(upper + rho * (us - hi), 0.0) - np.maximum(lower + rho * (lo - us), 0.0)
-    grads = [jax.grad(lambda v, p=p: trajectory_cost(p, rollout(p, v), v))(jnp.asarray(us)) for p in (problem, lifted)]
+    grads = [_cost_gradient(jnp.asarray(us), p) for p in (problem, lifted)]
     np.testing.assert_allclose(np.asarray(grads[1]), np.asarray(grads[0]) + dphi, rtol=1e-10, atol=1e-12)
 
 

@@ -65,17 +65,42 @@ def richardson(f, h):
     return {k: (4 * fine[k] - coarse[k]) / 3 for k in fine}
 
 
+def _derivatives(problem: Problem, tangent: Problem, u_init, options: Options, weights_seed=None):
+    """One compiled function of t: (the solution's outputs at ``problem`` + t ``tangent``, their
+    derivative along ``tangent`` in forward mode, the solution's status, and with ``weights_seed``
+    random weights in [0.5, 1] for every output with the derivative of each output's weighted
+    sum in reverse mode, stacked). One program serves the re-solves of the finite differences and
+    both modes (jax.linearize, then the transpose of the same linear map, as jax.vjp does), so a
+    problem compiles its differentiated solve once, not once per mode."""
+    def at(t):
+        sol = solve(along(problem, tangent, t), u_init, options)
+        return outputs(sol), sol.status
+
+    @jax.jit
+    def run(t):
+        values, forward_at, status = jax.linearize(at, t, has_aux=True)
+        forward = forward_at(jnp.ones_like(t))
+        if weights_seed is None:
+            return values, forward, status, None, None
+        rng = np.random.default_rng(weights_seed)           # the outputs' shapes are known when tracing
+        weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in values.items()}
+        # the cotangent of output k's weighted sum: its weights on k, zero on the others
+        cotangents = {k: jnp.stack([weights[k] if i == j else jnp.zeros_like(weights[k]) for i in range(len(weights))])
+                      for j, k in enumerate(weights)}
+        backward = jax.vmap(lambda c: jax.linear_transpose(forward_at, t)(c)[0])(cotangents)
+        return values, forward, status, weights, backward
+
+    return run
+
+
 def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
     """Forward mode (every output) along one random direction against Richardson-extrapolated
     finite differences and, with ``reverse``, reverse mode (random weighted sums of every output)
     against forward mode."""
-    tangent = direction(problem, seed)
-    solve_at = jax.jit(lambda t: solve(along(problem, tangent, t), u_init, TIGHT))
-    base = solve_at(0.0)
-    assert Status(int(base.status)).converged, base.status
-    fd = richardson(lambda t: outputs(solve_at(t)), h)
-    _, forward = jax.jit(lambda t: jax.jvp(lambda s: outputs(solve(along(problem, tangent, s), u_init, TIGHT)),
-                                           (t,), (1.0,)))(0.0)
+    derivatives = _derivatives(problem, direction(problem, seed), u_init, TIGHT, seed + 1 if reverse else None)
+    _, forward, status, weights, backward = derivatives(0.0)
+    assert Status(int(status)).converged, status
+    fd = richardson(lambda t: derivatives(t)[0], h)
     for key, value in fd.items():
         if value.size == 0 or not np.any(value):
             continue
@@ -86,12 +111,8 @@ def check_against_fd(name, problem, u_init, h, rtol, seed=0, reverse=True):
         return
     # reverse mode against forward mode: the transposed computation, checked to the Krylov solve's
     # accuracy (the finite differences above already tie forward mode to the re-solves)
-    rng = np.random.default_rng(seed + 1)
-    weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in fd.items()}
-    sums = lambda sol: jnp.stack([jnp.sum(weights[k] * v) for k, v in outputs(sol).items()])
-    backward = jax.jit(jax.jacrev(lambda t: sums(solve(along(problem, tangent, t), u_init, TIGHT))))(0.0)
-    for key, got in zip(fd, np.asarray(backward)):
-        products = weights[key] * np.asarray(forward[key])
+    for key, got in zip(weights, np.asarray(backward)):
+        products = np.asarray(weights[key]) * np.asarray(forward[key])
         if not np.any(products):
             continue
         err = abs(got - np.sum(products)) / np.sum(np.abs(products))
@@ -156,10 +177,14 @@ def test_cost_gradient_in_x0_is_the_value_gradient(delay=0.05):
     s_0 from the structured backward pass at the solution; reverse mode through the noise-free
     delayed solve against this independent value (measured 5.8e-9 at 50 ms, 2026-12-04)."""
     problem = arm2(delay=delay)
-    grad = jax.jit(jax.grad(lambda dx0: solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT).cost))(
-        jnp.zeros(4))
-    sol = solve(problem, None, TIGHT)
-    _, _, s, _ = implicit.value_at(problem, sol.x, sol.u, TIGHT.limit_margin)
+
+    def cost(dx0):
+        sol = solve(along(problem, _only_x0(problem, dx0), 1.0), None, TIGHT)
+        return sol.cost, (sol.x, sol.u)
+
+    # the solution comes out of the same compiled program as the gradient (no second program)
+    grad, (x, u) = jax.jit(jax.grad(cost, has_aux=True))(jnp.zeros(4))
+    _, _, s, _ = implicit.value_at(problem, x, u, TIGHT.limit_margin)
     err = rel_err(grad, 2 * s[0])
     worst.record(err, f"dJ/dx0 = 2 s_0 at {delay} s")
     assert err < 1e-7, err
@@ -177,11 +202,16 @@ def test_unconverged_solve_gives_nan_derivatives():
     derivatives are NaN, and its status says why."""
     problem = arm2(delay=0.05)
     opts = Options(max_iterations=2)
-    value, grad = jax.jit(jax.value_and_grad(
-        lambda x0: solve(along(problem, _only_x0(problem, x0), 1.0), None, opts).cost))(jnp.zeros(4))
+
+    def cost(dx0):
+        sol = solve(along(problem, _only_x0(problem, dx0), 1.0), None, opts)
+        return sol.cost, sol.status
+
+    # the status comes out of the same compiled program as the derivative (no second program)
+    (value, status), grad = jax.jit(jax.value_and_grad(cost, has_aux=True))(jnp.zeros(4))
     assert np.isfinite(value)
     assert np.all(np.isnan(grad))
-    assert solve(problem, None, opts).status == Status.MAX_ITERATIONS
+    assert status == Status.MAX_ITERATIONS
 
 
 def test_gradient_under_vmap():
@@ -222,8 +252,12 @@ def test_dynamics_parameter_of_a_pytree_dynamics():
         return solve(Problem(DampedMass(b), x0=jnp.zeros(2), dt=0.05, horizon=30, delay_steps=3, cost=cost),
                      None, TIGHT)
 
-    grad = jax.grad(lambda b: cost_at(b).expected_cost + jnp.sum(cost_at(b).u ** 2))(0.5)
-    fd = richardson(lambda t: {"f": cost_at(0.5 + t).expected_cost + jnp.sum(cost_at(0.5 + t).u ** 2)}, 1e-3)["f"]
+    def f(b):
+        sol = cost_at(b)
+        return sol.expected_cost + jnp.sum(sol.u ** 2)
+
+    grad = jax.jit(jax.grad(f))(0.5)             # compiled whole (outside a jit, each part compiles apart)
+    fd = richardson(lambda t: {"f": f(0.5 + t)}, 1e-3)["f"]
     err = abs(grad - fd) / abs(fd)
     worst.record(err, "damped mass, d/db")
     assert err < 1e-6, err
@@ -253,14 +287,9 @@ def test_solve_with_sensors_matches_finite_differences(noise):
     # the alternation keeps or rejects each redesign by comparing exact costs, so its result is only
     # piecewise smooth in the problem (finite differences across those choices differ by 1.6e-4):
     # reverse mode is checked against forward mode, the derivative of the same computation
-    tangent = direction(problem)
-    rng = np.random.default_rng(1)
-    sol = solve(problem)
-    weights = {k: rng.uniform(0.5, 1.0, np.shape(v)) for k, v in outputs(sol).items()}
-    sums = lambda t: jnp.stack([jnp.sum(weights[k] * v) for k, v in outputs(solve(along(problem, tangent, t))).items()])
-    forward = jax.jit(lambda t: jax.jvp(sums, (t,), (1.0,))[1])(0.0)
-    backward = jax.jit(jax.jacrev(sums))(0.0)
-    assert np.all(np.isfinite(np.asarray(forward))) and np.any(np.asarray(forward) != 0)
+    _, forward, _, weights, backward = _derivatives(problem, direction(problem), None, Options(), 1)(0.0)
+    forward = np.array([np.sum(np.asarray(weights[k]) * np.asarray(forward[k])) for k in weights])
+    assert np.all(np.isfinite(forward)) and np.any(forward != 0)
     assert rel_err(backward, forward) < 1e-8, (backward, forward)
 
 
@@ -270,9 +299,9 @@ def test_grad_over_a_framed_problem_equals_the_unframed_one():
     the unframed problem's, and the delay's own entry is zero (a whole number of steps)."""
     from delayed_ilqr.models import point_mass
     problem = point_mass(delay=0.02, noise=True)
-    cost = lambda p: solve(p, None, TIGHT).expected_cost
-    framed = jax.grad(cost)(problem.replace(delay_frame=4))
-    plain = jax.grad(cost)(problem)
+    gradient = jax.jit(jax.grad(lambda p: solve(p, None, TIGHT).expected_cost))
+    framed = gradient(problem.replace(delay_frame=4))
+    plain = gradient(problem)
     for got, want in zip(jax.tree_util.tree_leaves((framed.x0, framed.cost)),
                          jax.tree_util.tree_leaves((plain.x0, plain.cost))):
         assert rel_err(got, want) < 1e-8
