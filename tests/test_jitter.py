@@ -244,6 +244,39 @@ def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
         mpc.MPC(noisy.replace(delay_steps=3, delay_jitter=JITTER))
 
 
+def test_a_saved_jittered_solution_loads_back_with_its_jitter(point_mass_solves, tmp_path):
+    """The header records the plant's jitter: the file loads back bitwise with its DelayJitter,
+    ``load(problem=)`` refuses a plant of another jitter (or none), and a header whose jitter is
+    invalid or contradicts its delay is one FileFormatError."""
+    import re
+    from delayed_ilqr import load, load_metadata, saving
+    from test_saving import _rewrite, assert_same_record
+    sol, jittered, noisy = point_mass_solves["solve"], point_mass_solves["jittered"], point_mass_solves["noisy"]
+    path = tmp_path / "jittered.npz"
+    sol.save(path, jittered)
+    assert_same_record(sol, load(path, problem=jittered))
+    assert saving.load_delay_jitter(path) == JITTER
+    assert load_metadata(path)["problem"]["delay_jitter"] == dict(steps=[1, 2, 3], probabilities=[0.3, 0.3, 0.4])
+    for plant, said in ((noisy.replace(delay_steps=3), "None"),
+                        (jittered.replace(delay_jitter=DelayJitter([1, 3], [0.5, 0.5])), r"\[1, 3\]")):
+        with pytest.raises(ValueError, match=f"saved for a plant with delay_jitter=DelayJitter.* but the problem "
+                                             f"has delay_jitter=.*{said}"):
+            load(path, problem=plant)
+    sol.save(tmp_path / "fixed.npz", noisy.replace(delay_steps=3))        # no jitter: recorded as None
+    assert saving.load_delay_jitter(tmp_path / "fixed.npz") is None
+    sol.save(tmp_path / "bare.npz")
+    with pytest.raises(saving.FileFormatError, match="records no delay jitter"):
+        saving.load_delay_jitter(tmp_path / "bare.npz")
+    problem = load_metadata(path)["problem"]
+    for i, (record, match) in enumerate([(dict(steps=[1, 2, 3], probabilities=[0.3, 0.3, 0.3]), "must sum to 1"),
+                                         (dict(steps=[1, 2], probabilities=[0.5, 0.5]), "contradicts its problem"),
+                                         ([1, 2, 3], "keys 'steps' and 'probabilities'")]):
+        bad = tmp_path / f"bad{i}.npz"
+        _rewrite(path, bad, dict(problem=dict(problem, delay_jitter=record)))
+        with pytest.raises(saving.FileFormatError, match=f"^{re.escape(str(bad))}: .*problem.delay_jitter .*{match}"):
+            load(bad)
+
+
 @pytest.mark.full
 def test_designing_for_the_jitter_beats_the_mean_delay_on_the_arm():
     """The study's key result (docs/results/jitter.md, benchmarks/jitter_study.py), small: on the

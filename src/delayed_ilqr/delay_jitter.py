@@ -95,6 +95,18 @@ class DelayJitter:
         p[list(self.steps)] = self.probabilities
         return p
 
+    def as_json(self) -> dict:
+        """``{"steps": [...], "probabilities": [...]}``: the record saved files keep (`from_json`)."""
+        return dict(steps=list(self.steps), probabilities=list(self.probabilities))
+
+    @classmethod
+    def from_json(cls, record) -> "DelayJitter":
+        """The distribution of an `as_json` record, checked as the constructor checks it."""
+        if not isinstance(record, dict) or set(record) != {"steps", "probabilities"}:
+            raise ValueError(f"a delay_jitter record must be a dict with keys 'steps' and 'probabilities'; "
+                             f"got {record!r}")
+        return cls(record["steps"], record["probabilities"])
+
     def sample(self, key, shape=()) -> jax.Array:
         """Delays drawn from p (int32, ``shape``), from a JAX key: reproducible from the key."""
         logits = jnp.log(jnp.asarray(self.probabilities))
