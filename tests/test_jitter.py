@@ -244,6 +244,28 @@ def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
         mpc.MPC(noisy.replace(delay_steps=3, delay_jitter=JITTER))
 
 
+def test_distributions_are_data_one_compilation_and_vmap(point_mass_solves):
+    """The probabilities are a leaf of the problem (the support static): a second distribution on
+    the same support reuses the compiled solver, and ``jax.vmap`` over a stack of the two gives
+    each separate solve (nominal, gains, expected cost) to round-off."""
+    import jax
+    import jax.numpy as jnp
+    from delayed_ilqr import solve
+    from delayed_ilqr.ilqg.jittered import _solve_jittered
+    first, jittered = point_mass_solves["solve"], point_mass_solves["jittered"]
+    other = jittered.replace(delay_jitter=DelayJitter([1, 2, 3], [0.6, 0.0, 0.4]))
+    compiled = _solve_jittered._cache_size()
+    second = solve(other)
+    assert _solve_jittered._cache_size() == compiled           # no new compilation
+    assert second.converged and rel_err(second.expected_cost, first.expected_cost) > 1e-3   # another design
+    both = jax.vmap(solve)(jax.tree_util.tree_map(lambda *a: jnp.stack(a), jittered, other))
+    for i, ref in enumerate((first, second)):
+        for name in ("x", "u", "expected_cost", "status"):
+            assert rel_err(getattr(both, name)[i], getattr(ref, name)) < 1e-9, (i, name)
+        for name in ("state_feedback", "delay_feedback"):
+            assert rel_err(getattr(both.policy, name)[i], getattr(ref.policy, name)) < 1e-9, (i, name)
+
+
 def test_a_saved_jittered_solution_loads_back_with_its_jitter(point_mass_solves, tmp_path):
     """The header records the plant's jitter: the file loads back bitwise with its DelayJitter,
     ``load(problem=)`` refuses a plant of another jitter (or none), and a header whose jitter is
