@@ -187,15 +187,14 @@ JITTER = DelayJitter([1, 2, 3], [0.3, 0.3, 0.4])
 @pytest.fixture(scope="module")
 def point_mass_solves():
     """P1 (linear plant, quadratic cost, noise linear in the acting force: its LQG is exact) on a
-    short horizon, solved for the jitter and, noise-free, for a point mass at 2 and for delay 2."""
+    short horizon, solved for the jitter, for a point mass at 2 and for delay 2."""
     from delayed_ilqr import solve
     from delayed_ilqr.models import point_mass
     noisy = point_mass(noise=True, horizon=20)
-    quiet = point_mass(horizon=20)
     jittered = noisy.replace(delay_steps=JITTER.longest, delay_jitter=JITTER)
-    point = quiet.replace(delay_steps=2, delay_jitter=DelayJitter.fixed(2))
+    point = noisy.replace(delay_steps=2, delay_jitter=DelayJitter.fixed(2))
     return dict(noisy=noisy, jittered=jittered, solve=solve(jittered), point=solve(point),
-                delayed=solve(quiet.replace(delay_steps=2)))
+                delayed=solve(noisy.replace(delay_steps=2)))
 
 
 def test_jittered_solve_predicts_its_monte_carlo(point_mass_solves):
@@ -212,7 +211,8 @@ def test_jittered_solve_predicts_its_monte_carlo(point_mass_solves):
 
 def test_point_mass_jitter_is_the_delayed_problem(point_mass_solves):
     """No jitter (a point mass at l = 2): the jittered solver reaches the delayed solver's optimum
-    (nominal and gains), and ``simulate`` under the point mass is the delayed plant's, trial by
+    (nominal and gains; with noise linear in the command, so the two line searches' merits must
+    be the same function of the nominal, derivation §12), and ``simulate`` under the point mass is the delayed plant's, trial by
     trial (same seed: same motor noise)."""
     from delayed_ilqr import simulate
     sol, ref = point_mass_solves["point"], point_mass_solves["delayed"]
@@ -225,6 +225,30 @@ def test_point_mass_jitter_is_the_delayed_problem(point_mass_solves):
     noisy = point_mass_solves["noisy"].replace(delay_steps=2)
     runs = simulate(noisy.replace(delay_jitter=DelayJitter.fixed(2)), ref.policy, 20, seed=2)
     np.testing.assert_array_equal(np.asarray(runs.x), np.asarray(simulate(noisy, ref.policy, 20, seed=2).x))
+
+
+def test_the_merit_is_the_expected_cost_under_zero_feedforward(point_mass_solves):
+    """The line search's merit of a nominal (off the optimum), with S and Phi of its backward
+    pass, equals the exact second-moment cost (``jittered_policy_cost``) of that pass's law with
+    its feedforward set to zero, on the linearisation with the nominal's offsets."""
+    import jax
+    from delayed_ilqr import Options
+    from delayed_ilqr.ilqg.jittered import _pass, jittered_linearize, jittered_merit, jittered_rollout
+    problem = point_mass_solves["jittered"]
+    us = point_mass_solves["solve"].u + 0.3 * np.random.default_rng(0).standard_normal((20, 2))
+
+    @jax.jit
+    def both(us):
+        xs = jittered_rollout(problem, us)
+        lqg, offsets = jittered_linearize(problem, xs, us)
+        gains, value, Phi = _pass(problem, Options(), xs, us, 0.0)
+        zero = gains._replace(feedforward=0 * gains.feedforward)
+        from delayed_ilqr.lqg.jitter import jittered_moments_and_cost
+        return (jittered_merit(problem, xs, us, value.S, Phi, xs)[1],
+                jittered_moments_and_cost(lqg, problem.delay_jitter.by_delay(), offsets, zero)[2])
+
+    merit, exact = both(us)
+    assert rel_err(merit, exact) < 1e-10, (float(merit), float(exact))
 
 
 def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):

@@ -46,6 +46,10 @@ class DelayJitter:
     their union, with zeros.
     """
 
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        _register(cls)          # a subclass (another way to draw the delays) is a pytree as well
+
     def __init__(self, steps, probabilities):
         _validate.static(steps, "delay_jitter steps")
         steps_list = list(np.asarray(steps).reshape(-1)) if np.ndim(steps) else [steps]
@@ -151,13 +155,17 @@ class DelayJitter:
         return f"DelayJitter(steps={list(self.steps)}, probabilities={p})"
 
 
-def _unflatten(steps, leaves):
-    new = object.__new__(DelayJitter)
-    new.steps, (new._p,) = steps, leaves
-    return new
+def _register(cls) -> None:
+    """``cls`` a pytree: the probabilities its leaf, the support its static part."""
+    def unflatten(steps, leaves):
+        new = object.__new__(cls)
+        new.steps, (new._p,) = steps, leaves
+        return new
+
+    jax.tree_util.register_pytree_node(cls, lambda j: ((j._p,), j.steps), unflatten)
 
 
-jax.tree_util.register_pytree_node(DelayJitter, lambda j: ((j._p,), j.steps), _unflatten)
+_register(DelayJitter)
 
 
 def _plain(value):
