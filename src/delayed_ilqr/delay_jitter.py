@@ -151,7 +151,7 @@ class DelayJitter:
         return id(self) if self._traced else hash((self.steps, self.probabilities))
 
     def __repr__(self):
-        p = "traced" if self._traced else list(self.probabilities)
+        p = "traced" if isinstance(self._p, jax.core.Tracer) else np.asarray(self._p).tolist()
         return f"DelayJitter(steps={list(self.steps)}, probabilities={p})"
 
 
