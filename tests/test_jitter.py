@@ -187,15 +187,14 @@ JITTER = DelayJitter([1, 2, 3], [0.3, 0.3, 0.4])
 @pytest.fixture(scope="module")
 def point_mass_solves():
     """P1 (linear plant, quadratic cost, noise linear in the acting force: its LQG is exact) on a
-    short horizon, solved for the jitter and, noise-free, for a point mass at 2 and for delay 2."""
+    short horizon, solved for the jitter, for a point mass at 2 and for delay 2."""
     from delayed_ilqr import solve
     from delayed_ilqr.models import point_mass
     noisy = point_mass(noise=True, horizon=20)
-    quiet = point_mass(horizon=20)
     jittered = noisy.replace(delay_steps=JITTER.longest, delay_jitter=JITTER)
-    point = quiet.replace(delay_steps=2, delay_jitter=DelayJitter.fixed(2))
+    point = noisy.replace(delay_steps=2, delay_jitter=DelayJitter.fixed(2))
     return dict(noisy=noisy, jittered=jittered, solve=solve(jittered), point=solve(point),
-                delayed=solve(quiet.replace(delay_steps=2)))
+                delayed=solve(noisy.replace(delay_steps=2)))
 
 
 def test_jittered_solve_predicts_its_monte_carlo(point_mass_solves):
@@ -212,7 +211,8 @@ def test_jittered_solve_predicts_its_monte_carlo(point_mass_solves):
 
 def test_point_mass_jitter_is_the_delayed_problem(point_mass_solves):
     """No jitter (a point mass at l = 2): the jittered solver reaches the delayed solver's optimum
-    (nominal and gains), and ``simulate`` under the point mass is the delayed plant's, trial by
+    (nominal and gains; with noise linear in the command, so the two line searches' merits must
+    be the same function of the nominal, derivation §12), and ``simulate`` under the point mass is the delayed plant's, trial by
     trial (same seed: same motor noise)."""
     from delayed_ilqr import simulate
     sol, ref = point_mass_solves["point"], point_mass_solves["delayed"]
@@ -225,6 +225,30 @@ def test_point_mass_jitter_is_the_delayed_problem(point_mass_solves):
     noisy = point_mass_solves["noisy"].replace(delay_steps=2)
     runs = simulate(noisy.replace(delay_jitter=DelayJitter.fixed(2)), ref.policy, 20, seed=2)
     np.testing.assert_array_equal(np.asarray(runs.x), np.asarray(simulate(noisy, ref.policy, 20, seed=2).x))
+
+
+def test_the_merit_is_the_expected_cost_under_zero_feedforward(point_mass_solves):
+    """The line search's merit of a nominal (off the optimum), with S and Phi of its backward
+    pass, equals the exact second-moment cost (``jittered_policy_cost``) of that pass's law with
+    its feedforward set to zero, on the linearisation with the nominal's offsets."""
+    import jax
+    from delayed_ilqr import Options
+    from delayed_ilqr.ilqg.jittered import _pass, jittered_linearize, jittered_merit, jittered_rollout
+    problem = point_mass_solves["jittered"]
+    us = point_mass_solves["solve"].u + 0.3 * np.random.default_rng(0).standard_normal((20, 2))
+
+    @jax.jit
+    def both(us):
+        xs = jittered_rollout(problem, us)
+        lqg, offsets = jittered_linearize(problem, xs, us)
+        gains, value, Phi = _pass(problem, Options(), xs, us, 0.0)
+        zero = gains._replace(feedforward=0 * gains.feedforward)
+        from delayed_ilqr.lqg.jitter import jittered_moments_and_cost
+        return (jittered_merit(problem, xs, us, value.S, Phi, xs)[1],
+                jittered_moments_and_cost(lqg, problem.delay_jitter.by_delay(), offsets, zero)[2])
+
+    merit, exact = both(us)
+    assert rel_err(merit, exact) < 1e-10, (float(merit), float(exact))
 
 
 def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
@@ -242,6 +266,61 @@ def test_problem_refuses_a_jitter_it_cannot_take(point_mass_solves):
     from delayed_ilqr import mpc
     with pytest.raises(ValueError, match="fixed input delay"):        # the receding horizon refuses it
         mpc.MPC(noisy.replace(delay_steps=3, delay_jitter=JITTER))
+
+
+def test_distributions_are_data_one_compilation_and_vmap(point_mass_solves):
+    """The probabilities are a leaf of the problem (the support static): a second distribution on
+    the same support reuses the compiled solver, and ``jax.vmap`` over a stack of the two gives
+    each separate solve (nominal, gains, expected cost) to round-off."""
+    import jax
+    import jax.numpy as jnp
+    from delayed_ilqr import solve
+    from delayed_ilqr.ilqg.jittered import _solve_jittered
+    first, jittered = point_mass_solves["solve"], point_mass_solves["jittered"]
+    other = jittered.replace(delay_jitter=DelayJitter([1, 2, 3], [0.6, 0.0, 0.4]))
+    compiled = _solve_jittered._cache_size()
+    second = solve(other)
+    assert _solve_jittered._cache_size() == compiled           # no new compilation
+    assert second.converged and rel_err(second.expected_cost, first.expected_cost) > 1e-3   # another design
+    both = jax.vmap(solve)(jax.tree_util.tree_map(lambda *a: jnp.stack(a), jittered, other))
+    for i, ref in enumerate((first, second)):
+        for name in ("x", "u", "expected_cost", "status"):
+            assert rel_err(getattr(both, name)[i], getattr(ref, name)) < 1e-9, (i, name)
+        for name in ("state_feedback", "delay_feedback"):
+            assert rel_err(getattr(both.policy, name)[i], getattr(ref.policy, name)) < 1e-9, (i, name)
+
+
+def test_a_saved_jittered_solution_loads_back_with_its_jitter(point_mass_solves, tmp_path):
+    """The header records the plant's jitter: the file loads back bitwise with its DelayJitter,
+    ``load(problem=)`` refuses a plant of another jitter (or none), and a header whose jitter is
+    invalid or contradicts its delay is one FileFormatError."""
+    import re
+    from delayed_ilqr import load, load_metadata, saving
+    from test_saving import _rewrite, assert_same_record
+    sol, jittered, noisy = point_mass_solves["solve"], point_mass_solves["jittered"], point_mass_solves["noisy"]
+    path = tmp_path / "jittered.npz"
+    sol.save(path, jittered)
+    assert_same_record(sol, load(path, problem=jittered))
+    assert saving.load_delay_jitter(path) == JITTER
+    assert load_metadata(path)["problem"]["delay_jitter"] == dict(steps=[1, 2, 3], probabilities=[0.3, 0.3, 0.4])
+    for plant, said in ((noisy.replace(delay_steps=3), "None"),
+                        (jittered.replace(delay_jitter=DelayJitter([1, 3], [0.5, 0.5])), r"\[1, 3\]")):
+        with pytest.raises(ValueError, match=f"saved for a plant with delay_jitter=DelayJitter.* but the problem "
+                                             f"has delay_jitter=.*{said}"):
+            load(path, problem=plant)
+    sol.save(tmp_path / "fixed.npz", noisy.replace(delay_steps=3))        # no jitter: recorded as None
+    assert saving.load_delay_jitter(tmp_path / "fixed.npz") is None
+    sol.save(tmp_path / "bare.npz")
+    with pytest.raises(saving.FileFormatError, match="records no delay jitter"):
+        saving.load_delay_jitter(tmp_path / "bare.npz")
+    problem = load_metadata(path)["problem"]
+    for i, (record, match) in enumerate([(dict(steps=[1, 2, 3], probabilities=[0.3, 0.3, 0.3]), "must sum to 1"),
+                                         (dict(steps=[1, 2], probabilities=[0.5, 0.5]), "contradicts its problem"),
+                                         ([1, 2, 3], "keys 'steps' and 'probabilities'")]):
+        bad = tmp_path / f"bad{i}.npz"
+        _rewrite(path, bad, dict(problem=dict(problem, delay_jitter=record)))
+        with pytest.raises(saving.FileFormatError, match=f"^{re.escape(str(bad))}: .*problem.delay_jitter .*{match}"):
+            load(bad)
 
 
 @pytest.mark.full

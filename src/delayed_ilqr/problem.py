@@ -181,8 +181,9 @@ class Problem:
             distribution (docs/derivation.md §21, docs/guide/own_plant.md); ``delay_steps`` is then
             its longest delay L, the number of commands in flight that the policy's
             ``delay_feedback`` spans (u_{k-L}..u_{k-1}). [`solve`][delayed_ilqr.solve] designs for the
-            jitter and [`simulate`][delayed_ilqr.simulate] draws it. Not with ``observation``,
-            ``delay_frame`` or per-channel delays.
+            jitter and [`simulate`][delayed_ilqr.simulate] draws it. Its probabilities are data
+            (problems whose jitters share a support share one compiled solver, under
+            ``jax.vmap`` too). Not with ``observation``, ``delay_frame`` or per-channel delays.
     """
 
     def __init__(self, dynamics: Callable, x0, dt, horizon, delay_steps, cost, noise: Optional[Callable] = None,
@@ -510,10 +511,11 @@ def _problem_flatten(p: Problem):
     noise, noise_static = _data_or_static(p.noise)
     # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
     framed = p.delay_frame is not None
-    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise)
+    # a jitter's probabilities are leaves (its support is its own static part)
+    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise, p.delay_jitter)
             + ((_delay_leaf(p.delay_steps),) if framed else ()),
             (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
-             p._has_limits, p.metadata, p.time_dependent, p.delay_frame, p.delay_jitter))
+             p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
 
 
 def _delay_leaf(delay_steps):
@@ -537,11 +539,11 @@ def _delay_from_leaf(leaf):
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata, new.time_dependent, new.delay_frame, new.delay_jitter) = aux
+     new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
     if new.delay_frame is not None:
         *data, leaf = data
         new.delay_steps = _delay_from_leaf(leaf)
-    new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise = data
+    new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise, new.delay_jitter = data
     new.dynamics = dynamics_static if dynamics is None else dynamics
     new.noise = noise_static if noise is None else noise
     return new

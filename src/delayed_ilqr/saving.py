@@ -11,8 +11,9 @@ Format (``FORMAT_VERSION`` 1, documented in docs/guide/saving.md):
   ``"Policy"``), ``types`` (the class of every nested record by path, ``""`` the top), ``arrays``
   (every entry's shape and dtype), the sizes ``horizon`` K, ``n_states``, ``n_controls``,
   ``delay_steps`` l (the delay the gains were designed for) and, when the problem was given,
-  ``dt``, ``delay`` = l dt (s) and ``problem`` (its ``name``, ``delay_steps`` and ``delay``: the
-  plant's, which differ from the policy's for a delay-ignorant design), plus the caller's ``info``.
+  ``dt``, ``delay`` = l dt (s) and ``problem`` (its ``name``, ``delay_steps``, ``delay``: the
+  plant's, which differ from the policy's for a delay-ignorant design, and ``delay_jitter``: None
+  or the jitter's ``{"steps", "probabilities"}``), plus the caller's ``info``.
 
 Files are written atomically (``delayed_ilqr._files``: an interrupted save leaves the old file).
 Records are read field by field, by name: a field the file lacks gets the class's default (so a
@@ -37,10 +38,11 @@ import numpy as np
 
 from . import _delays, _files, _precision
 from ._files import FileFormatError
+from .delay_jitter import DelayJitter
 from .fused_estimator import FusedEstimator
 from .solution import Estimator, Policy, Solution, Status, Trace
 
-__all__ = ["FORMAT_VERSION", "FileFormatError", "save", "load", "load_metadata"]
+__all__ = ["FORMAT_VERSION", "FileFormatError", "save", "load", "load_metadata", "load_delay_jitter"]
 
 FORMAT_NAME = "delayed-ilqr"
 FORMAT_VERSION = 1
@@ -77,8 +79,8 @@ def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
         path: the file; ``.npz`` is appended when missing (as NumPy does; [`load`][delayed_ilqr.load] finds it
             under the same name).
         obj: what to save; [`load`][delayed_ilqr.load] returns the same type with bitwise-equal arrays.
-        problem: optional, the [`Problem`][delayed_ilqr.Problem] it was solved for: its ``dt``, delay
-            and name go into the header (the arrays do not hold the time step), and
+        problem: optional, the [`Problem`][delayed_ilqr.Problem] it was solved for: its ``dt``, delay,
+            delay jitter and name go into the header (the arrays do not hold them), and
             ``load(path, problem=...)`` checks a plant against them.
         info: optional JSON-serialisable dict stored in the header as ``info``.
     """
@@ -99,7 +101,9 @@ def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
         l = header["delay_steps"]
         header.update(dt=problem.dt, delay=l * problem.dt,
                       problem=dict(name=problem.name, delay_steps=_delays.as_json(problem.delay_steps),
-                                   delay=(np.asarray(_delays.as_json(problem.delay_steps)) * problem.dt).tolist()))
+                                   delay=(np.asarray(_delays.as_json(problem.delay_steps)) * problem.dt).tolist(),
+                                   delay_jitter=None if problem.delay_jitter is None
+                                   else problem.delay_jitter.as_json()))
     if info is not None:
         header["info"] = info
     try:
@@ -133,6 +137,46 @@ def load_metadata(path) -> dict:
         return _header(npz, path)
 
 
+def load_delay_jitter(path) -> Optional[DelayJitter]:
+    """The [`DelayJitter`][delayed_ilqr.DelayJitter] of the plant a file was saved for
+    (``save(..., problem=)`` with ``delay_jitter``), None for a plant without jitter.
+
+    Raises:
+        FileFormatError: also when the file records no problem (saved without ``problem=``, or by
+            a delayed-ilqr that did not record the jitter), so that a missing record is never read
+            as "no jitter", and when the recorded jitter is not a valid one.
+    """
+    path = _existing(path)
+    header = load_metadata(path)
+    if "delay_jitter" not in _problem_record(header):
+        raise _files.FileFormatError(path, "records no delay jitter: it was saved without problem= (or by an older "
+                                           "delayed-ilqr), so the plant's jitter is unknown")
+    return _recorded_jitter(header, path)
+
+
+def _problem_record(header: dict) -> dict:
+    record = header.get("problem")
+    return record if isinstance(record, dict) else {}
+
+
+def _recorded_jitter(header: dict, path) -> Optional[DelayJitter]:
+    """The header's ``problem.delay_jitter`` as a DelayJitter (None when absent or null), checked
+    against the recorded problem's delay_steps (the jitter's longest delay)."""
+    record = _problem_record(header).get("delay_jitter")
+    if record is None:
+        return None
+    try:
+        jitter = DelayJitter.from_json(record)
+    except (TypeError, ValueError) as exc:
+        raise _files.FileFormatError(path, f"its header's problem.delay_jitter is not a valid DelayJitter: {exc}") \
+            from None
+    if header["problem"].get("delay_steps") != jitter.longest:
+        raise _files.FileFormatError(path, f"its header's problem.delay_jitter {jitter!r} contradicts its "
+                                           f"problem.delay_steps {header['problem'].get('delay_steps')!r} (a "
+                                           f"jittered plant's delay_steps is the jitter's longest delay)")
+    return jitter
+
+
 def load(path, problem=None):
     """Reads a file written by [`save`][delayed_ilqr.saving.save] (or ``Solution.save`` / ``Policy.save``) and returns
     what was saved, a [`Solution`][delayed_ilqr.Solution] or [`Policy`][delayed_ilqr.Policy], with
@@ -144,14 +188,16 @@ def load(path, problem=None):
         path: the file (``path.npz`` when ``path`` does not exist, as [`save`][delayed_ilqr.saving.save] names it).
         problem: optional, the plant the loaded policy is for: its horizon, states and controls
             must be the saved ones and its ``dt`` the one recorded by ``save(..., problem=)``
-            (the gains are per step, so on another time step they are another controller); a file
-            that records no time step gives a ``UserWarning`` that it cannot be checked.
+            (the gains are per step, so on another time step they are another controller) and its
+            ``delay_jitter`` the recorded one (None included); a file that records no time step
+            gives a ``UserWarning`` that it cannot be checked.
 
     Raises:
         FileFormatError: a ``ValueError`` naming the file and what is wrong: not a file of
             [`save`][delayed_ilqr.saving.save] (missing, empty, truncated, damaged, a single ``.npy`` array, text, a
             pickle, another NPZ), an unknown format version or record type, a header whose kind,
-            sizes or array shapes contradict the arrays, or arrays whose shapes disagree.
+            sizes or array shapes contradict the arrays, arrays whose shapes disagree, or a
+            recorded delay jitter that is invalid or contradicts the recorded delay.
         ValueError: a ``problem`` that does not match the file.
     """
     _precision.require_x64("load")
@@ -164,6 +210,7 @@ def load(path, problem=None):
     if arrays:
         raise _files.FileFormatError(path, f"entries {sorted(arrays)} are not fields of {header['kind']}")
     _check_sizes(header, obj, path)
+    _recorded_jitter(header, path)
     if problem is not None:
         _check_problem(header, problem, path)
     return obj
@@ -305,6 +352,12 @@ def _check_problem(header: dict, problem, path) -> None:
         raise ValueError(f"{path}: saved for dt = {header['dt']:g} s, but the problem has dt = {problem.dt:g} s; the "
                          "problem argument must have the saved time step (per-step gains are another controller "
                          "at another step)")
+    if "delay_jitter" in _problem_record(header):
+        saved = _recorded_jitter(header, path)
+        if saved != problem.delay_jitter:
+            raise ValueError(f"{path}: saved for a plant with delay_jitter={saved!r}, but the problem has "
+                             f"delay_jitter={problem.delay_jitter!r}; the problem argument must be the plant the "
+                             "file's gains were designed for")
 
 
 def _library_version() -> str:

@@ -26,7 +26,7 @@ def problem_record(problem) -> dict:
     """A JSON-ready dict of everything that defines ``problem`` ([`Problem`][delayed_ilqr.Problem]).
 
     Keys: ``name``; ``dt`` (s), ``horizon`` K and ``final_time`` = K dt (s); ``delay`` (s) and
-    ``delay_steps``; ``sensory_delay`` (s) and ``sensory_delay_steps`` (None without sensors);
+    ``delay_steps``; ``delay_jitter`` (None, or the jitter's ``{"steps", "probabilities"}``); ``sensory_delay`` (s) and ``sensory_delay_steps`` (None without sensors);
     ``n_states``, ``n_controls``; ``x0``; ``u_min``, ``u_max`` (None where unlimited);
     ``noise``: None without noise, else ``{"preset": name or None, "type": class, <its fields>}``
     (e.g. ``sigma_u``); ``dynamics``, ``cost``, ``observation``: ``{"type": class, <fields>}``
@@ -41,6 +41,7 @@ def problem_record(problem) -> dict:
     return dict(
         name=problem.name, dt=problem.dt, horizon=int(problem.horizon), final_time=problem.horizon * problem.dt,
         delay=problem.delay_steps * problem.dt, delay_steps=int(problem.delay_steps),
+        delay_jitter=None if getattr(problem, "delay_jitter", None) is None else problem.delay_jitter.as_json(),
         sensory_delay=None if ls is None else ls * problem.dt, sensory_delay_steps=ls,
         n_states=int(problem.n_states), n_controls=int(problem.n_controls), x0=_value(problem.x0),
         u_min=_value(problem.u_min), u_max=_value(problem.u_max), noise=noise,

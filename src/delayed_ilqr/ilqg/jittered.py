@@ -15,17 +15,16 @@ its J(0) is the exact expected cost of the law on that linearisation.
 
 One iteration: linearise at the nominal, the jittered backward pass with H + lambda I, roll out the
 law with its feedforward scaled by every alpha of ``Options.alphas`` (clipped to the limits), keep
-the best nominal cost; accept when it decreases (lambda falls), else lambda rises by
-``reg_factor``. The iteration stops when the best step changes the cost by less than
-``tol_cost`` (relative, up or down: at the optimum no step decreases it), the feedforward is
+the candidate of least merit (`jittered_merit`: the jittered LQG's expected cost of the nominal
+under zero feedforward, which the feedforward descends); accept when it decreases (lambda falls),
+else lambda rises by ``reg_factor``. The iteration stops when the best step changes the merit by
+less than ``tol_cost`` (relative, up or down: at the optimum no step decreases it), the feedforward is
 below ``tol_grad`` (Tassa's measure, lambda < 1e-5), at ``max_iterations`` or when lambda passes
 ``reg_max``. The solve runs under ``jit`` and ``vmap``; it has no implicit derivative (the fixed-
 delay solver's, ``ilqg.implicit``), so ``jax.grad`` through it is not supported. ``Options.method``
 is not read: the pass is the structured one (its augmented reference is
-``lqg.jittered_augmented_pass``), and ``max_alternations`` does not apply (no sensors). The line search scores the nominal cost, not the noise-aware merit of
-the fixed-delay solver (derivation §12): the jitter shapes the feedback law and the expected cost,
-not the nominal (a limitation, stated in derivation §21). Limits are enforced by clipping the
-commands in the rollouts (the gains are not box-constrained).
+``lqg.jittered_augmented_pass``), and ``max_alternations`` does not apply (no sensors). Limits are
+enforced by clipping the commands in the rollouts (the gains are not box-constrained).
 """
 from __future__ import annotations
 
@@ -44,7 +43,7 @@ from ..problem import Problem
 from ..solution import Policy, Solution, Status, Trace
 from .linearize import _step, _terminal, trajectory_cost
 
-__all__ = ["mean_acting", "jittered_rollout", "jittered_linearize", "solve_jittered"]
+__all__ = ["mean_acting", "jittered_rollout", "jittered_linearize", "jittered_merit", "solve_jittered"]
 
 _RUNNING = -1
 NEWTON_REG = 1e-5          # lambda below which a small feedforward certifies convergence (as the solver's)
@@ -115,6 +114,33 @@ def _closed_loop(problem: Problem, xs, us, I, LM, alpha):
     return jnp.concatenate([problem.x0[None], x_new]), u_new
 
 
+def jittered_merit(problem: Problem, xs, us, S, Phi, xs_bar):
+    """(cost (2), merit) of a nominal: the merit is the jittered LQG's expected cost of the nominal
+    under zero feedforward, the s_tilde recursion of §21 with I = 0 (derivation §12 for noise):
+
+        merit = J(xs, us) + sum_k [ sum_j c_kj' S_{k+1} c_kj + sum_l p_l delta_kl' Phi_k delta_kl ]
+
+    with delta_kl = u_{k-l} - u_bar_k the candidate's offsets, c_k = sqrt(dt) F(x_bar_k, u_k,
+    u_bar_k)' (F at the states ``xs_bar`` of the linearisation, §12) and S [K+1, n, n], Phi
+    [K, d, d] = B1' S_{k+1} B1 + sum_j C1_j' S_{k+1} C1_j held from the last backward pass."""
+    cost = trajectory_cost(problem, xs, us)
+    L, K = problem.delay_jitter.longest, us.shape[0]
+    u_bar = mean_acting(problem, us)
+    padded = jnp.concatenate([jnp.zeros((L,) + us.shape[1:], us.dtype), us])
+    delta = jnp.stack([padded[L - l:L - l + K] for l in range(L + 1)], axis=1) - u_bar[:, None, :]
+    extra = jnp.einsum("l,kla,kab,klb->", _probabilities(problem), delta, Phi, delta)
+    if problem.noise is not None:
+        F = jax.vmap(problem.noise_at)(xs_bar[:-1], us, u_bar, problem.step_times(us.dtype))      # [K, n, p]
+        extra = extra + problem.dt * jnp.einsum("knp,knm,kmp->", F, S[1:], F)
+    return cost, cost + extra
+
+
+def _acting_curvature(lqg: DelayedLQG, S):
+    """Phi_k = B1' S_{k+1} B1 + sum_j C1_j' S_{k+1} C1_j: [K, d, d] (the acting command's)."""
+    return jnp.einsum("kna,knm,kmb->kab", lqg.B1, S[1:], lqg.B1) \
+        + jnp.einsum("kpna,knm,kpmb->kab", lqg.C1, S[1:], lqg.C1)
+
+
 class _State(NamedTuple):
     us: jax.Array
     xs: jax.Array
@@ -135,23 +161,30 @@ def _pass(problem: Problem, o: Options, xs, us, reg):
         gains_fn, bounds = partial(boxed_gains, margin=o.limit_margin), (problem.u_min - us, problem.u_max - us)
     if problem.noise is not None:
         gains_fn = unregularized_feedback(gains_fn)
-    return jittered_scan(lqg, _probabilities(problem), offsets, reg, gains_fn, bounds)
+    gains, value = jittered_scan(lqg, _probabilities(problem), offsets, reg, gains_fn, bounds)
+    return gains, value, _acting_curvature(lqg, value.S)
 
 
-def _iteration(problem: Problem, o: Options, st: _State) -> _State:
-    gains, value = _pass(problem, o, st.xs, st.us, st.reg)
+def _iteration(problem: Problem, o: Options, aware: bool, st: _State) -> _State:
+    gains, value, Phi = _pass(problem, o, st.xs, st.us, st.reg)
     pd = value.positive_definite & jnp.all(jnp.isfinite(gains.feedforward))
     LM = augmented_feedback(gains)
     alphas = jnp.asarray(o.alphas)
     xs_all, us_all = jax.vmap(lambda a: _closed_loop(problem, st.xs, st.us, gains.feedforward, LM, a))(alphas)
-    costs = jax.vmap(partial(trajectory_cost, problem))(xs_all, us_all)
-    costs = jnp.where(jnp.isfinite(costs) & pd, costs, jnp.inf)
-    best = jnp.argmin(costs)
-    accept = costs[best] < st.cost
+    if aware:
+        score = partial(jittered_merit, problem, S=value.S, Phi=Phi, xs_bar=st.xs)
+        costs, merits = jax.vmap(score)(xs_all, us_all)
+        current = score(st.xs, st.us)[1]
+    else:
+        costs = merits = jax.vmap(partial(trajectory_cost, problem))(xs_all, us_all)
+        current = st.cost
+    merits = jnp.where(jnp.isfinite(merits) & pd, merits, jnp.inf)
+    best = jnp.argmin(merits)
+    accept = merits[best] < current
     gnorm = jnp.mean(jnp.max(jnp.abs(gains.feedforward) / (jnp.abs(st.us) + 1.0), axis=1))
     it = st.iteration + 1
-    # converged: the best step changes the cost by less than tol_cost (relative), up or down
-    converged_cost = pd & (jnp.abs(costs[best] - st.cost) < o.tol_cost * jnp.abs(st.cost))
+    # converged: the best step changes the merit by less than tol_cost (relative), up or down
+    converged_cost = pd & (jnp.abs(merits[best] - current) < o.tol_cost * jnp.abs(current))
     converged_grad = pd & (gnorm < o.tol_grad) & (st.reg < NEWTON_REG)
     reg = jnp.where(accept, jnp.where(st.reg / o.reg_factor < o.reg_min, 0.0, st.reg / o.reg_factor),
                     jnp.maximum(st.reg * o.reg_factor, o.reg_min))
@@ -162,15 +195,17 @@ def _iteration(problem: Problem, o: Options, st: _State) -> _State:
     us, xs = jnp.where(keep, us_all[best], st.us), jnp.where(keep, xs_all[best], st.xs)
     cost = jnp.where(keep, costs[best], st.cost)
     t = st.trace
-    trace = Trace(cost=t.cost.at[it].set(cost), merit=t.merit.at[it].set(cost),
+    trace = Trace(cost=t.cost.at[it].set(cost), merit=t.merit.at[it].set(jnp.where(keep, merits[best], current)),
                   expected_reduction=t.expected_reduction.at[it].set(jnp.nan),
                   step_size=t.step_size.at[it].set(jnp.where(accept, alphas[best], 0.0)),
                   reg=t.reg.at[it].set(st.reg), grad_norm=t.grad_norm.at[it].set(gnorm))
     return _State(us, xs, cost, reg, it, status, trace)
 
 
-@jax.jit
-def _solve_jittered(problem: Problem, u_init, options: Options) -> Solution:
+@partial(jax.jit, static_argnames=("aware",))
+def _solve_jittered(problem: Problem, u_init, options: Options, aware: bool = True) -> Solution:
+    """The solve; ``aware=False`` scores the candidates by their nominal cost (2) alone, the
+    comparison of benchmarks/jitter_merit.py."""
     us = jnp.clip(jnp.asarray(u_init, jnp.float64), problem.u_min, problem.u_max)
     xs = jittered_rollout(problem, us)
     cost = trajectory_cost(problem, xs, us)
@@ -180,8 +215,8 @@ def _solve_jittered(problem: Problem, u_init, options: Options) -> Solution:
                   reg=nan, grad_norm=nan)
     init = _State(us, xs, cost, jnp.asarray(options.reg_init, jnp.float64), jnp.asarray(0, jnp.int32),
                   jnp.where(ok, _RUNNING, Status.NON_FINITE_INITIAL).astype(jnp.int32), trace)
-    st = jax.lax.while_loop(lambda s: s.status == _RUNNING, partial(_iteration, problem, options), init)
-    gains, value = _pass(problem, options, st.xs, st.us, 0.0)
+    st = jax.lax.while_loop(lambda s: s.status == _RUNNING, partial(_iteration, problem, options, aware), init)
+    gains, value, _ = _pass(problem, options, st.xs, st.us, 0.0)
     finite = value.positive_definite & jnp.all(jnp.isfinite(gains.state_feedback)) \
         & jnp.all(jnp.isfinite(gains.delay_feedback))
     status = jnp.where(finite | (st.status == Status.NON_FINITE_INITIAL), st.status, Status.NON_FINITE_GAINS)

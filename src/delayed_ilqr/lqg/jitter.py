@@ -348,7 +348,7 @@ def _jittered_policy_cost(lqg, p, offsets, gains):
     return jittered_moments_and_cost(lqg, p, offsets, gains)[2]
 
 
-@partial(jax.jit, static_argnames=("jitter", "n_trials"))
+@partial(jax.jit, static_argnames=("n_trials",))
 def _simulate_jittered(lqg: DelayedLQG, gains: Gains, offsets, jitter: DelayJitter, n_trials: int, key):
     K, nx, nd, p, L = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.n_noise, lqg.delay_steps
     dt = lqg.A.dtype
