@@ -39,6 +39,7 @@ Modules (the solver's internals are imported from them, not from here):
 | output_feedback | [`separation_design`][delayed_ilqr.lqg.separation_design], [`output_feedback_cost`][delayed_ilqr.lqg.output_feedback_cost] (exact, any pair), [`separation_cost`][delayed_ilqr.lqg.separation_cost], [`simulate_output_feedback`][delayed_ilqr.lqg.simulate_output_feedback] |
 | fusion | [`fused_kalman`][delayed_ilqr.lqg.fused_kalman]: several sensors with their own delays and periods, fused without augmentation; [`fused_estimates`][delayed_ilqr.lqg.fused_estimates], [`fused_design`][delayed_ilqr.lqg.fused_design] |
 | alternation | [`alternate`][delayed_ilqr.lqg.alternate]: Todorov's alternation of filter and controller for signal-dependent noise ([`filter_step`][delayed_ilqr.lqg.filter_step], [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]) |
+| fused_alternation | [`fused_alternate`][delayed_ilqr.lqg.fused_alternate]: the alternation with several sensors of different delays ([`fused_controller_sweep`][delayed_ilqr.lqg.fused_controller_sweep]) |
 
 """
 from .augmented import augmented_backward_pass
@@ -52,6 +53,7 @@ from .structured import backward_pass
 from .alternation import Alternation, alternate, controller_sweep, filter_step
 from .fusion import (FusedFeedback, FusedLoop, FusionCovariances, FusionGains, fused_design, fused_estimates,
                      fused_kalman, fused_loop)
+from .fused_alternation import FusedAlternation, fused_alternate, fused_controller_sweep
 
 __all__ = [
     "DelayedLQG",
@@ -87,4 +89,7 @@ __all__ = [
     "fused_design",
     "FusedLoop",
     "fused_loop",
+    "FusedAlternation",
+    "fused_alternate",
+    "fused_controller_sweep",
 ]
