@@ -34,6 +34,7 @@ from .lqg.law import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
+from .lqg.frame import acting_commands
 from .models.metadata import task_space
 from .problem import Problem
 from .solution import Policy, Solution
@@ -116,11 +117,16 @@ def _inputs_map(nx: int, nd: int, l, l_p: int, m: int, LMk):
     return jnp.concatenate(rows)
 
 
-def _acting_nominal(u_bar, l):
-    """u_bar_{k-l} [K, d] (zero before time 0); with per-channel delays l [d], u_bar_{k-l_j, j}."""
-    K, nd = u_bar.shape
-    k = jnp.arange(K)[:, None] - jnp.asarray(l) * jnp.ones(nd, jnp.int32)
-    return jnp.where(k >= 0, u_bar[jnp.clip(k, 0, K - 1), jnp.arange(nd)], 0.0)
+def acting_command(u, ud_bar, sent, l):
+    """The command acting at a point of the chain, u_{k-l} = ud_bar + du_{k-l} (u itself where the
+    delay is 0): ``sent`` [m, d] the pending deviations du_{k-m}..du_{k-1}; with per-channel delays
+    l [d] (traced), component j of du_{k-l_j}."""
+    m, nd = sent.shape
+    if not _delays.is_per_channel(l):
+        return ud_bar + sent[m - l] if l > 0 else u
+    if m == 0:
+        return u
+    return jnp.where(l == 0, u, ud_bar + sent[jnp.clip(m - l, 0, m - 1), jnp.arange(nd)])
 
 
 def _rule_root(cov, inputs):
@@ -175,15 +181,8 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
     LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
     u_bar = policy.u_nominal
     # u_nominal_{k-l} (zero before time 0), what the plant's delayed command deviates from
-    u_bar_delayed = _acting_nominal(u_bar, l) if per_channel or l > 0 else u_bar
-
-    def acting(u, ubd, sent):
-        """The command acting now, u_{k-l} (per channel: u_{k-l_j, j}; u_k where the delay is 0)."""
-        if not per_channel:
-            return ubd + sent[m - l] if l > 0 else u
-        if m == 0:
-            return u
-        return jnp.where(l == 0, u, ubd + sent[jnp.clip(m - l, 0, m - 1), jnp.arange(nd)])
+    u_bar_delayed = acting_commands(u_bar, l, True) if per_channel else (
+        jnp.concatenate([jnp.zeros((l, nd), dtype), u_bar])[:K] if l > 0 else u_bar)
     root_dt = jnp.sqrt(jnp.asarray(problem.dt, dtype))
 
     def point(z, x_bar, x_bar_next, ub, ubd, LMk, t):
@@ -195,7 +194,7 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         # not nest, and the second-order rule differentiates twice
         du = LMk @ jnp.concatenate([dx, sent[m - l_p:].reshape(-1)])
         u = jnp.clip(ub + du, problem.u_min, problem.u_max)
-        ud = acting(u, ubd, sent)
+        ud = acting_command(u, ubd, sent, l)
         x_next = x + problem.dt * problem.dynamics_at(x, u, ud, t)
         G = root_dt * problem.noise_at(x, u, ud, t) if problem.noise is not None else jnp.zeros((nx, 0), dtype)
         sent_next = jnp.concatenate([sent[1:], (u - ub)[None]]).reshape(-1) if m > 0 else sent.reshape(-1)
