@@ -510,3 +510,21 @@ def test_per_channel_delays_on_decoupled_axes_equal_one_delay_per_axis():
     assert str(e.value) == ("compensation must be 'inflight' with per-channel delay_steps (the delayed law feeds "
                             "back each channel's commands in flight; 'none', 'predict' and 'replay' take one delay); "
                             "got compensation='predict' with delay_steps=[2, 4]")
+
+
+def test_sensors_of_different_delays_or_periods_are_refused_by_name():
+    """The controller's filter measures every tick with one delay: a list of sensors of different
+    delays, or a sensor sampled every other tick, would be read wrongly, so they are refused."""
+    model = di.models.point_mass(delay=0.02, horizon=12)
+    eye = np.eye(4)
+    late = di.Observation(eye[:2], 0.004 * np.eye(2), delay_steps=6)
+    early = di.Observation(eye[2:], 0.03 * np.eye(2), delay_steps=2)
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(model.replace(observation=[late, early]))
+    assert str(e.value) == ("problem.observation must have one sensory delay for mpc.MPC (its delayed filter measures "
+                            "every tick with one delay; sensors of different delays are fused only by solve and "
+                            "simulate); got sensors with delay_steps [6, 2]")
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(model.replace(observation=di.Observation(eye[:2], 0.004 * np.eye(2), delay_steps=6, period=3)))
+    assert str(e.value) == ("problem.observation must measure every tick for mpc.MPC (its delayed filter updates at "
+                            "every tick); got period [3]")

@@ -33,6 +33,7 @@ from .. import _delays, _precision, _validate
 from ..ilqg.solver import _solve_body
 from ..options import Options
 from ..problem import Problem
+from ..sensor_list import SensorList
 from ..solution import Status
 from .estimation import FilterState, filter_init, filter_predict, filter_update, present_estimate
 from .receding import at_tick, tick_problem
@@ -156,6 +157,7 @@ class MPC:
             raise TypeError(f"charge_solve_time must be True or False; got {charge_solve_time!r}")
         if replay_history not in REPLAY_HISTORIES:
             raise ValueError(f"replay_history must be 'sent' or 'planned'; got {replay_history!r}")
+        _check_sensors(problem.observation)
         process_cov, initial_cov = _filter_covariances(problem, process_cov, initial_cov)
         per_channel = _delays.is_per_channel(problem.delay_steps)
         if per_channel and compensation != "inflight":
@@ -251,6 +253,21 @@ def _unflatten(aux, data):
                         ("process_cov", process_cov), ("initial_cov", initial_cov)):
         object.__setattr__(new, name, value)
     return new
+
+
+def _check_sensors(observation) -> None:
+    """The controller's filter measures every tick with one sensory delay: several sensors of
+    different delays, and sensors sampled less often than every tick, are refused by name."""
+    if observation is None:
+        return
+    periods = set(observation.period) if isinstance(observation.period, tuple) else {observation.period}
+    if isinstance(observation, SensorList) and not observation.equal_delays:
+        raise ValueError("problem.observation must have one sensory delay for mpc.MPC (its delayed filter "
+                         "measures every tick with one delay; sensors of different delays are fused only by "
+                         f"solve and simulate); got sensors with delay_steps {list(observation.delays)}")
+    if periods != {1}:
+        raise ValueError("problem.observation must measure every tick for mpc.MPC (its delayed filter updates "
+                         f"at every tick); got period {sorted(periods)}")
 
 
 def _channel_delays(problem: Problem, charge_solve_time: bool) -> tuple:
