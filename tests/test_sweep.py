@@ -410,9 +410,23 @@ def channel_point_mass(delay, **kwargs):
     return problem.replace(delay_steps=[problem.delay_steps // 2, problem.delay_steps])
 
 
+def test_per_channel_delays_are_framed_at_the_longest_channel_delay():
+    """Per-channel delays ([0, 0], [1, 3]) in the sweep's frame rule: "auto" frames cells of
+    different channel delays at the longest, one delay per channel repeated is one cell twice."""
+    from delayed_ilqr.problem import shared_delay_frame
+    settings = compute.Settings(channel_point_mass, (), "aware", None, (0,), 10, 1)
+    cells = {(0,): channel_point_mass(0.0), (1,): channel_point_mass(0.03)}
+    assert shared_delay_frame(cells.values()) == 3
+    framed, problems = run._framed(settings, cells, "auto")
+    assert framed.delay_frame == 3 and {p.delay_frame for p in problems.values()} == {3}
+    assert shared_delay_frame([channel_point_mass(0.03)] * 2) is None
+
+
+@pytest.mark.full
 def test_per_channel_delays_share_one_frame_with_each_cells_own_solve():
     """A factory of per-channel delays ([0, 0] and [1, 3]): "auto" frames them at the longest
-    channel delay, and the cell [1, 3] equals a plain solve of its problem."""
+    channel delay, and the cell [1, 3] equals a plain solve of its problem (the suite keeps the
+    frame rule, above)."""
     ds = di.sweep(channel_point_mass, {"delay": [0.0, 0.03]}, seeds=[0], trials=4,
                   fixed={"noise": True, "horizon": K}, progress=False, delay_frame="auto")
     assert ds.attrs["delay_frame"] == 3
