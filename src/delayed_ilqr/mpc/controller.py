@@ -69,11 +69,13 @@ class TickLaw(NamedTuple):
 
         u = u_nominal + feedforward + L (x - x_nominal) + sum_i M^i (u_{k+i-l_c} - u_nominal_{k+i-l_c})
 
+    With per-channel delays l_m is the longest channel's, and channel j's entries i < l_m - l_c,j
+    are zero (those commands have acted).
+
     Attributes:
         x_nominal: [n]; u_nominal: [d] (the command sent); feedforward: [d] (the solver's next step);
         state_feedback: [d, n] L; delay_feedback: [l_m, d, d] M^i on the commands in flight
-        (l_m the tick problem's delay: l_c for inflight, 0 for the delay-free strategies; with
-        per-channel delays the longest channel's, channel j's entries i < l_m - l_c,j zero).
+        (l_m the tick problem's delay: l_c for inflight, 0 for the delay-free strategies).
     """
 
     x_nominal: jax.Array
