@@ -100,3 +100,16 @@ def test_alternation_equals_the_augmented_alternation(case):
     np.testing.assert_array_equal(part.gains.state_feedback[2:4, 0], np.asarray(start.state_feedback)[2:4, 0])
     none = fused_alternate(lqg, sensors, start, max_alternations=0)
     assert int(none.alternations) == 0 and float(none.expected_cost) == costs[0]
+
+
+def test_the_alternated_cost_has_gradients():
+    """d/dtheta of the alternated pair's exact cost, theta scaling the motor noise (signal-dependent),
+    by autodiff through the alternation against central finite differences."""
+    import jax
+
+    K, n, d, p, l, specs = CASES[0]
+    lqg, sensors = random_fusion_problem(7, K, n, d, p, l, specs, mult_noise=1.0)
+    start = _perturbed(fused_design(lqg, sensors).gains, 3, 0.3)
+    cost = lambda theta: fused_alternate(lqg.replace(c=theta * lqg.c), sensors, start).expected_cost
+    h = 1e-5
+    assert rel_err(jax.grad(cost)(1.1), (cost(1.1 + h) - cost(1.1 - h)) / (2 * h)) <= 1e-7
