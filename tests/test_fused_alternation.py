@@ -104,12 +104,13 @@ def test_alternation_equals_the_augmented_alternation(case):
 
 def test_the_alternated_cost_has_gradients():
     """d/dtheta of the alternated pair's exact cost, theta scaling the motor noise (signal-dependent),
-    by autodiff through the alternation against central finite differences."""
+    by autodiff through three alternations against central finite differences."""
     import jax
 
     K, n, d, p, l, specs = CASES[0]
     lqg, sensors = random_fusion_problem(7, K, n, d, p, l, specs, mult_noise=1.0)
     start = _perturbed(fused_design(lqg, sensors).gains, 3, 0.3)
-    cost = lambda theta: fused_alternate(lqg.replace(c=theta * lqg.c), sensors, start).expected_cost
+    cost = lambda theta: fused_alternate(lqg.replace(c=theta * lqg.c), sensors, start,
+                                         max_alternations=3).expected_cost
     h = 1e-5
     assert rel_err(jax.grad(cost)(1.1), (cost(1.1 + h) - cost(1.1 - h)) / (2 * h)) <= 1e-7
