@@ -15,9 +15,11 @@ P4 (the point mass at dt = 1 ms, K = 600, n = 4, d = 2; docs/models.md §2) with
 Each time is given as the median and the minimum of its calls.
 
 Every timed call is wrapped in ``jax.block_until_ready``. The machine is shared, so only the
-ratios of one run mean anything.
+ratios of one run mean anything. XLA's CPU flags for small loops are on (``configure_cpu``, as in
+the other benchmarks): without them the structured solve's many small operations pay a thunk
+each, and on a loaded machine its ratio at l = 50 fell to 13 (docs/performance.md).
 
-    .venv/bin/python benchmarks/channels.py [--quick]
+    .venv/bin/python benchmarks/channels.py [--quick] [--no-configure-cpu]
 """
 from __future__ import annotations
 
@@ -92,4 +94,6 @@ def main(quick: bool):
 
 
 if __name__ == "__main__":
+    if "--no-configure-cpu" not in sys.argv[1:]:
+        di.configure_cpu()
     main("--quick" in sys.argv[1:])

@@ -333,3 +333,17 @@ def test_what_needs_one_delay_refuses_per_channel_delays():
     with pytest.raises(ValueError, match=r"mpc.MPC needs one input delay for all command channels; got per-channel "
                                          r"delay_steps=\[1, 2\]"):
         MPC(point_mass().replace(delay_steps=[1, 2]))
+
+
+def test_every_channel_undelayed_is_the_undelayed_problem():
+    """delay_steps=[0, 0] (a frame of no slots) solves and simulates as delay_steps=0."""
+    from delayed_ilqr import simulate, solve
+    from delayed_ilqr.models import point_mass
+
+    problem = point_mass(noise=True, horizon=20)
+    one, channels = solve(problem), solve(problem.replace(delay_steps=[0, 0]))
+    assert channels.status == one.status
+    np.testing.assert_allclose([float(channels.cost), float(channels.expected_cost)],
+                               [float(one.cost), float(one.expected_cost)], rtol=1e-12)
+    np.testing.assert_allclose(simulate(problem.replace(delay_steps=[0, 0]), channels.policy, 4, seed=1).cost,
+                               simulate(problem, one.policy, 4, seed=1).cost, rtol=1e-12)

@@ -183,6 +183,9 @@ def test_perturb_writes_the_responses_and_the_first_response_is_one_step_plus_th
     (["solve", "arm2", "--delay", "0.025"], "delay must be a whole number of steps of dt=0.01 s"),
     (["solve", "arm2", "--delay", "-0.01"], "--delay"),
     (["simulate", "arm2", "--delay", "0.025", "--trials", "3"], "--delay"),
+    (["solve", "point_mass", "--delay", "0.02,0.05"], "takes one delay in seconds for every command channel "
+                                                       "(per-channel delays are set in Python"),
+    (["mpc", "point_mass", "--true-delay", "0.02,0.05"], "--true-delay"),
     (["simulate", "arm2", "--trials", "0"], "--trials"),
     (["simulate", "arm2", "--trials", "-4"], "--trials"),
     (["simulate", "arm2", "--seed", "-1"], "--seed"),

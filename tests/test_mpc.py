@@ -485,3 +485,46 @@ def test_baseline_study_of_the_tracking_arm():
         assert sent.median_cost == pytest.approx(ours.median_cost, rel=1e-9)
     for label in ("predict", "replay (sent)", "inflight"):
         assert cells[("model", label)].failure_rate == 0.0
+
+
+# -- one delay per command channel (Nav2's per-axis model_delay_vx / vy) --------------------------
+
+def test_per_channel_delays_on_decoupled_axes_equal_one_delay_per_axis():
+    """The point mass's x and y axes are independent (f, the cost's weights and the plant are
+    diagonal), so the controller with channel delays [2, 4] must send on channel j the commands of
+    the controller with the single delay l_j: each channel's commands in flight, kept per channel,
+    are fed back by its own delay; the plant acts on each channel l_j + 1 ticks late (the solve
+    time charged: one more command in flight on each channel)."""
+    model = di.models.point_mass(dt=DT, horizon=12)
+    T = 10
+    run = mpc.simulate(mpc.MPC(model.replace(delay_steps=[2, 4]), iterations=3, charge_solve_time=True),
+                       model.replace(delay_steps=[2, 4]), ticks=T)
+    for j, l in enumerate((2, 4)):
+        one = mpc.simulate(mpc.MPC(model.replace(delay_steps=l), iterations=3, charge_solve_time=True),
+                           model.replace(delay_steps=l), ticks=T)
+        np.testing.assert_allclose(run.u[0, :, j], one.u[0, :, j], rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(run.x[0, :, [j, 2 + j]], one.x[0, :, [j, 2 + j]], rtol=1e-9, atol=1e-12)
+    assert np.abs(run.u[0, :, 1]).max() > 1e-3
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(model.replace(delay_steps=[2, 4]), compensation="predict")
+    assert str(e.value) == ("compensation must be 'inflight' with per-channel delay_steps (the delayed law feeds "
+                            "back each channel's commands in flight; 'none', 'predict' and 'replay' take one delay); "
+                            "got compensation='predict' with delay_steps=[2, 4]")
+
+
+def test_sensors_of_different_delays_or_periods_are_refused_by_name():
+    """The controller's filter measures every tick with one delay: a list of sensors of different
+    delays, or a sensor sampled every other tick, would be read wrongly, so they are refused."""
+    model = di.models.point_mass(delay=0.02, horizon=12)
+    eye = np.eye(4)
+    late = di.Observation(eye[:2], 0.004 * np.eye(2), delay_steps=6)
+    early = di.Observation(eye[2:], 0.03 * np.eye(2), delay_steps=2)
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(model.replace(observation=[late, early]))
+    assert str(e.value) == ("problem.observation must have one sensory delay for mpc.MPC (its delayed filter measures "
+                            "every tick with one delay; sensors of different delays are fused only by solve and "
+                            "simulate); got sensors with delay_steps [6, 2]")
+    with pytest.raises(ValueError) as e:
+        mpc.MPC(model.replace(observation=di.Observation(eye[:2], 0.004 * np.eye(2), delay_steps=6, period=3)))
+    assert str(e.value) == ("problem.observation must measure every tick for mpc.MPC (its delayed filter updates at "
+                            "every tick); got period [3]")

@@ -119,3 +119,21 @@ def test_closer_to_monte_carlo_on_the_torque_arm():
     assert mc - linear > 0.3 * mc
     assert abs(second - mc) < 0.5 * abs(linear - mc)
     assert abs(fifth / second - 1) < 0.02
+
+
+def test_exact_on_a_linear_plant_with_per_channel_delays():
+    """P1-noisy with channel delays [1, 3] (the frame of 3 slots, channel 0's acting command two
+    slots in): E[J] and Cov(x_k) by the Taylor rule and by sigma points in the inputs (the
+    cheapest rule: the acting components' rows of eq. P5) equal the exact linear-closed-loop
+    moments of the per-channel LQG (lqg.policy_cost / closed_loop_moments, themselves checked
+    against augmentation in test_channels.py) to round-off."""
+    problem = point_mass(noise=True).replace(delay_steps=[1, 3])
+    sol = solve(problem)
+    model = linearize(problem, sol.x, sol.u)
+    policy = sol.policy
+    gains = lqg.Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
+    cost, moments = lqg.policy_cost(model, gains), lqg.closed_loop_moments(model, gains)
+    for rule in ("second_order", "cubature"):
+        pred = closed_loop_prediction(problem, policy, rule)
+        assert abs(float(pred.expected_cost) / float(cost) - 1) < 1e-9, rule
+        assert rel_err(pred.state.cov, moments.state_covariance(4)) < 1e-9, rule

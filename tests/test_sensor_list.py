@@ -132,3 +132,26 @@ def test_the_arms_offer_proprioception_and_vision():
     np.testing.assert_allclose(vision.measure(problem.x0), hand_position(problem.x0[:2]), rtol=1e-15)
     assert float(vision.G[0, 0]) == pytest.approx(0.0005 / math.sqrt(0.01))    # 5 mm per 10 ms sample
     assert isinstance(arm2(horizon=K, vision_delay=0.1).observation, di.Observation)
+
+
+def test_signal_dependent_noise_alternates_with_several_sensors():
+    """The point mass's noise proportional to the command (P1's benchmark preset) with the two
+    sensors: ``solve`` returns the fused alternation of the LQG layer at its nominal (checked against
+    the augmented alternation in test_fused_alternation.py), starting from iLQG's law with the
+    filter of its own loop, and its exact cost is below that start's."""
+    from delayed_ilqr.lqg import fused_alternate
+
+    problem = point_mass(delay=0.02, dt=0.01, horizon=K, noise=True).replace(observation=sensors())
+    sol = di.solve(problem)
+    full = di.solve(problem.replace(observation=None))
+    np.testing.assert_array_equal(sol.u, full.u)
+    lqg = linearize(problem.replace(observation=None), full.x, full.u)
+    by_hand = [DelayedObservation(np.broadcast_to(H, (K,) + H.shape), np.broadcast_to(G, (K,) + G.shape), ls, m)
+               for H, G, ls, m in SENSORS]
+    p = full.policy
+    start = Gains(p.feedforward, p.state_feedback, p.delay_feedback)
+    alt = fused_alternate(lqg, by_hand, start, tol=di.Options().tol_cost)
+    assert rel_err(alt.costs[0], fused_loop(lqg, by_hand, start).expected_cost) <= 1e-12
+    assert rel_err(sol.expected_cost, alt.expected_cost) <= 1e-10
+    assert int(alt.alternations) >= 1 and float(alt.expected_cost) < float(alt.costs[0])
+    assert rel_err(sol.policy.state_feedback, alt.gains.state_feedback) <= 1e-10

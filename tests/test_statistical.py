@@ -180,3 +180,34 @@ def test_muscle_arm_sl_design_beats_both_designs_where_the_tail_dominates():
 def _monte_carlo(plant, policy, trials=500):
     cost = np.asarray(di.simulate(plant, policy, trials, seed=0).cost)
     return sample_stats(cost, diverged_trials(cost, divergence_bound(plant)))
+
+
+def test_per_channel_delays():
+    """Channel delays: on P1-noisy ([1, 3], linear) SL returns solve's gains and predicted cost; on
+    the torque arm (nonlinear) SL1 with channel delays [2, 2] under a spread closure is SL1 with the
+    one delay 2, and with [1, 2] at zero spread it is ``linearize``'s Jacobians (each channel's
+    nominal acting command)."""
+    problem = point_mass(noise=True).replace(delay_steps=[1, 3])
+    sol = solve(problem)
+    result = statistical_feedback(problem, sol.policy, iterations=1)
+    assert rel_err(feedback(result.policy), feedback(sol.policy)) < 1e-11
+    assert abs(float(result.predicted_cost) / float(sol.expected_cost) - 1) < 1e-9
+    arm = arm2(delay=0.02, noise="benchmark", horizon=12)
+    K = arm.horizon
+    us = 0.5 * jnp.cos(jnp.arange(2 * K, dtype=jnp.float64)).reshape(K, 2)
+    xs = rollout(arm, us)
+    key = jax.random.split(jax.random.PRNGKey(1), 3)
+    policy = Policy(xs, us, jnp.zeros_like(us), jax.random.normal(key[0], (K, 2, 4)),
+                    0.3 * jax.random.normal(key[1], (K, 2, 2, 2)))
+    mean = 0.05 * jax.random.normal(key[2], (K + 1, 8))
+    cov = jnp.broadcast_to(0.01 * jnp.eye(8) + 0.002, (K + 1, 8, 8))
+    one = expected_jacobians(arm, policy, mean, cov, "cubature")
+    channels = expected_jacobians(arm.replace(delay_steps=[2, 2]), policy, mean, cov, "cubature")
+    for got, want in zip(channels, one):
+        assert rel_err(got, want) < 1e-13
+    mixed = arm.replace(delay_steps=[1, 2])
+    nominal = linearize(mixed, xs, us)
+    zero = jnp.zeros((K + 1, 8))
+    got = expected_jacobians(mixed, policy, zero, jnp.zeros((K + 1, 8, 8)), "cubature")
+    for g, want in zip(got, (nominal.A, nominal.B0, nominal.B1)):
+        assert rel_err(g, want) < 1e-13

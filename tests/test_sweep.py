@@ -401,3 +401,37 @@ def test_the_sweep_command_writes_the_store_and_figure_resumes_and_refuses_bad_a
     assert small.exit_code == 2 and "delay_frame must be at least delay_steps" in small.output
     word = invoke("sweep", "point_mass", "--grid", "delay=0.03", "--delay-frame", "some", "--out", tmp_path / "bad")
     assert word.exit_code == 2 and "must be auto, none or" in word.output
+
+
+def channel_point_mass(delay, **kwargs):
+    """The point mass with its second channel ``delay`` late and its first half as late (per-channel
+    delays, docs/derivation.md §18): a factory importable by name."""
+    problem = point_mass(delay=delay, **kwargs)
+    return problem.replace(delay_steps=[problem.delay_steps // 2, problem.delay_steps])
+
+
+def test_per_channel_delays_are_framed_at_the_longest_channel_delay():
+    """Per-channel delays ([0, 0], [1, 3]) in the sweep's frame rule: "auto" frames cells of
+    different channel delays at the longest, one delay per channel repeated is one cell twice."""
+    from delayed_ilqr.problem import shared_delay_frame
+    settings = compute.Settings(channel_point_mass, (), "aware", None, (0,), 10, 1)
+    cells = {(0,): channel_point_mass(0.0), (1,): channel_point_mass(0.03)}
+    assert shared_delay_frame(cells.values()) == 3
+    framed, problems = run._framed(settings, cells, "auto")
+    assert framed.delay_frame == 3 and {p.delay_frame for p in problems.values()} == {3}
+    assert shared_delay_frame([channel_point_mass(0.03)] * 2) is None
+
+
+@pytest.mark.full
+def test_per_channel_delays_share_one_frame_with_each_cells_own_solve():
+    """A factory of per-channel delays ([0, 0] and [1, 3]): "auto" frames them at the longest
+    channel delay, and the cell [1, 3] equals a plain solve of its problem (the suite keeps the
+    frame rule, above)."""
+    ds = di.sweep(channel_point_mass, {"delay": [0.0, 0.03]}, seeds=[0], trials=4,
+                  fixed={"noise": True, "horizon": K}, progress=False, delay_frame="auto")
+    assert ds.attrs["delay_frame"] == 3
+    sol = di.solve(channel_point_mass(0.03, noise=True, horizon=K))
+    cell = ds.isel(delay=1, seed=0)
+    assert int(cell.status) == int(sol.status)
+    np.testing.assert_allclose([float(cell.cost), float(cell.expected_cost)],
+                               [float(sol.cost), float(sol.expected_cost)], rtol=1e-9)

@@ -29,11 +29,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _precision
+from . import _delays, _precision
 from .lqg.law import augmented_feedback
 from .ilqg.linearize import linearize
 from .lqg import Gains
 from .lqg.exact import closed_loop_moments
+from .lqg.frame import acting_commands
 from .models.metadata import task_space
 from .problem import Problem
 from .solution import Policy, Solution
@@ -100,16 +101,32 @@ class ClosedLoopPrediction(NamedTuple):
     z: Prediction
 
 
-def _inputs_map(nx: int, nd: int, l: int, l_p: int, m: int, LMk):
+def _inputs_map(nx: int, nd: int, l, l_p: int, m: int, LMk):
     """T_k [r, N] of eq. P5: y = T_k z = [dx_k; L_k dx_k + sum_i M_k^i du_{k+i-l_p}; du_{k-l}] (the
-    last block only for l > 0), the arguments of everything nonlinear in eq. P1 (the plant, the
-    clip, the noise and the running cost); z_k of N = nx + m nd entries, ``LMk`` [nd, nx + l_p nd]."""
+    last block only for l > 0; with per-channel delays l [d], component j of du_{k-l_j}), the
+    arguments of everything nonlinear in eq. P1 (the plant, the clip, the noise and the running
+    cost); z_k of N = nx + m nd entries, ``LMk`` [nd, nx + l_p nd]."""
     N = nx + m * nd
     feedback = jnp.zeros((nd, N), LMk.dtype).at[:, :nx].set(LMk[:, :nx]).at[:, nx + (m - l_p) * nd:].set(LMk[:, nx:])
     rows = [jnp.eye(nx, N, dtype=LMk.dtype), feedback]
-    if l > 0:
+    if _delays.is_per_channel(l) and m > 0:
+        j = jnp.arange(nd)
+        rows.append(jnp.zeros((nd, N), LMk.dtype).at[j, nx + jnp.clip(m - l, 0, m - 1) * nd + j].set(1.0))
+    elif not _delays.is_per_channel(l) and l > 0:
         rows.append(jnp.eye(nd, N, nx + (m - l) * nd, dtype=LMk.dtype))
     return jnp.concatenate(rows)
+
+
+def acting_command(u, ud_bar, sent, l):
+    """The command acting at a point of the chain, u_{k-l} = ud_bar + du_{k-l} (u itself where the
+    delay is 0): ``sent`` [m, d] the pending deviations du_{k-m}..du_{k-1}; with per-channel delays
+    l [d] (traced), component j of du_{k-l_j}."""
+    m, nd = sent.shape
+    if not _delays.is_per_channel(l):
+        return ud_bar + sent[m - l] if l > 0 else u
+    if m == 0:
+        return u
+    return jnp.where(l == 0, u, ud_bar + sent[jnp.clip(m - l, 0, m - 1), jnp.arange(nd)])
 
 
 def _rule_root(cov, inputs):
@@ -158,12 +175,14 @@ def _sigma_points(mean, cov, rule: str, inputs=None):
 def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> ClosedLoopPrediction:
     K, nx, nd = problem.horizon, problem.n_states, problem.n_controls
     l, l_p = problem.delay_steps, policy.delay_feedback.shape[1]
-    m = max(l, l_p)
+    per_channel = _delays.is_per_channel(l)       # l [d], traced: the frame of L slots is static
+    m = max(problem.frame_steps if per_channel else l, l_p)
     dtype = problem.x0.dtype
     LM = augmented_feedback(Gains(policy.feedforward, policy.state_feedback, policy.delay_feedback))
     u_bar = policy.u_nominal
     # u_nominal_{k-l} (zero before time 0), what the plant's delayed command deviates from
-    u_bar_delayed = jnp.concatenate([jnp.zeros((l, nd), dtype), u_bar])[:K] if l > 0 else u_bar
+    u_bar_delayed = acting_commands(u_bar, l, True) if per_channel else (
+        jnp.concatenate([jnp.zeros((l, nd), dtype), u_bar])[:K] if l > 0 else u_bar)
     root_dt = jnp.sqrt(jnp.asarray(problem.dt, dtype))
 
     def point(z, x_bar, x_bar_next, ub, ubd, LMk, t):
@@ -175,7 +194,7 @@ def _closed_loop_prediction(problem: Problem, policy: Policy, rule: str) -> Clos
         # not nest, and the second-order rule differentiates twice
         du = LMk @ jnp.concatenate([dx, sent[m - l_p:].reshape(-1)])
         u = jnp.clip(ub + du, problem.u_min, problem.u_max)
-        ud = ubd + sent[m - l] if l > 0 else u
+        ud = acting_command(u, ubd, sent, l)
         x_next = x + problem.dt * problem.dynamics_at(x, u, ud, t)
         G = root_dt * problem.noise_at(x, u, ud, t) if problem.noise is not None else jnp.zeros((nx, 0), dtype)
         sent_next = jnp.concatenate([sent[1:], (u - ub)[None]]).reshape(-1) if m > 0 else sent.reshape(-1)
@@ -251,7 +270,8 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
 
     The closed loop is a Markov chain in z_k = [dx_k; du_{k-m}; ...; du_{k-1}] (N = n + m d entries),
     m = max(l, l_p) (l the plant's delay, l_p the policy's; du the commands sent minus their
-    nominal):
+    nominal; with per-channel delays l = [l_1, ..., l_d], m = max(L, l_p) for the frame L and
+    channel j acts with du_{k-l_j, j}):
 
         u_k = clip(u_bar_k + L_k dx_k + sum_i M_k^i du_{k+i-l_p}),   ud_k = u_{k-l} (u_k if l = 0)
         z_{k+1} = g_k(z_k) + [G_k(z_k) xi_k; 0],   xi_k ~ N(0, I_p)                          (P1)
@@ -319,4 +339,6 @@ def closed_loop_prediction(problem: Problem, policy: Policy, rule: str = "second
             rule.
     """
     _check_closure_input("prediction.closed_loop_prediction", problem, policy, rule)
-    return _closed_loop_prediction(problem.without_frame("closed_loop_prediction"), policy, rule)
+    if not _delays.is_per_channel(problem.delay_steps):
+        problem = problem.without_frame("closed_loop_prediction")
+    return _closed_loop_prediction(problem, policy, rule)

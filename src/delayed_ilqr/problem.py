@@ -428,13 +428,20 @@ def _jitter(delay_jitter, delay_steps, problem: "Problem"):
 
 def shared_delay_frame(problems) -> Optional[int]:
     """The frame that gives ``problems`` of different delays one compiled solver: their longest
-    delay in steps; None when they all have the same delay (a frame would only cost) or when one
-    has delayed sensors (an ``observation``: its delays must be static, no frame is available)."""
+    delay in steps (with per-channel delays, the longest channel's); None when they all have the
+    same delay (a frame would only cost) or when one has delayed sensors (an ``observation``: its
+    delays must be static, no frame is available)."""
     problems = list(problems)
-    delays = {int(p.delay_steps) for p in problems}
+    delays = {delay_key(p.delay_steps) for p in problems}
     if len(delays) < 2 or any(p.observation is not None for p in problems):
         return None
-    return max(delays)
+    return max(_delays.longest(p.delay_steps) for p in problems)
+
+
+def delay_key(delay_steps):
+    """A problem's delay as a hashable value: the int l, or the tuple (l_1, ..., l_d) per channel."""
+    value = _delays.as_json(delay_steps)
+    return tuple(value) if isinstance(value, list) else value
 
 
 def _check_labels(metadata, nx: int, nd: int) -> None:

@@ -48,6 +48,7 @@ from typing import NamedTuple, Optional
 import jax
 import jax.numpy as jnp
 
+from . import _delays
 from .lqg.law import augmented_feedback
 from .ilqg.linearize import delayed_commands, linearize
 from .lqg import Gains, policy_cost
@@ -55,7 +56,7 @@ from .lqg.frame import from_slots
 from .lqg.gains import boxed_gains, unconstrained_gains, unregularized_feedback
 from .lqg.structured import structured_slot_scan
 from .options import Options
-from .prediction import _closed_loop_prediction, _check_closure_input, _inputs_map, _sigma_points
+from .prediction import _closed_loop_prediction, _check_closure_input, _inputs_map, _sigma_points, acting_command
 from .problem import Problem
 from .solution import Policy
 
@@ -102,21 +103,23 @@ def expected_jacobians(problem: Problem, policy: Policy, z_mean, z_cov, rule: st
     averaged over the points of ``rule`` for z_k ~ N(z_mean_k, z_cov_k) (z_mean [K+1, N], z_cov
     [K+1, N, N]),
     at the points' actual states and clipped commands, as ``closed_loop_prediction`` runs them.
-    ``problem`` without a frame; ``policy`` of delay l (N = n + l d)."""
+    ``problem`` without a frame, or with per-channel delays in the frame L of its longest;
+    ``policy`` of delay l (N = n + l d; per channel, of the frame: N = n + L d)."""
     nx, nd, l, dt = problem.n_states, problem.n_controls, problem.delay_steps, problem.dt
+    m = problem.frame_steps if _delays.is_per_channel(l) else l
     points_rule = "fifth_degree" if rule == "second_order" else rule
     eye = jnp.eye(nx, dtype=z_mean.dtype)
 
     def at_point(z, x_bar, u_bar, u_bar_delayed, LMk, t):
         x = x_bar + z[:nx]
         u = jnp.clip(u_bar + LMk @ z, problem.u_min, problem.u_max)
-        ud = u_bar_delayed + z[nx:nx + nd] if l > 0 else u          # du_{k-l}: the oldest pending
+        ud = acting_command(u, u_bar_delayed, z[nx:].reshape(m, nd), l)
         fx, fu, fud = jax.jacrev(lambda *a: problem.dynamics_at(*a, t), argnums=(0, 1, 2))(x, u, ud)
         return eye + dt * fx, dt * fu, dt * fud
 
     def step(row):
         mean, cov, x_bar, u_bar, u_bar_delayed, LMk, t = row
-        Z, w, _ = _sigma_points(mean, cov, points_rule, _inputs_map(nx, nd, l, l, l, LMk))
+        Z, w, _ = _sigma_points(mean, cov, points_rule, _inputs_map(nx, nd, l, m, m, LMk))
         A, B0, B1 = jax.vmap(at_point, in_axes=(0,) + (None,) * 5)(Z, x_bar, u_bar, u_bar_delayed, LMk, t)
         return tuple(jnp.tensordot(w, J, axes=1) for J in (A, B0, B1))
 
@@ -238,6 +241,13 @@ def statistical_feedback(problem: Problem, policy: Policy, options: Optional[Opt
         raise ValueError(f"statistical_feedback: relax must be in (0, 1]; got {relax!r}")
     options = Options() if options is None else options
     frame = problem.delay_frame
+    if _delays.is_per_channel(problem.delay_steps):
+        problem = problem.replace(delay_frame=None)          # the frame of the longest channel delay, as solve's
+        if problem.delay_frame != policy.delay_feedback.shape[1]:
+            raise ValueError(f"statistical_feedback: policy.delay_feedback has {policy.delay_feedback.shape[1]} "
+                             f"delay steps, the problem's longest channel delay is {problem.delay_frame}; SL "
+                             "re-designs the gains for the plant's own delays")
+        return _statistical_feedback(problem, policy, options.limit_margin, relax, rule, iterations)
     problem = problem.without_frame("statistical_feedback")
     l, l_p = problem.delay_steps, policy.delay_feedback.shape[1]
     if frame is not None and l_p == frame and frame != l:

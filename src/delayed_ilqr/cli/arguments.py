@@ -39,6 +39,24 @@ class DelayFrame(click.ParamType):
         return steps
 
 
+class OneDelay(click.ParamType):
+    """One delay in seconds (a float), for every command channel: a list is refused with the way
+    to give per-channel delays (in Python, ``Problem(..., delay_steps=[l_1, ..., l_d])``)."""
+
+    name = "SECONDS"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, float):
+            return value
+        if "," in str(value):
+            self.fail("takes one delay in seconds for every command channel (per-channel delays are set in "
+                      f"Python: Problem(..., delay_steps=[l_1, ..., l_d])); got {value!r}", param, ctx)
+        try:
+            return float(value)
+        except ValueError:
+            self.fail(f"must be a number of seconds; got {value!r}", param, ctx)
+
+
 class DelayList(click.ParamType):
     """A comma-separated list of non-negative delays in seconds, e.g. ``0,0.05,0.1``."""
 

@@ -10,7 +10,8 @@ import numpy as np
 
 from .._files import savez, write_text
 from ..experiments.records import problem_record
-from .arguments import SEED, ModelType, build_problem, factory_kwargs, model_options, noise_option, noise_value
+from .arguments import (SEED, ModelType, OneDelay, build_problem, factory_kwargs, model_options, noise_option,
+                        noise_value)
 from .output import Output, kwargs_settings, out_option
 
 COMPENSATIONS = ("none", "predict", "replay", "inflight")
@@ -18,9 +19,9 @@ COMPENSATIONS = ("none", "predict", "replay", "inflight")
 
 @click.command("mpc")
 @click.argument("model", type=ModelType(), metavar="MODEL")
-@click.option("--delay", type=float, default=0.0, show_default=True,
+@click.option("--delay", type=OneDelay(), default=0.0, show_default=True,
               help="The model's actuation delay in seconds (a whole number of the model's time steps).")
-@click.option("--true-delay", type=float, default=None,
+@click.option("--true-delay", type=OneDelay(), default=None,
               help="The plant's actuation delay in seconds [default: --delay].")
 @click.option("--mismatch", type=click.FloatRange(min=-0.9, max=10.0), default=0.0, show_default=True,
               help="The plant's actuators deliver (1 + MISMATCH) times the command, e.g. 0.2 or -0.2.")

@@ -12,8 +12,8 @@ from ..models import REGISTRY
 from ..models.metadata import default_u_init
 from ..experiments.records import problem_record
 from ..experiments.progress import progress_bar
-from .arguments import (SEED, ModelType, build_problem, check_trials, factory_kwargs, model_options, noise_option,
-                        noise_value, progress_option, substeps_option)
+from .arguments import (SEED, ModelType, OneDelay, build_problem, check_trials, factory_kwargs, model_options,
+                        noise_option, noise_value, progress_option, substeps_option)
 from .output import Output, kwargs_settings, out_option, study_settings, warn_not_converged
 
 
@@ -27,7 +27,7 @@ def models_command():
 
 @click.command("solve")
 @click.argument("model", type=ModelType(), metavar="MODEL")
-@click.option("--delay", type=float, default=0.0, show_default=True,
+@click.option("--delay", type=OneDelay(), default=0.0, show_default=True,
               help="Input delay tau in seconds (a whole number of the model's time steps).")
 @noise_option
 @click.option("--method", type=click.Choice(["structured", "augmented"]), default="structured", show_default=True,
@@ -71,7 +71,7 @@ def solve_command(model, delay, noise, no_noise, method, params, dt, progress, o
 
 @click.command("simulate")
 @click.argument("model", type=ModelType(), metavar="MODEL")
-@click.option("--delay", type=float, default=0.0, show_default=True,
+@click.option("--delay", type=OneDelay(), default=0.0, show_default=True,
               help="Input delay tau in seconds (a whole number of the model's time steps).")
 @click.option("--trials", type=click.IntRange(min=1), default=1000, show_default=True,
               help="Number of Monte Carlo trials (a positive integer).")

@@ -63,7 +63,9 @@ def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
 
     def plant(x, du, du_delayed):
         u = jnp.clip(row.u_bar + du, problem.u_min, problem.u_max)
-        if framed:      # l is data
+        if du_delayed is None:      # a frame of no slots: every delay is 0
+            ud = u
+        elif framed:      # l is data
             ud = jnp.where(problem.delay_steps == 0, u, row.ud_bar + du_delayed)
         else:
             ud = row.ud_bar + du_delayed if problem.delay_steps > 0 else u

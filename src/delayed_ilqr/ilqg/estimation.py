@@ -12,9 +12,10 @@ on the linearisation (the joint second moments, signal-dependent motor noise inc
 once, after the solver's loop.
 
 Sensors with different delays (a ``SensorList``) are fused without augmentation (``lqg.fusion``):
-the filter is the Kalman filter for the motor noise that iLQG's law actually has in closed loop
+the filter is the Kalman filter for the motor noise that the law actually has in closed loop
 (``lqg.fused_loop``, Todorov's filter for a fixed controller; with additive noise the separation
-design), and the law stays iLQG's: the controller half of the alternation is not available there.
+design). With signal-dependent noise the alternation of ``lqg.fused_alternation`` then redesigns
+the law for that filter and the filter for the new law in turn, never raising the exact cost.
 """
 from __future__ import annotations
 
@@ -26,7 +27,8 @@ import jax.numpy as jnp
 from ..lqg.alternation import _alternate
 from ..fused_estimator import FusedEstimator
 from ..lqg.estimator import _delayed_kalman, _process_cov
-from ..lqg.fusion import _fused_loop, stacked_sensors
+from ..lqg.fusion import stacked_sensors
+from ..lqg.fused_alternation import _fused_alternate
 from ..lqg.model import Gains
 from ..observation import linearized_observation
 from ..sensor_list import SensorList, linearized_sensors
@@ -49,13 +51,13 @@ def design_estimator(problem: Problem, xs, us, gains: Gains, max_alternations: i
         ([`Estimator`][delayed_ilqr.Estimator], the law [`Gains`][delayed_ilqr.lqg.Gains], expected cost []).
     """
     lqg = linearize(problem, xs, us)
-    if fused(problem):
-        return _design_fused(lqg, problem.observation, xs, gains)
-    obs, y_nominal = linearized_observation(problem.observation, xs)
-    fgains, _ = _delayed_kalman(lqg, obs, _process_cov(lqg), obs.measurement_cov)
     signal_dependent = jnp.any(lqg.C0 != 0) | jnp.any(lqg.C1 != 0)
     # iLQG gives no feedback to commands at a limit (derivation §13); the alternation keeps it so
     free = jnp.any(augmented_feedback(gains) != 0, axis=-1)
+    if fused(problem):
+        return _design_fused(lqg, problem.observation, xs, gains, free, max_alternations, tol, signal_dependent)
+    obs, y_nominal = linearized_observation(problem.observation, xs)
+    fgains, _ = _delayed_kalman(lqg, obs, _process_cov(lqg), obs.measurement_cov)
     alt = _alternate(lqg, obs, gains, fgains, free, max_alternations, jnp.asarray(tol, lqg.A.dtype),
                      signal_dependent)
     estimator = Estimator(lqg.A, lqg.B0, lqg.B1, obs.H, y_nominal, alt.filter_gains.delayed_gain,
@@ -68,15 +70,15 @@ def fused(problem: Problem) -> bool:
     return isinstance(problem.observation, SensorList) and not problem.observation.equal_delays
 
 
-def _design_fused(lqg, sensors: SensorList, xs, gains: Gains):
-    """The fused filter for the motor noise of iLQG's law in closed loop, and the pair's exact cost."""
+def _design_fused(lqg, sensors: SensorList, xs, gains: Gains, free, max_alternations: int, tol, run):
+    """The fused filter for the motor noise of the law in closed loop, after at most
+    ``max_alternations`` of the fused alternation (when ``run``), and the pair's exact cost."""
     linear, y_nominal = linearized_sensors(sensors, xs)
+    alt = _fused_alternate(lqg, linear, gains, free, max_alternations, jnp.asarray(tol, lqg.A.dtype), run)
     st = stacked_sensors(linear)
-    loop = _fused_loop(lqg, st, gains.feedforward, augmented_feedback(gains))
-    W = st.window
-    estimator = FusedEstimator(lqg.A, lqg.B0, lqg.B1, st.H[W:], y_nominal, loop.filter_gains.base_gain,
-                               loop.filter_gains.window_gain, loop.covariances.current, st.lags)
-    return estimator, gains, loop.expected_cost
+    estimator = FusedEstimator(lqg.A, lqg.B0, lqg.B1, st.H[st.window:], y_nominal, alt.filter_gains.base_gain,
+                               alt.filter_gains.window_gain, alt.covariances.current, st.lags)
+    return estimator, alt.gains, alt.expected_cost
 
 
 def without_observation(problem: Problem) -> Problem:

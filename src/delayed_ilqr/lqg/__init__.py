@@ -40,6 +40,7 @@ Modules (the solver's internals are imported from them, not from here):
 | fusion | [`fused_kalman`][delayed_ilqr.lqg.fused_kalman]: several sensors with their own delays and periods, fused without augmentation; [`fused_estimates`][delayed_ilqr.lqg.fused_estimates], [`fused_design`][delayed_ilqr.lqg.fused_design] |
 | jitter | a jittered input delay (the delay drawn at every step from a known distribution): [`jittered_backward_pass`][delayed_ilqr.lqg.jittered_backward_pass] (structured), [`jittered_augmented_pass`][delayed_ilqr.lqg.jittered_augmented_pass] (reference), [`jittered_policy_cost`][delayed_ilqr.lqg.jittered_policy_cost] (exact), [`simulate_jittered_lqg`][delayed_ilqr.lqg.simulate_jittered_lqg] |
 | alternation | [`alternate`][delayed_ilqr.lqg.alternate]: Todorov's alternation of filter and controller for signal-dependent noise ([`filter_step`][delayed_ilqr.lqg.filter_step], [`controller_sweep`][delayed_ilqr.lqg.controller_sweep]) |
+| fused_alternation | [`fused_alternate`][delayed_ilqr.lqg.fused_alternate]: the alternation with several sensors of different delays ([`fused_controller_sweep`][delayed_ilqr.lqg.fused_controller_sweep]) |
 
 """
 from .augmented import augmented_backward_pass
@@ -54,6 +55,7 @@ from .jitter import jittered_augmented_pass, jittered_backward_pass, jittered_po
 from .alternation import Alternation, alternate, controller_sweep, filter_step
 from .fusion import (FusedFeedback, FusedLoop, FusionCovariances, FusionGains, fused_design, fused_estimates,
                      fused_kalman, fused_loop)
+from .fused_alternation import FusedAlternation, fused_alternate, fused_controller_sweep
 
 __all__ = [
     "DelayedLQG",
@@ -93,4 +95,7 @@ __all__ = [
     "jittered_augmented_pass",
     "jittered_policy_cost",
     "simulate_jittered_lqg",
+    "FusedAlternation",
+    "fused_alternate",
+    "fused_controller_sweep",
 ]

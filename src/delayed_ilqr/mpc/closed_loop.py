@@ -82,11 +82,13 @@ def _plant_step(plant: Problem, x, u, ud, xi, t):
 
 def _acting(pending, u, lag):
     """u_{k-lag} from the last Q commands ``pending`` [Q, d] (oldest first) and u_k; ``lag`` may be
-    traced (a plant whose delay is data, ``Problem.delay_frame``)."""
-    Q = pending.shape[0]
+    traced (a plant whose delay is data, ``Problem.delay_frame``), and one per channel [d]
+    (channel j acts with u_{k-lag_j, j})."""
+    Q, nd = pending.shape
     if Q == 0:
         return u
-    return jnp.where(lag == 0, u, pending[jnp.clip(Q - lag, 0, Q - 1)])
+    rows = jnp.clip(Q - lag, 0, Q - 1) * jnp.ones(nd, jnp.int32)
+    return jnp.where(lag == 0, u, pending[rows, jnp.arange(nd)])
 
 
 def _sensors(ctrl: MPC, plant: Problem):

@@ -29,10 +29,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _precision, _validate
+from .. import _delays, _precision, _validate
 from ..ilqg.solver import _solve_body
 from ..options import Options
 from ..problem import Problem
+from ..sensor_list import SensorList
 from ..solution import Status
 from .estimation import FilterState, filter_init, filter_predict, filter_update, present_estimate
 from .receding import at_tick, tick_problem
@@ -67,6 +68,9 @@ class TickLaw(NamedTuple):
     """The feedback law of the tick's solve at the command sent (eq. 6 in absolute terms):
 
         u = u_nominal + feedforward + L (x - x_nominal) + sum_i M^i (u_{k+i-l_c} - u_nominal_{k+i-l_c})
+
+    With per-channel delays l_m is the longest channel's, and channel j's entries i < l_m - l_c,j
+    are zero (those commands have acted).
 
     Attributes:
         x_nominal: [n]; u_nominal: [d] (the command sent); feedforward: [d] (the solver's next step);
@@ -155,16 +159,23 @@ class MPC:
             raise TypeError(f"charge_solve_time must be True or False; got {charge_solve_time!r}")
         if replay_history not in REPLAY_HISTORIES:
             raise ValueError(f"replay_history must be 'sent' or 'planned'; got {replay_history!r}")
+        _check_sensors(problem.observation)
         process_cov, initial_cov = _filter_covariances(problem, process_cov, initial_cov)
         if problem.delay_jitter is not None:
             raise ValueError("mpc.MPC takes a fixed input delay: its tick problems and replay assume the command sent "
                              f"l steps ago acts now; got a problem with delay_jitter={problem.delay_jitter!r}")
-        if problem.delay_frame is not None:
-            problem = problem.without_frame("mpc.MPC")
+        per_channel = _delays.is_per_channel(problem.delay_steps)
+        if per_channel and compensation != "inflight":
+            raise ValueError(f"compensation must be 'inflight' with per-channel delay_steps (the delayed law feeds "
+                             f"back each channel's commands in flight; 'none', 'predict' and 'replay' take one "
+                             f"delay); got compensation={compensation!r} with delay_steps="
+                             f"{_delays.as_json(problem.delay_steps)}")
+        if problem.delay_frame is not None:     # per-channel delays keep the frame of their longest
+            problem = problem.replace(delay_frame=None) if per_channel else problem.without_frame("mpc.MPC")
         options = Options() if options is None else options
         if not isinstance(options, Options):
             raise TypeError(f"options must be a delayed_ilqr.Options; got {type(options).__name__}")
-        l_c = problem.delay_steps + int(charge_solve_time)
+        l_c = _delays.longest(problem.delay_steps) + int(charge_solve_time)
         if l_c >= problem.horizon:
             raise ValueError("problem.horizon must be longer than the controller's delay (delay_steps, plus one "
                              "tick with charge_solve_time): a command must act within the horizon; got horizon="
@@ -175,7 +186,8 @@ class MPC:
                       charge_solve_time=bool(charge_solve_time), reference=ref, replay_history=replay_history,
                       options=dataclasses.replace(options, max_iterations=iterations + _noisy(problem)),
                       strategy=strat,
-                      template=tick_problem(problem, ref, strat.model_delay, strat.horizon),
+                      template=tick_problem(problem, ref, _channel_delays(problem, charge_solve_time)
+                                            if per_channel else strat.model_delay, strat.horizon),
                       process_cov=process_cov, initial_cov=initial_cov)
         for name, value in values.items():
             object.__setattr__(self, name, value)
@@ -185,8 +197,11 @@ class MPC:
 
     @property
     def controller_delay(self) -> int:
-        """l_c: the model's delay in ticks, plus one when the solve time is charged."""
-        return self.problem.delay_steps + int(self.charge_solve_time)
+        """l_c: the model's delay in ticks, plus one when the solve time is charged (with
+        per-channel delays the longest channel's: the commands the controller keeps in flight)."""
+        problem = self.problem           # per-channel: its frame is the longest delay (static under jit)
+        l = problem.frame_steps if _delays.is_per_channel(problem.delay_steps) else problem.delay_steps
+        return l + int(self.charge_solve_time)
 
     @property
     def sensors(self) -> bool:
@@ -218,7 +233,7 @@ class MPC:
         return _tick(self, state, jnp.asarray(x, jnp.float64))
 
     def __repr__(self):
-        return (f"MPC({self.problem.name!r}, K={self.problem.horizon}, l={self.problem.delay_steps}, "
+        return (f"MPC({self.problem.name!r}, K={self.problem.horizon}, l={_delays.as_json(self.problem.delay_steps)}, "
                 f"compensation={self.compensation!r}, iterations={self.iterations}"
                 + (", charge_solve_time=True" if self.charge_solve_time else "") + ")")
 
@@ -243,6 +258,26 @@ def _unflatten(aux, data):
                         ("process_cov", process_cov), ("initial_cov", initial_cov)):
         object.__setattr__(new, name, value)
     return new
+
+
+def _check_sensors(observation) -> None:
+    """The controller's filter measures every tick with one sensory delay: several sensors of
+    different delays, and sensors sampled less often than every tick, are refused by name."""
+    if observation is None:
+        return
+    periods = set(observation.period) if isinstance(observation.period, tuple) else {observation.period}
+    if isinstance(observation, SensorList) and not observation.equal_delays:
+        raise ValueError("problem.observation must have one sensory delay for mpc.MPC (its delayed filter "
+                         "measures every tick with one delay; sensors of different delays are fused only by "
+                         f"solve and simulate); got sensors with delay_steps {list(observation.delays)}")
+    if periods != {1}:
+        raise ValueError("problem.observation must measure every tick for mpc.MPC (its delayed filter updates "
+                         f"at every tick); got period {sorted(periods)}")
+
+
+def _channel_delays(problem: Problem, charge_solve_time: bool) -> tuple:
+    """(l_1 + s, ..., l_d + s): each channel's controller delay (s = 1 when the solve time is charged)."""
+    return tuple(int(l_j) + int(charge_solve_time) for l_j in np.asarray(problem.delay_steps))
 
 
 def _noisy(problem: Problem) -> int:

@@ -40,35 +40,40 @@ __all__ = ["InFlightDynamics", "receding_cost", "tick_problem", "at_tick"]
 
 class InFlightDynamics:
     """f(x, u, ud, t) of a tick problem: the model's f at time t0 + t, with the in-flight command
-    b_j added to the acting command at the steps j = round(t / dt) < l (module docstring).
+    b_j added to the acting command at the steps j = round(t / dt) < l (module docstring). With
+    per-channel delays (``lags`` = (l_1, ..., l_d), the longest L = len(in_flight)) channel i's
+    acting command gets b_{L - l_i + j, i} at the steps j < l_i: the command it sent j - l_i ticks ago.
 
     Attributes:
         fn: the model's f (or F for the noise), called with its time when ``time_dependent``.
         dt: the step (s); ``in_flight`` [l, d], b in time order; ``t0`` [] the tick's time (s).
+        lags: None (one delay, l = len(in_flight)) or one delay per channel (a tuple, static).
     """
 
-    def __init__(self, fn: Callable, time_dependent: bool, dt: float, in_flight, t0):
+    def __init__(self, fn: Callable, time_dependent: bool, dt: float, in_flight, t0, lags=None):
         self.fn, self.time_dependent, self.dt = fn, time_dependent, dt
-        self.in_flight, self.t0 = in_flight, t0
+        self.in_flight, self.t0, self.lags = in_flight, t0, lags
 
     def __call__(self, x, u, ud, t):
-        l = self.in_flight.shape[0]
-        if l:
+        L = self.in_flight.shape[0]
+        if L:
             j = jnp.round(t / self.dt).astype(jnp.int32)
-            ud = ud + jnp.where(j < l, self.in_flight[jnp.clip(j, 0, l - 1)], 0.0)
+            lags = L if self.lags is None else jnp.asarray(self.lags)
+            rows = jnp.clip(L - lags + j, 0, L - 1) * jnp.ones(ud.shape[-1], jnp.int32)
+            ud = ud + jnp.where(j < lags, self.in_flight[rows, jnp.arange(ud.shape[-1])], 0.0)
         return self.fn(x, u, ud, self.t0 + t) if self.time_dependent else self.fn(x, u, ud)
 
 
 def _flatten(f: InFlightDynamics):
     # the model's callable is data when it is itself a pytree (a registered dataclass), else static
     fn_data = None if jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(f.fn)) else f.fn
-    return (f.in_flight, f.t0, fn_data), (None if fn_data is not None else f.fn, f.time_dependent, f.dt)
+    return (f.in_flight, f.t0, fn_data), (None if fn_data is not None else f.fn, f.time_dependent, f.dt, f.lags)
 
 
 def _unflatten(aux, data):
-    fn_static, time_dependent, dt = aux
+    fn_static, time_dependent, dt, lags = aux
     in_flight, t0, fn_data = data
-    return InFlightDynamics(fn_static if fn_data is None else fn_data, time_dependent, dt, in_flight, t0)
+    return InFlightDynamics(fn_static if fn_data is None else fn_data, time_dependent, dt, in_flight, t0, lags)
 
 
 jax.tree_util.register_pytree_node(InFlightDynamics, _flatten, _unflatten)
@@ -121,15 +126,20 @@ def receding_cost(cost, reference: Reference, t0=0.0) -> GeneralCost:
     return GeneralCost(shifted.running, shifted.final, (cost.params, t0), time_dependent=True)
 
 
-def tick_problem(problem: Problem, reference: Reference, delay_steps: int, horizon: int) -> Problem:
+def tick_problem(problem: Problem, reference: Reference, delay_steps, horizon: int) -> Problem:
     """The template of the tick problem (module docstring) with model delay ``delay_steps`` (0 for
-    the delay-free strategies) over ``horizon`` steps, nothing in flight and t0 = 0; validated
-    once, here.
+    the delay-free strategies; a tuple for one delay per channel) over ``horizon`` steps, nothing
+    in flight and t0 = 0; validated once, here.
 
     The sensors are not part of the tick problem (the controller is given the state)."""
     nd = problem.n_controls
-    zeros, t0 = jnp.zeros((delay_steps, nd)), jnp.asarray(0.0)
-    wrap = lambda fn: None if fn is None else InFlightDynamics(fn, problem.time_dependent, problem.dt, zeros, t0)
+    per_channel = isinstance(delay_steps, tuple)
+    longest = max(delay_steps) if per_channel else delay_steps
+    zeros, t0 = jnp.zeros((longest, nd)), jnp.asarray(0.0)
+    lags = delay_steps if per_channel else None
+    wrap = lambda fn: None if fn is None else InFlightDynamics(fn, problem.time_dependent, problem.dt, zeros, t0,
+                                                               lags)
+    delay_steps = list(delay_steps) if per_channel else delay_steps
     return problem.replace(dynamics=wrap(problem.dynamics), noise=wrap(problem.noise), delay_steps=delay_steps,
                            horizon=horizon,
                            cost=receding_cost(problem.cost, reference), time_dependent=True, observation=None,
@@ -141,7 +151,7 @@ def at_tick(template: Problem, x0, in_flight, t0) -> Problem:
     [l, d] (traceable: no validation, every tick shares the template's compiled solver)."""
     new = copy.copy(template)
     new.x0 = x0
-    retime = lambda f: None if f is None else InFlightDynamics(f.fn, f.time_dependent, f.dt, in_flight, t0)
+    retime = lambda f: None if f is None else InFlightDynamics(f.fn, f.time_dependent, f.dt, in_flight, t0, f.lags)
     new.dynamics, new.noise = retime(template.dynamics), retime(template.noise)
     new.cost = copy.copy(template.cost)
     new.cost.params = (*template.cost.params[:-1], jnp.asarray(t0, jnp.float64))     # t0 is the last param

@@ -12,10 +12,10 @@ from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from .. import Options, _precision, _validate
+from .. import Options, _delays, _precision, _validate
 from ..experiments import designs
 from ..experiments.engine import endpoint_description
-from ..problem import shared_delay_frame
+from ..problem import delay_key, shared_delay_frame
 from ..simulate import check_memory
 from .compute import VARIABLES, Settings, compute_batch
 from .grid import batches, cells, check_grid
@@ -143,7 +143,7 @@ AUTO_FRAME_MAX_CELLS = 1000
 def _framed(settings: Settings, problems: dict, delay_frame):
     """``settings`` and ``problems`` in the delay frame asked for (see [`sweep`][delayed_ilqr.sweeps.sweep])."""
     if delay_frame == "auto":
-        counts = collections.Counter(int(p.delay_steps) for p in problems.values())
+        counts = collections.Counter(delay_key(p.delay_steps) for p in problems.values())
         few = max(counts.values()) <= AUTO_FRAME_MAX_CELLS
         delay_frame = shared_delay_frame(problems.values()) if few else None
     if delay_frame is None:
@@ -163,10 +163,10 @@ def _check_delays(grid: dict, all_cells, problems: dict) -> None:
     for cell in all_cells:
         rest = tuple((k, repr(v)) for k, v in cell.kwargs.items() if k != "delay")
         p = problems[cell.index]
-        first = seen.setdefault((rest, int(p.delay_steps)), cell.kwargs["delay"])
+        first = seen.setdefault((rest, delay_key(p.delay_steps)), cell.kwargs["delay"])
         if first != cell.kwargs["delay"]:
             raise ValueError(f"grid['delay']: {first!r} and {cell.kwargs['delay']!r} are the same delay, "
-                             f"{int(p.delay_steps)} steps of dt = {p.dt:g} s; give each delay once")
+                             f"{_delays.as_json(p.delay_steps)} steps of dt = {p.dt:g} s; give each delay once")
 
 
 def open_sweep(store):
