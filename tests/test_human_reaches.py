@@ -51,6 +51,34 @@ def test_the_rest_posture_is_an_equilibrium():
     np.testing.assert_allclose(tau, 0.0, atol=1e-10)
 
 
+def test_the_effort_is_measured_from_the_tonic_forces_that_hold_the_current_posture():
+    """postural_forces: at the start posture the rest's own forces (the rest is a static
+    equilibrium found by SLSQP); at other postures forces whose activations, found by bisection on
+    A(a, l) and put through joint_torques, hold the arm still, and the nearest such forces (the
+    change is orthogonal to every zero-torque direction: the projection's optimality condition)."""
+    rest = jnp.asarray(rest_activations())
+    geo = muscle.ANGLE_DEPENDENT
+    l0 = geo.lengths(jnp.asarray(Q0))
+    np.testing.assert_allclose(muscle.postural_forces(jnp.asarray(Q0), muscle.activation_force(rest, l0)),
+                               muscle.activation_force(rest, l0), atol=1e-14)
+    for q in ((0.5, 1.9), (1.2, 1.2), (0.3, 2.2)):
+        q = jnp.asarray(q)
+        l = geo.lengths(q)
+        ref = muscle.activation_force(rest, l)
+        target = muscle.postural_forces(q, ref)
+        lo, hi = jnp.zeros(6), jnp.ones(6)
+        for _ in range(60):                                       # A(a, l) is increasing in a
+            mid = 0.5 * (lo + hi)
+            low = muscle.activation_force(mid, l) < target
+            lo, hi = jnp.where(low, mid, lo), jnp.where(low, hi, mid)
+        tau = muscle.joint_torques(q, jnp.zeros(2), 0.5 * (lo + hi))
+        assert float(jnp.max(jnp.abs(tau))) < 1e-8
+        assert float(jnp.max(jnp.abs(muscle.joint_torques(q, jnp.zeros(2), rest)))) > 0.05   # the rest alone does not hold q
+        C = jax.jacfwd(lambda f: geo.moment_arms(q) @ (jnp.asarray(muscle.F_MAX) * f * (muscle.force_length(l) + muscle.passive_force(l))))(target)
+        null = np.linalg.svd(np.asarray(C))[2][2:]                # [4, 6] zero-torque directions
+        np.testing.assert_allclose(null @ np.asarray(target - ref), 0.0, atol=1e-14)
+
+
 def test_the_human_preset_has_delays_sensors_and_both_motor_noises():
     p = arm2_muscle6()
     assert p.delay_steps * p.dt == pytest.approx(MOTOR_DELAY)
