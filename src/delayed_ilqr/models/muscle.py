@@ -87,7 +87,7 @@ from .._kernels.dense import small_matvec
 __all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "SWITCH_WIDTH", "A_EPS", "L_MIN", "L_MAX_NF",
            "activation_time_constant", "activation_rate", "n_f", "force_length", "force_velocity",
            "passive_force", "activation_force", "tension", "AngleDependentGeometry", "ConstantGeometry",
-           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques", "rest_activations"]
+           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques", "postural_forces", "rest_activations"]
 
 MUSCLES = ("brachialis", "lateral triceps", "anterior deltoid", "posterior deltoid", "biceps", "long triceps")
 
