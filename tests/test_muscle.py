@@ -340,8 +340,14 @@ def test_cost_is_the_documented_reach_cost():
     expected = 7.0 * np.sum((e - target) ** 2) + 0.2 * np.sum(ev ** 2) + 0.05 * np.sum(x[4:] ** 2)
     assert float(p.cost.final(jnp.asarray(x))) == pytest.approx(expected, rel=1e-12)
     rest = np.asarray(am6.rest_activations())
-    l = np_geom_B(x[:2], x[2:4])[1]
-    df = np.array([np_A(ai, li) - np_A(ri, li) for ai, ri, li in zip(x[4:], rest, l)])
+    d, l = np_geom_B(x[:2], x[2:4])[:2]
+    # the reference: the forces nearest to the rest's at this posture with zero net torque at rest,
+    # from the KKT system of min |A - A_rest|^2 subject to C A = 0 (docs/models.md §4.6)
+    a_rest = np.array([np_A(ri, li) for ri, li in zip(rest, l)])
+    C = d * np.array([f * (np_FL(li) + np_FP(li)) for f, li in zip(muscle.F_MAX, l)])
+    kkt = np.block([[np.eye(6), C.T], [C, np.zeros((2, 2))]])
+    postural = np.linalg.solve(kkt, np.r_[a_rest, 0.0, 0.0])[:6]
+    df = np.array([np_A(ai, li) for ai, li in zip(x[4:], l)]) - postural
     expected = 3e-3 * np.sum((u - rest) ** 2) + 0.2 * np.sum(df ** 2)
     assert float(p.cost.running(jnp.asarray(x), jnp.asarray(u))) == pytest.approx(expected, rel=1e-12)
     # without a tonic rest: Li & Todorov's effort on the excitations from zero
