@@ -74,6 +74,35 @@ def test_shortest_meeting_interpolates_where_the_margin_crosses_zero():
     assert responses.shortest_meeting(t, [1.0, -1.0, 1.0, 1.0]) == pytest.approx(0.35)
 
 
+def test_believed_fraction_projects_the_estimate_on_the_true_shift():
+    true = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]])
+    believed = np.array([[0.0, 0.0], [0.5, 1.0], [1.0, 1.0]])
+    assert responses.believed_fraction(true, believed, 1) == pytest.approx(0.25)     # the part along the shift
+    assert responses.believed_fraction(true, believed, 2) == pytest.approx(0.5)
+    assert responses.believed_fraction(true, true, 2) == pytest.approx(1.0)
+    assert math.isnan(responses.believed_fraction(true, believed, 0))
+
+
+def test_disturbance_model_adds_external_torques_to_the_design_only():
+    import jax.numpy as jnp
+
+    from delayed_ilqr.models.arm2 import mass_matrix_inverse
+    from delayed_ilqr.models.arm2_muscle6 import arm2_muscle6, with_disturbance_model
+    plant = arm2_muscle6()
+    design = with_disturbance_model(plant, 0.05)
+    x, u = plant.x0, jnp.full(6, 0.2)
+    F, Fd = np.asarray(plant.noise(x, u, u)), np.asarray(design.noise(x, u, u))
+    assert Fd.shape == (10, F.shape[1] + 2)
+    np.testing.assert_array_equal(Fd[:, :-2], F)                # the plant's own columns unchanged
+    expected = np.zeros((10, 2))
+    expected[2:4] = 0.05 * np.asarray(mass_matrix_inverse(x[:2]))
+    np.testing.assert_allclose(Fd[:, -2:], expected, rtol=1e-12)
+    assert plant.noise is not design.noise and design.observation is plant.observation
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="sigma_d must be a positive density"):
+            with_disturbance_model(plant, bad)
+
+
 def test_the_fitts_criterion_is_the_effective_width():
     from delayed_ilqr.experiments.fitts import criterion_margin
     sd = 0.01 / responses.EFFECTIVE_WIDTH_SD
@@ -157,6 +186,8 @@ def test_kick_response_starts_at_the_loop_latency_measured_from_the_commands(kic
     # causality, then the measurement: the first applied command that differs (any trial, common noise)
     assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
     assert a.onset >= a.first_change
+    # the filter's belief is measured one and two loop latencies after the kick (the docs' cause)
+    assert len(a.believed) == 2 and all(np.isfinite(a.believed))
     kp = kick_result.pulse_step
     np.testing.assert_array_equal(np.asarray(kick_result.kicked.runs.x)[:, :kp + 1],
                                   np.asarray(kick_result.base.runs.x)[:, :kp + 1])
