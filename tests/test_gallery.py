@@ -188,6 +188,7 @@ def test_kick_response_starts_at_the_loop_latency_measured_from_the_commands(kic
     assert a.onset >= a.first_change
     # the filter's belief is measured one and two loop latencies after the kick (the docs' cause)
     assert len(a.believed) == 2 and all(np.isfinite(a.believed))
+    assert 0 < a.believed[0] < a.believed[1]                    # the filter comes to believe the kick
     kp = kick_result.pulse_step
     np.testing.assert_array_equal(np.asarray(kick_result.kicked.runs.x)[:, :kp + 1],
                                   np.asarray(kick_result.base.runs.x)[:, :kp + 1])
@@ -214,6 +215,7 @@ def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
     assert jump_result.solution.converged
     for a in jump_result.analyses:
         assert a.first_change is not None and a.first_change == pytest.approx(a.loop_latency)
+        assert a.believed is not None and np.isfinite(a.believed)      # the filter's belief is measured
 
 
 JUMP_NOT_YET = pytest.mark.xfail(strict=True, reason=(
@@ -262,6 +264,9 @@ def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path)
     assert late["first_change"] is None and late["corrected"] < 0.05
     bad = CliRunner().invoke(cli.main, ["target-jump", "--times", "0.7", "--final-time", "0.6"])
     assert bad.exit_code == 2 and "--times" in bad.output
+    for command in ("kick", "target-jump"):
+        bad = CliRunner().invoke(cli.main, [command, "--disturbance-model", "0"])
+        assert bad.exit_code == 2 and "--disturbance-model" in bad.output
 
 
 @pytest.fixture(scope="module")
