@@ -20,14 +20,18 @@ The human preset (``noise=True``, the default; §4.7 has every value with its so
   force.
 - Effort (a `GeneralCost`; running cost per unit time, final cost not multiplied by dt):
 
-      running(x, u) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A(u_rest, l(q))|^2
+      running(x, u) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A*(q)|^2
       final(x)      = w_p |e(q) - e*|^2 + w_v |de/dt(q, dq)|^2 + w_a |a|^2
 
   the squared active forces (fractions of the maximal isometric force, A of §4.1), the common
   choice of the field (sum of squared muscle stresses or forces; Todorov 2005's effort on the
-  command of a linear muscle is the same), plus a small cost on the excitations for regularity,
-  both measured from the tonic rest. ``cost.params = {"target", "u_rest", "r", "r_f", "w_p",
-  "w_v", "w_a"}`` (arrays): problems with different targets or weights share one compiled solver.
+  command of a linear muscle is the same), measured from A*(q), the tonic co-activation that holds
+  the current posture q still (`muscle.postural_forces`: the forces nearest to those of the rest
+  activations at q with zero net joint torque; at the start posture exactly the rest's), plus a
+  small cost on the excitations' departure from rest for regularity. Holding any posture at the
+  tonic level costs nothing, as holding the torque-driven arm in the horizontal plane does.
+  ``cost.params = {"target", "u_rest", "r", "r_f", "w_p", "w_v", "w_a"}`` (arrays): problems
+  with different targets or weights share one compiled solver.
 - Motor noise, F [10, 8] (a continuous-time diffusion, `delayed_ilqr.models.noise`):
   signal-dependent on the excitations, ud_i (1 + sigma_u w_i), F[4 + i, i] = sigma_u ud_i / t(ud_i, a_i),
   whose force CV for a held excitation is 4-9 % at `SIGMA_U` = 0.01 (`force_cv`; the
@@ -48,10 +52,10 @@ curved (``docs/results/reach_shape.md``), because the force A ~ (a / (0.56 N_f))
 N_f >= 2.11 makes an effort on the excitations concave in the force, which favours bursts.
 
 What the preset gives, measured (``docs/results/center_out_human.md``): on the 8 center-out
-reaches of 10 cm, single-peaked hand speed with peak/mean 1.63-1.80, mean paths within 0.2-9.4 %
-of straight, endpoint SD 2.8-3.9 mm; the endpoint ellipses keep roughly the posture's orientation
-rather than the movement's (3 of 8 within 30 deg of it), and some unseen reaches (15 cm at
-112.5 deg) curve by 14 %.
+reaches of 10 cm, single-peaked hand speed with peak/mean 1.63-1.78, mean paths within 0.4-7.9 %
+of straight, endpoint SD 3.0-4.0 mm; the endpoint ellipses keep roughly the posture's orientation
+rather than the movement's (3 of 8 within 30 deg of it), and one unseen reach (15 cm at
+112.5 deg) curves by 10.5 %.
 """
 from __future__ import annotations
 
@@ -158,9 +162,11 @@ class ReachRunningCost:
 
 @dataclass(frozen=True)
 class MuscleEffort:
-    """running(x, u, params) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A(u_rest, l(q))|^2 (per unit
-    time): the excitations' and the muscles' active forces' (fractions of the maximal force)
-    departures from the tonic rest ``params["u_rest"]`` [6]."""
+    """running(x, u, params) = r |u - u_rest|^2 + r_f |A(a, l(q)) - A*(q)|^2 (per unit time): the
+    excitations' departure from the tonic rest ``params["u_rest"]`` [6], and the muscles' active
+    forces' (fractions of the maximal force) departure from A*(q) =
+    `muscle.postural_forces`(q, A(u_rest, l(q))), the tonic co-activation that holds posture q
+    (with u_rest = 0, Li & Todorov's arm, A* = 0)."""
 
     geometry: object = _muscle.ANGLE_DEPENDENT
 
@@ -168,7 +174,7 @@ class MuscleEffort:
         q, a, rest = x[:2], x[4:], params["u_rest"]
         l = self.geometry.lengths(q)
         du = u - rest
-        df = _muscle.activation_force(a, l) - _muscle.activation_force(rest, l)
+        df = _muscle.activation_force(a, l) - _muscle.postural_forces(q, _muscle.activation_force(rest, l), self.geometry)
         return params["r"] * (du @ du) + params["r_f"] * (df @ df)
 
 

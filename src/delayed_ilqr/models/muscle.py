@@ -87,7 +87,7 @@ from .._kernels.dense import small_matvec
 __all__ = ["MUSCLES", "PCSA", "SPECIFIC_TENSION", "F_MAX", "T_ACT", "T_DEACT", "SWITCH_WIDTH", "A_EPS", "L_MIN", "L_MAX_NF",
            "activation_time_constant", "activation_rate", "n_f", "force_length", "force_velocity",
            "passive_force", "activation_force", "tension", "AngleDependentGeometry", "ConstantGeometry",
-           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques", "rest_activations"]
+           "ANGLE_DEPENDENT", "CONSTANT", "joint_torques", "postural_forces", "rest_activations"]
 
 MUSCLES = ("brachialis", "lateral triceps", "anterior deltoid", "posterior deltoid", "biceps", "long triceps")
 
@@ -306,6 +306,23 @@ def joint_torques(q, dq, a, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
 # ------------------------------------------------------------------------------------------------
 # posture
 # ------------------------------------------------------------------------------------------------
+def postural_forces(q, reference, geometry=ANGLE_DEPENDENT, f_max=F_MAX):
+    """[..., 6] the active forces A* (fractions of the maximal force, A of §4.1) nearest to
+    ``reference`` [..., 6] whose net joint torque at posture q [..., 2] is zero at rest (dq = 0).
+
+    At rest tau = C(q) A with C(q) = d(q) diag(F_max (F_L(l) + F_P(l))) [2, 6] (F_V = 1 at v = 0),
+    so the nearest zero-torque forces are the projection A* = A - C' (C C')^{-1} C A: closed form
+    and differentiable in q. With ``reference`` the forces of the rest activations at q, A(a_rest,
+    l(q)), this is the tonic co-activation that holds posture q still; at the posture where a_rest
+    is a static equilibrium (`rest_activations`) A* = A(a_rest, l(q)) exactly.
+    """
+    l = geometry.lengths(q)
+    C = geometry.moment_arms(q) * (jnp.asarray(f_max) * (force_length(l) + passive_force(l)))[..., None, :]
+    CCt = C @ jnp.swapaxes(C, -1, -2)
+    torque = small_matvec(C, reference)
+    return reference - small_matvec(jnp.swapaxes(C, -1, -2), jnp.linalg.solve(CCt, torque[..., None])[..., 0])
+
+
 def rest_activations(q, level, geometry=ANGLE_DEPENDENT, f_max=F_MAX, tol=1e-12):
     """The activations a [6] nearest to the co-activation ``level`` whose net joint torque at
     posture q [2] (at rest, dq = 0) is zero: min |a - level|^2 subject to tau(q, 0, a) = 0 and
