@@ -199,8 +199,8 @@ def test_kick_response_starts_at_the_loop_latency_measured_from_the_commands(kic
 
 
 KICK_NOT_YET = pytest.mark.xfail(strict=True, reason=(
-    "not reproduced with the six-muscle arm's defaults: median final error 26.2 mm kicked against 3.5 mm "
-    "unperturbed (7.4x; Nashed et al. 2012: within about 2x) at 200 trials; the delayed filter believes 10 % of "
+    "not reproduced with the six-muscle arm's defaults: median final error 26.7 mm kicked against 3.7 mm "
+    "unperturbed (7.2x; Nashed et al. 2012: within about 2x) at 200 trials; the delayed filter believes 10 % of "
     "the kick one loop latency after it: docs/gallery/kick.md"))
 
 
@@ -219,9 +219,9 @@ def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
 
 
 JUMP_NOT_YET = pytest.mark.xfail(strict=True, reason=(
-    "not reproduced with the six-muscle arm's defaults: the corrections overshoot (238 % and 167 % of a 2 cm "
-    "jump 200 and 300 ms before the end, median 51 and 16 mm from the new target, 100 trials; the filter "
-    "believes 39 % and 72 % of the hand's correction; 227 % at 200 ms even with the state seen and no noise, "
+    "not reproduced with the six-muscle arm's defaults: the corrections overshoot (236 % and 172 % of a 2 cm "
+    "jump 200 and 300 ms before the end, median 52 and 17 mm from the new target, 100 trials; the filter "
+    "believes 40 % and 71 % of the hand's correction; 227 % at 200 ms even with the state seen and no noise, "
     "where a 2 mm jump is made up by 101 %): docs/gallery/target_jump.md"))
 
 
