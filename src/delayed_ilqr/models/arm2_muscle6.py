@@ -244,9 +244,9 @@ METADATA = _metadata(ARM2_PARAMS)
 
 
 #: The estimator's expected external torques (N m s^1/2 at each joint), for `with_disturbance_model`
-#: [D]: the level at which the delayed filter of the human preset believes a 0.15 m/s kick of the
-#: hand within about 100 ms (41 % of its displacement one 60 ms loop after it, 61 % at 90 ms, all
-#: by 160 ms; 10 %, 18 % and 32 % without it), 12.5 times `SIGMA_TAU`. A disturbance model in the
+#: [D]: the level at which the delayed filter of the human preset believes most of a 0.15 m/s kick
+#: of the hand within two loops (41 % of its displacement one 60 ms loop after it, 73 % after two;
+#: 10 % and 24 % without it), 12.5 times `SIGMA_TAU`. A disturbance model in the
 #: estimator is how optimal feedback control explains fast goal-directed responses to unexpected
 #: loads (Crevecoeur & Scott 2013, PLoS Comput Biol [R]). Not part of the preset: the filter that
 #: trusts proprioception this much passes its noise to the commands (``docs/gallery/kick.md``).
