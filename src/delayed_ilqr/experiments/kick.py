@@ -164,10 +164,9 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
     base = monte_carlo(problem, sol.policy, trials, seed)
     kicked = monte_carlo(problem, sol.policy, trials, seed, disturbance=W)
     ls = 0 if problem.observation is None else problem.observation.delay_steps
-    hand = lambda runs: np.asarray(hand_position(np.asarray(runs.x)[..., :2]))        # noqa: E731
-    estimate = lambda runs: None if runs.x_hat is None else np.asarray(hand_position(np.asarray(runs.x_hat)[..., :2]))  # noqa: E731
+    hand = lambda x: None if x is None else np.asarray(hand_position(np.asarray(x)[..., :2]))    # noqa: E731
     analysis = analyse(base.runs, kicked.runs, kp, problem.dt, problem.delay_steps, ls, base.errors, kicked.errors,
-                       hand(base.runs), hand(kicked.runs), estimate(base.runs), estimate(kicked.runs))
+                       hand(base.runs.x), hand(kicked.runs.x), hand(base.runs.x_hat), hand(kicked.runs.x_hat))
     return KickResult(problem, sol, W, kp, base, kicked, analysis, float(kick))
 
 
