@@ -57,6 +57,9 @@ SENSORY_DELAY = click.option("--sensory-delay", type=ModelDelay(allow_none=True)
 TRIALS = click.option("--trials", type=click.IntRange(min=2), default=200, show_default=True,
                       help="Monte Carlo trials (each condition runs on the same noise).")
 SEED_OPTION = click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the noise.")
+DISTURBANCE_MODEL = click.option("--disturbance-model", type=click.FloatRange(min=0.0, min_open=True), default=None,
+                                 help="The filter expects external joint torques of this density (N m s^1/2, "
+                                      "e.g. 0.05); the plant is unchanged.  [default: none]")
 
 
 def _check(arm, **kwargs):
@@ -114,8 +117,9 @@ def _cost_warnings(label, cost, predicted, problem) -> list:
               help="When the kick hits (s from the start).  [default: mid-movement]")
 @TRIALS
 @SEED_OPTION
+@DISTURBANCE_MODEL
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (kick.*).")
-def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out, overwrite):
+def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, disturbance_model, out, overwrite):
     """A mid-reach kick of the hand: latency of the first command change and final error.
 
     The same trials run without and with the kick on the same noise; the first change of the
@@ -124,18 +128,19 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
     _check(arm, delay=delay, sensory_delay=sensory_delay)
     with Output(out, overwrite) as output:
         start = time.perf_counter()
-        r = kick.kick_experiment(arm, delay, sensory_delay, size, pulse_time, trials, seed)
+        r = kick.kick_experiment(arm, delay, sensory_delay, size, pulse_time, trials, seed,
+                                 disturbance_model=disturbance_model)
         elapsed = time.perf_counter() - start
         warned = _cost_warnings("kick, unperturbed trials", r.base.runs.cost, r.solution.expected_cost, r.problem)
         a = r.analysis
         records = dict(comparison=kick.comparison(r), status=str(r.solution.status),
                        analysis=dict(first_change=a.first_change, onset=a.onset, loop_latency=a.loop_latency,
                                      peak_displacement=a.peak_displacement, error_base=a.error_base,
-                                     error_kicked=a.error_kicked, error_ratio=a.error_ratio),
+                                     error_kicked=a.error_kicked, error_ratio=a.error_ratio, believed=a.believed),
                        predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_kick
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
-                        trials=trials, seed=seed, problem=problem_record(r.problem))
+                        trials=trials, seed=seed, disturbance_model=disturbance_model, problem=problem_record(r.problem))
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
                 elapsed, [r.solution.status])
 
@@ -152,8 +157,10 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, out,
               help="Movement time (s).")
 @TRIALS
 @SEED_OPTION
+@DISTURBANCE_MODEL
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (target_jump.*).")
-def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, trials, seed, out, overwrite):
+def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, trials, seed, disturbance_model, out,
+                        overwrite):
     """Target jumps (Liu & Todorov 2007) at several times before the end of the reach.
 
     The target is seen through the arm's sensors (same delay), so the correction can start one
@@ -165,13 +172,14 @@ def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, tria
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         r = target_jump.target_jump_experiment(arm, delay, sensory_delay, jump, times, trials, seed,
-                                               final_time=final_time)
+                                               final_time=final_time, disturbance_model=disturbance_model)
         elapsed = time.perf_counter() - start
         records = dict(comparison=target_jump.comparison(r), status=str(r.solution.status),
                        analyses=[a._asdict() for a in r.analyses], predicted_cost=float(r.solution.expected_cost))
         from ..plot.gallery import plot_target_jump
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, jump=jump, times=list(times),
-                        final_time=final_time, trials=trials, seed=seed, problem=problem_record(r.problem))
+                        final_time=final_time, trials=trials, seed=seed, disturbance_model=disturbance_model,
+                        problem=problem_record(r.problem))
         warned = _cost_warnings("target jump, trials without a jump", r.base_cost, r.solution.expected_cost, r.problem)
         _finish("target_jump", "Target jumps", target_jump.comparison(r), warned, records, plot_target_jump(r), out,
                 output, settings, elapsed, [r.solution.status])

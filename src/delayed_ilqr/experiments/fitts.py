@@ -43,9 +43,12 @@ PUBLISHED = (
     ("delay as a cause", "Beamish, Bhatti, MacKenzie & Wu 2006", "longer feedback delay, longer MT"),
 )
 
-#: The default grid: distances (m), widths (m) and movement times (s) the model chooses from.
-DISTANCES = (0.04, 0.08, 0.16)
-WIDTHS = (0.008, 0.016, 0.032)
+#: The default grid: the amplitudes and widths of Fitts 1954's reciprocal tapping (A = 2, 4, 8, 16 in;
+#: W = 0.25, 0.5, 1, 2 in) in metres, without the 16 in amplitude (41 cm to the right of the start
+#: would bring the arm to full extension); and the movement times (s) the model chooses from.
+INCH = 0.0254
+DISTANCES = tuple(round(a * INCH, 6) for a in (2, 4, 8))
+WIDTHS = tuple(round(w * INCH, 6) for w in (0.25, 0.5, 1, 2))
 MOVEMENT_TIMES = tuple(float(t) for t in np.round(np.arange(0.15, 0.801, 0.05), 3))
 
 #: The published range of the slope b (s/bit) that the docs compare with.

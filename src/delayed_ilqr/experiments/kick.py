@@ -19,8 +19,13 @@ bound** on the first change of the applied command, measured from the kick.
 
 Measured (`analyse`, rules in `responses`): the first change of the applied command
 (any trial, exact with common noise), the onset of the mean command response (10 % of its peak),
-the largest mean lateral displacement of the hand, and the median final hand error kicked against
-unperturbed.
+the largest mean lateral displacement of the hand, the median final hand error kicked against
+unperturbed, and, with sensors, how much of the kick the delayed filter believes: the fraction
+of the mean hand displacement that the estimate holds one and two loop latencies after the kick
+(`responses.believed_fraction`).
+
+``disturbance_model`` (N m s^1/2, default none) designs the controller and its filter for external joint
+torques of that density (`models.arm2_muscle6.with_disturbance_model`); the plant is unchanged.
 """
 from __future__ import annotations
 
@@ -30,12 +35,13 @@ import numpy as np
 
 from .. import Options, Problem, Runs, Solution, solve
 from ..models.arm2 import hand_position
+from ..models.arm2_muscle6 import with_disturbance_model
 from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import Trials, monte_carlo
 from .perturbation import lateral_kick
 from .reach_tasks import MODEL_DEFAULT, reach, solver_options
-from .responses import first_change, onset
+from .responses import believed_fraction, first_change, onset
 
 __all__ = ["PUBLISHED", "KickAnalysis", "KickResult", "analyse", "kick_experiment", "comparison"]
 
@@ -60,6 +66,8 @@ class KickAnalysis(NamedTuple):
         error_base, error_kicked: `SampleStats` of the final hand
             error without and with the kick.
         error_ratio: median kicked error over median unperturbed error.
+        believed: (one, two) loop latencies after the kick, the fraction of the mean hand
+            displacement that the filter's estimate holds (None with the state seen).
     """
 
     first_change: Optional[float]
@@ -69,6 +77,7 @@ class KickAnalysis(NamedTuple):
     error_base: SampleStats
     error_kicked: SampleStats
     error_ratio: float
+    believed: Optional[tuple] = None
 
 
 class KickResult(NamedTuple):
@@ -87,7 +96,8 @@ class KickResult(NamedTuple):
 
 
 def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: int, sensory_steps: int,
-            base_errors, kicked_errors, hand_base, hand_kicked) -> KickAnalysis:
+            base_errors, kicked_errors, hand_base, hand_kicked, estimate_base=None,
+            estimate_kicked=None) -> KickAnalysis:
     """The `KickAnalysis` of runs on common noise.
 
     Args:
@@ -101,6 +111,8 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
         kicked_errors: [N] final hand errors (m) with it.
         hand_base: [N, K+1, 2] hand positions without the kick.
         hand_kicked: [N, K+1, 2] hand positions with it.
+        estimate_base, estimate_kicked: [N, K, 2] the filter's estimates of the hand position at
+            each step (None with the state seen).
     """
     diff = np.asarray(kicked.u) - np.asarray(base.u)
     kick_state = pulse_step + 1                     # the first state the kick moved
@@ -109,13 +121,21 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
     after = lambda k: None if k is None else dt * (k + motor_steps - kick_state)      # noqa: E731  applied
     displacement = np.linalg.norm(np.mean(np.asarray(hand_kicked) - np.asarray(hand_base), axis=0), axis=1)
     eb, ek = sample_stats(base_errors), sample_stats(kicked_errors)
+    believed = None
+    if estimate_base is not None:
+        loop = motor_steps + sensory_steps
+        true = np.asarray(hand_kicked)[:, :-1] - np.asarray(hand_base)[:, :-1]
+        seen = np.asarray(estimate_kicked) - np.asarray(estimate_base)
+        believed = tuple(believed_fraction(true.mean(axis=0), seen.mean(axis=0), k)
+                         for k in (kick_state + loop, kick_state + 2 * loop) if k < true.shape[1])
     return KickAnalysis(after(first), after(on), dt * (motor_steps + sensory_steps), float(displacement.max()),
-                        eb, ek, float(ek.median / eb.median) if eb.median > 0 else float("inf"))
+                        eb, ek, float(ek.median / eb.median) if eb.median > 0 else float("inf"), believed)
 
 
 def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                     kick: float = 0.15, pulse_time: Optional[float] = None, trials: int = 200, seed: int = 0,
-                    target=None, final_time: float = 0.5, options: Optional[Options] = None) -> KickResult:
+                    target=None, final_time: float = 0.5, options: Optional[Options] = None,
+                    disturbance_model: Optional[float] = None) -> KickResult:
     """Runs the experiment of the module docstring.
 
     Args:
@@ -130,9 +150,12 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
         target: [2] hand target (default 10 cm straight ahead).
         final_time: movement time (s).
         options: solver options.
+        disturbance_model: the filter's expected external torques (N m s^1/2, `with_disturbance_model`;
+            None: the plant's noise alone).
     """
     problem = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
-    sol = solve(problem, u_init=default_u_init(problem), options=solver_options(arm, options))
+    design = problem if disturbance_model is None else with_disturbance_model(problem, disturbance_model)
+    sol = solve(design, u_init=default_u_init(design), options=solver_options(arm, options))
     kp = int(round((0.5 * final_time if pulse_time is None else pulse_time) / problem.dt))
     if not 0 <= kp < problem.horizon - 1:
         raise ValueError(f"pulse_time must lie within the movement, 0 <= t < {final_time - problem.dt:g} s; "
@@ -141,9 +164,9 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
     base = monte_carlo(problem, sol.policy, trials, seed)
     kicked = monte_carlo(problem, sol.policy, trials, seed, disturbance=W)
     ls = 0 if problem.observation is None else problem.observation.delay_steps
-    hand = lambda runs: np.asarray(hand_position(np.asarray(runs.x)[..., :2]))        # noqa: E731
+    hand = lambda x: None if x is None else np.asarray(hand_position(np.asarray(x)[..., :2]))    # noqa: E731
     analysis = analyse(base.runs, kicked.runs, kp, problem.dt, problem.delay_steps, ls, base.errors, kicked.errors,
-                       hand(base.runs), hand(kicked.runs))
+                       hand(base.runs.x), hand(kicked.runs.x), hand(base.runs.x_hat), hand(kicked.runs.x_hat))
     return KickResult(problem, sol, W, kp, base, kicked, analysis, float(kick))
 
 
@@ -159,5 +182,7 @@ def comparison(result: KickResult) -> list[dict]:
                 f"onset of the mean command response {_ms(a.onset)}",
                 f"the model has one loop latency, {_ms(a.loop_latency)}",
                 f"median final error {1e3 * a.error_kicked.median:.1f} mm kicked vs {1e3 * a.error_base.median:.1f} mm "
-                f"unperturbed ({a.error_ratio:.2g}x); peak mean displacement {1e3 * a.peak_displacement:.1f} mm")
+                f"unperturbed ({a.error_ratio:.2g}x); peak mean displacement {1e3 * a.peak_displacement:.1f} mm"
+                + ("" if not a.believed else "; the filter believes " + " and ".join(
+                    f"{100 * b:.0f} %" for b in a.believed) + " of it one and two loop latencies after the kick"))
     return [dict(finding=f, source=s, published=pub, measured=m) for (f, s, pub), m in zip(PUBLISHED, measured)]

@@ -19,7 +19,7 @@ from typing import NamedTuple, Optional, Sequence
 import numpy as np
 
 __all__ = ["ONSET_THRESHOLD", "first_change", "onset", "Ellipse", "ellipse", "axis_sd", "FittsFit", "fitts_fit",
-           "index_of_difficulty", "EFFECTIVE_WIDTH_SD", "shortest_meeting"]
+           "index_of_difficulty", "EFFECTIVE_WIDTH_SD", "shortest_meeting", "believed_fraction"]
 
 #: The fraction of the peak mean response at which `onset` detects it.
 ONSET_THRESHOLD = 0.1
@@ -75,6 +75,16 @@ def onset(mean_diff, start: int = 0, threshold: float = ONSET_THRESHOLD) -> Opti
     if peak == 0:
         return None
     return int(np.flatnonzero(m >= threshold * peak)[0]) + start
+
+
+def believed_fraction(true_shift, believed_shift, k: int) -> float:
+    """How much of a perturbation a filter believes at sample k: the projection of the mean shift
+    of its estimate ``believed_shift`` [K, m] on the mean shift of the true state ``true_shift``
+    [K, m] (perturbed minus unperturbed, same noise), over the latter's squared length (1: all of
+    it; NaN where the true shift is zero)."""
+    t, b = np.asarray(true_shift, dtype=np.float64)[k], np.asarray(believed_shift, dtype=np.float64)[k]
+    norm = float(t @ t)
+    return float(b @ t) / norm if norm > 0 else math.nan
 
 
 class Ellipse(NamedTuple):

@@ -19,8 +19,12 @@ alone when the state is seen). The same trials run with and without each jump on
 Measured per jump time (`analyse`, rules in `responses`): the first change of the
 applied command and the onset of the mean hand response (10 % of its peak lateral displacement),
 both after the jump; the median final distance to the new target, the fraction of the jump the
-hand made up, and the peak speed of the mean correction (its vigour: Liu & Todorov found later
-jumps corrected more vigorously).
+hand made up, the peak speed of the mean correction (its vigour: Liu & Todorov found later
+jumps corrected more vigorously) and, with sensors, how much of the hand's correction the delayed
+filter believes at the last step (`responses.believed_fraction`).
+
+``disturbance_model`` (N m s^1/2, default none) designs the controller and its filter for external
+joint torques of that density (`models.arm2_muscle6.with_disturbance_model`); the plant is unchanged.
 """
 from __future__ import annotations
 
@@ -30,12 +34,13 @@ import numpy as np
 
 from .. import Options, Problem, Solution, solve
 from ..models.arm2 import hand_position
+from ..models.arm2_muscle6 import with_disturbance_model
 from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import monte_carlo
 from .reach_tasks import (MODEL_DEFAULT, TARGET_MOTION_DENSITY, movement_direction, reach, solver_options,
                           with_target_state)
-from .responses import first_change, onset
+from .responses import believed_fraction, first_change, onset
 
 __all__ = ["PUBLISHED", "JumpAnalysis", "JumpResult", "analyse", "target_jump_experiment", "comparison"]
 
@@ -58,6 +63,8 @@ class JumpAnalysis(NamedTuple):
         corrected: the mean final displacement along the jump over the jump size (1: all of it).
         peak_speed: the peak speed (m/s) of the mean correction, the hand's velocity along the jump
             relative to the unjumped reach (the vigour of the correction).
+        believed: at the last step, the fraction of the mean hand displacement that the filter's
+            estimate holds (None with the state seen).
     """
 
     time_before_end: float
@@ -67,6 +74,7 @@ class JumpAnalysis(NamedTuple):
     error_new: SampleStats
     corrected: float
     peak_speed: float
+    believed: Optional[float] = None
 
 
 class JumpResult(NamedTuple):
@@ -84,11 +92,13 @@ class JumpResult(NamedTuple):
 
 
 def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
-            motor_steps: int, time_before_end: float, sensory_steps: int = 0) -> JumpAnalysis:
+            motor_steps: int, time_before_end: float, sensory_steps: int = 0, estimate_base=None,
+            estimate_jumped=None) -> JumpAnalysis:
     """The `JumpAnalysis` of runs on common noise: commands ``base_u``, ``jumped_u`` [N, K, d]
     (issued), hand positions ``hand_base``, ``hand_jumped`` [N, K+1, 2], the ``jump`` vector [2], the
     ``new_target`` [2]; the jump enters x_{jump_step+1}; ``motor_steps`` l_m, ``sensory_steps`` l_s
-    (0: the state is seen)."""
+    (0: the state is seen); ``estimate_base``, ``estimate_jumped`` [N, K, 2] the filter's
+    estimates of the hand position (None with the state seen)."""
     start = jump_step + 1
     first = first_change(np.asarray(jumped_u) - np.asarray(base_u))
     shift = np.asarray(hand_jumped) - np.asarray(hand_base)                  # [N, K+1, 2]
@@ -96,16 +106,20 @@ def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_ste
     along = shift.mean(axis=0) @ unit
     on = onset(along, start=start)
     final = np.asarray(hand_jumped)[:, -1]
+    believed = None
+    if estimate_base is not None:
+        seen = (np.asarray(estimate_jumped) - np.asarray(estimate_base)).mean(axis=0)
+        believed = believed_fraction(shift.mean(axis=0)[:-1], seen, seen.shape[0] - 1)
     return JumpAnalysis(float(time_before_end), None if first is None else dt * (first + motor_steps - start),
                         None if on is None else dt * (on - start), dt * (motor_steps + sensory_steps),
                         sample_stats(np.linalg.norm(final - new_target, axis=1)),
-                        float(along[-1] / np.linalg.norm(jump)), float(np.abs(np.diff(along)).max() / dt))
+                        float(along[-1] / np.linalg.norm(jump)), float(np.abs(np.diff(along)).max() / dt), believed)
 
 
 def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                            jump: float = 0.02, times_before_end: Sequence[float] = (0.1, 0.2, 0.3, 0.4),
                            trials: int = 100, seed: int = 0, target=None, final_time: float = 0.6,
-                           options: Optional[Options] = None) -> JumpResult:
+                           options: Optional[Options] = None, disturbance_model: Optional[float] = None) -> JumpResult:
     """Runs the experiment of the module docstring.
 
     Args:
@@ -120,9 +134,12 @@ def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, senso
         target: [2] the first target (default 10 cm ahead).
         final_time: the movement time (s).
         options: solver options (default `reach_tasks.solver_options`).
+        disturbance_model: the filter's expected external torques (N m s^1/2, `with_disturbance_model`;
+            None: the plant's noise alone).
     """
     base = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
-    design = with_target_state(base, TARGET_MOTION_DENSITY)
+    design = with_target_state(base if disturbance_model is None else with_disturbance_model(base, disturbance_model),
+                               TARGET_MOTION_DENSITY)
     problem = with_target_state(base)
     sol = solve(design, u_init=default_u_init(design), options=solver_options(arm, options))
     d = movement_direction(base)
@@ -133,7 +150,7 @@ def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, senso
         raise ValueError(f"times_before_end must lie within the movement, 0 < t < {final_time:g} s; "
                          f"got {tuple(times_before_end)!r}")
     calm = monte_carlo(problem, sol.policy, trials, seed)
-    hand = lambda x: np.asarray(hand_position(np.asarray(x)[..., :2]))              # noqa: E731
+    hand = lambda x: None if x is None else np.asarray(hand_position(np.asarray(x)[..., :2]))    # noqa: E731
     ls = 0 if problem.observation is None else problem.observation.delay_steps
     jumped_x, analyses = [], []
     for t, kp in zip(times_before_end, steps):
@@ -142,7 +159,7 @@ def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, senso
         runs = monte_carlo(problem, sol.policy, trials, seed, disturbance=W).runs
         jumped_x.append(np.asarray(runs.x))
         analyses.append(analyse(calm.runs.u, runs.u, hand(calm.runs.x), hand(runs.x), vec, new_target, kp,
-                                problem.dt, problem.delay_steps, float(t), ls))
+                                problem.dt, problem.delay_steps, float(t), ls, hand(calm.runs.x_hat), hand(runs.x_hat)))
     return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses, np.asarray(calm.runs.cost))
 
 
@@ -154,7 +171,9 @@ def comparison(result: JumpResult) -> list[dict]:
         rows.append(dict(finding=f"jump {1e3 * a.time_before_end:.0f} ms before the end", source="Liu & Todorov 2007",
                          published="reaches the new target if early enough; incomplete if late",
                          measured=f"median final distance to the new target {1e3 * a.error_new.median:.1f} mm, "
-                                  f"{100 * a.corrected:.0f} % of the jump made up"))
+                                  f"{100 * a.corrected:.0f} % of the jump made up"
+                                  + ("" if a.believed is None else
+                                     f"; the filter believes {100 * a.believed:.0f} % of the hand's correction")))
     first = next((a for a in result.analyses if a.first_change is not None), None)
     rows.append(dict(finding=PUBLISHED[2][0], source=PUBLISHED[2][1], published=PUBLISHED[2][2],
                      measured="no response" if first is None else
