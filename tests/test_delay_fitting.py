@@ -49,7 +49,8 @@ def exact_fit():
     return dict(data=data, fit=result, model=fitted_model, truth_model=model)
 
 
-def test_per_channel_delays_and_noise_are_recovered(exact_fit):
+@pytest.mark.slow
+def test_per_channel_delays_are_recovered(exact_fit):
     """From exact statistics the fit finds both channels' delays (5.4 and 8.7 steps, between whole
     steps, from 6.25 on both) within 0.01 ms (the joint fit with noise and cost weights:
     benchmarks/studies/delay_recovery.py, docs/fitting.md)."""

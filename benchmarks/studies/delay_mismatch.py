@@ -52,8 +52,8 @@ def main():
     print("|---|---|---|---|---|")
     for assumed, converged, mean, half, endpoint, late in rows:
         flag = "" if converged else " (design not converged)"
-        print(f"| {1e3 * assumed:g}{flag} | {mean:.4g} [{mean - half:.4g}, {mean + half:.4g}] | {mean / matched:.3f} | "
-              f"{1e3 * endpoint:.2f} | {late:.4f} |")
+        print(f"| {1e3 * assumed:g}{flag} | {mean:.3g} [{mean - half:.3g}, {mean + half:.3g}] | {mean / matched:.3g} | "
+              f"{1e3 * endpoint:.3g} | {late:.3g} |")
 
 
 if __name__ == "__main__":

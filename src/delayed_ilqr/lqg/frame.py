@@ -37,9 +37,8 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "current_taps", "acting_commands",
-           "tap_channels", "to_slots",
-           "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "current_taps",
+           "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -77,7 +76,6 @@ def acting_offset(slot, l, frame: int, nd: int):
 def tap_channels(m: int, nd: int):
     """The channel i mod d of each of the m taps (m = d: the channels themselves)."""
     return jnp.arange(m) % nd
-
 
 
 def take_acting(v, acting, nd: int, axis: int = 0):
