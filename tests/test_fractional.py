@@ -150,7 +150,8 @@ def arm_solves():
     mixed = base.replace(delay_steps=[1.5, 2.25], delay_frame=FRAME)
     out = dict(base=base, fractional=fractional, mixed=mixed, sol=solve(fractional), mixed_sol=solve(mixed),
                augmented=solve(mixed, options=Options(method="augmented")))
-    out["phi0"] = solve(base.replace(delay_steps=np.array(3.0), delay_frame=FRAME))
+    out["phi0_problem"] = base.replace(delay_steps=np.array(3.0), delay_frame=FRAME)
+    out["phi0"] = solve(out["phi0_problem"])
     for eps in (1e-6, 1e-9):
         out[eps] = solve(base.replace(delay_steps=np.array(3.0 - eps), delay_frame=FRAME))
     out["int3"] = solve(base.replace(delay_steps=[3, 3], delay_frame=FRAME))
@@ -205,6 +206,19 @@ def test_phi_zero_and_one_are_the_whole_delays(arm_solves):
     assert coarse["u"] > 1e-8                   # the check can fail: 1e-6 of a step moves the solve
     # and the check can fail: 3.4 steps is another controller
     assert rel_err(arm_solves["sol"].u, ref.u) > 1e-3
+
+
+def test_prediction_of_a_fractional_solve(arm_solves):
+    """``predict`` keeps a fractional problem's frame (the solve's policy, trimmed, is padded back):
+    at phi = 0 its state covariance is the unframed integer solve's to round-off."""
+    from delayed_ilqr import solve
+    from delayed_ilqr.prediction import predict
+    base = arm_solves["base"]
+    ref = predict(base, solve(base))
+    got = predict(arm_solves["phi0_problem"], arm_solves["phi0"])
+    err = rel_err(got.cov, ref.cov)
+    _WORST.record(err, "predicted state covariance, phi = 0 against the integer delay")
+    assert err <= RTOL and float(np.max(np.asarray(ref.cov[-1]))) > 0
 
 
 def test_simulate_applies_the_held_commands(arm_solves):

@@ -9,7 +9,7 @@ true delays:
 1. data: TRIALS reaches per target of the nonlinear plant (``di.simulate``) under the optimal policy
    at the truth; their mean hand paths and endpoint covariances; the mean's precision s is the
    standard error of a mean endpoint coordinate;
-2. the fit (``experiments.delay_fitting.fit_delays``, one delay per channel) from 97.5 ms on both
+2. the fit (``experiments.delay_fitting.fit_delays``, one delay per channel) from 100 ms on both
    joints, sigma_u and r 50 % off, by L-BFGS-B on the implicit gradients through the fractional
    delay (docs/derivation.md §20);
 3. 95 % intervals by a parametric bootstrap: REPLICATES new data sets of TRIALS reaches per target
@@ -37,7 +37,7 @@ jax.config.update("jax_enable_x64", True)
 W_P = 1e3
 TRUTH = dict(r=1e-4, sigma_u=0.01)
 START = dict(r=1.5e-4, sigma_u=0.015)
-DELAY0, MAX_DELAY = 0.0975, 0.17        # the start between whole steps, where the loss has kinks
+DELAY0, MAX_DELAY = 0.1, 0.17
 ROWS = [(0.054, 0.071), (0.1035, 0.0875), (0.148, 0.1265)]      # s, shoulder and elbow
 TARGETS = jnp.array([[np.pi / 2, np.pi / 3, 0.0, 0.0], [1.2, 1.4, 0.0, 0.0], [1.0, 2.0, 0.0, 0.0],
                      [1.6, 1.0, 0.0, 0.0]])
