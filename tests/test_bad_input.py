@@ -48,8 +48,8 @@ def test_huge_and_float32_delays():
     with pytest.raises(ValueError, match="delay must be a finite number of steps"):
         point_mass(delay=1e308)
     assert arm2(delay=np.float32(0.03)).delay_steps == 3
-    with pytest.raises(ValueError, match=r"got 0.025 s \(2.5 steps\)"):
-        arm2(delay=0.025)
+    with pytest.raises(ValueError, match=r"sensory_delay must be a whole number of steps.*got 0.025 s \(2.5 steps\)"):
+        arm2(sensory_delay=0.025)
 
 
 def test_general_cost_params_must_be_numbers():

@@ -311,7 +311,7 @@ def test_per_channel_cost_derivative_matches_finite_differences():
 @pytest.mark.parametrize("delays, frame, match", [
     ([1, 2, 3], None, r"one delay per command channel \(d = 2\); got 3"),
     ([1, -2], None, r"delay_steps\[1\] must be a non-negative integer number of steps; got -2"),
-    ([1, 2.5], None, r"delay_steps\[1\] must be a non-negative integer"),
+    ([1, -2.5], None, r"delay_steps\[1\] must be a finite, non-negative number of steps; got -2.5"),
     ([True, 2], None, r"delay_steps\[0\] must be a non-negative integer"),
     ([[1, 2]], None, r"got an array of shape \(1, 2\)"),
     ([1, 60], None, r"delay_steps\[1\] must be below the horizon.*got delay_steps=\[1, 60\], horizon=60"),

@@ -62,7 +62,12 @@ def predict(problem: Problem, solution: Solution) -> Prediction:
                          "an estimator, whose closed loop this function does not model")
     policy = solution.policy
     if problem.delay_frame is not None and policy.delay_feedback.shape[1] != problem.delay_frame:
-        problem = problem.without_frame("predict")       # a policy trimmed by solve
+        if problem.is_fractional:       # its frame stays: the trimmed entries (commands that have acted) are zero
+            M = policy.delay_feedback
+            pad = jnp.zeros((M.shape[0], problem.delay_frame - M.shape[1]) + M.shape[2:], M.dtype)
+            policy = policy._replace(delay_feedback=jnp.concatenate([pad, M], axis=1))
+        else:
+            problem = problem.without_frame("predict")       # a policy trimmed by solve
     gains = Gains(jnp.zeros_like(policy.feedforward), policy.state_feedback, policy.delay_feedback)
     moments = closed_loop_moments(linearize(problem, solution.x, solution.u), gains)
     return Prediction(solution.x, moments.state_covariance(problem.n_states))

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _delays, _precision, _validate
+from . import _delays, _fractional, _precision, _validate
 from .delay_jitter import DelayJitter
 from .lqg.model import frame_delay_leaf
 
@@ -145,7 +145,12 @@ class Problem:
             per command channel (0 <= l_j < K; docs/derivation.md §18, docs/guide/own_plant.md): they run
             in a frame of L = max_j l_j slots (``delay_frame``, which may be given larger), and the
             policy's ``delay_feedback`` spans u_{k-L}..u_{k-1}, channel j's entries older than l_j
-            zero. Not with ``observation``.
+            zero. Not with ``observation``. A delay that is not a whole number of steps, tau = (l + phi)
+            dt (0 <= phi < 1; one value, or one per channel), has the zero-order-hold meaning: over
+            a step the acting command switches from u_{k-l-1} to u_{k-l} at phi dt
+            (docs/derivation.md §20). It runs as two taps per channel (l_j and l_j + 1, in a frame of
+            at least max_j l_j + 1 slots), needs l_j + 1 < K, and is
+            differentiable in phi. A floating-point array is taken this way even when whole.
         cost: a [`QuadraticCost`][delayed_ilqr.QuadraticCost] or [`GeneralCost`][delayed_ilqr.GeneralCost].
         noise: optional ``F(x, u, ud) -> [n, p]``, the continuous-time diffusion of eq. (1),
             dx = f dt + F dw: one step adds ``sqrt(dt) F xi``, xi ~ N(0, I_p), so its covariance is
@@ -229,13 +234,16 @@ class Problem:
             raise TypeError(f"cost must be a QuadraticCost or a GeneralCost; got {type(cost).__name__}")
         nd = _resolve_n_controls(n_controls, nd_cost, u_min, u_max)
         self.n_controls = nd
-        self.delay_steps = _delay_below_horizon(delay_steps, self.horizon, nd)
+        self.delay_fraction = None      # the callables are checked as the user wrote them
+        delay_steps, delay_fraction = _delay_below_horizon(delay_steps, self.horizon, nd)
         self.x0, self.cost = jnp.asarray(x0), cost
         self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
         _check_labels(metadata, self.n_states, nd)
         self._check_callables()
+        self.delay_steps, self.delay_fraction = delay_steps, delay_fraction
         self.observation = _observation(observation, self.x0, self.horizon)
-        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation, self.horizon)
+        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation, self.horizon,
+                                  delay_fraction is not None)
         self.delay_jitter = _jitter(delay_jitter, self.delay_steps, self)
 
     # -- sizes ---------------------------------------------------------------------------------
@@ -248,7 +256,19 @@ class Problem:
         """p, the number of noise columns (0 without noise)."""
         if self.noise is None:
             return 0
-        return jax.eval_shape(self.noise_at, self.x0, *(jnp.zeros(self.n_controls),) * 2, 0.0).shape[1]
+        return jax.eval_shape(self.noise_at, self.x0, jnp.zeros(self.n_controls), jnp.zeros(self.n_delayed),
+                              0.0).shape[1]
+
+    @property
+    def n_delayed(self) -> int:
+        """The width of ``ud`` the solver passes to `dynamics_at`: d, or 2 d taps for a fractional
+        delay ([u_{k-l}, u_{k-l-1}], docs/derivation.md §20)."""
+        return self.n_controls if self.delay_fraction is None else 2 * self.n_controls
+
+    @property
+    def is_fractional(self) -> bool:
+        """Whether the delay runs as two taps per channel (a delay that is not whole steps)."""
+        return self.delay_fraction is not None
 
     # -- time ----------------------------------------------------------------------------------
     @property
@@ -269,12 +289,21 @@ class Problem:
         return self.dt * jnp.arange(self.horizon, dtype=dtype)
 
     def dynamics_at(self, x, u, ud, t):
-        """f(x, u, ud), or f(x, u, ud, t) for a time-dependent problem (t: the time in s)."""
-        return self.dynamics(x, u, ud, t) if self.time_dependent else self.dynamics(x, u, ud)
+        """f(x, u, ud), or f(x, u, ud, t) for a time-dependent problem (t: the time in s). With a
+        fractional delay ``ud`` is the [2 d] taps [u_{k-l}, u_{k-l-1}] and this is the step's
+        mean rate of change under the zero-order hold (`_fractional.drift`)."""
+        t = (t,) if self.time_dependent else ()
+        if self.delay_fraction is not None:
+            return _fractional.drift(self.dynamics, x, u, ud, self.delay_fraction, *t)
+        return self.dynamics(x, u, ud, *t)
 
     def noise_at(self, x, u, ud, t):
-        """F(x, u, ud), or F(x, u, ud, t) for a time-dependent problem: [n, p]."""
-        return self.noise(x, u, ud, t) if self.time_dependent else self.noise(x, u, ud)
+        """F(x, u, ud), or F(x, u, ud, t) for a time-dependent problem: [n, p]; with a fractional
+        delay the step's (d + 1) p columns (`_fractional.diffusion`)."""
+        t = (t,) if self.time_dependent else ()
+        if self.delay_fraction is not None:
+            return _fractional.diffusion(self.noise, x, u, ud, self.delay_fraction, *t)
+        return self.noise(x, u, ud, *t)
 
     @property
     def has_limits(self) -> bool:
@@ -283,8 +312,16 @@ class Problem:
 
     @property
     def delay(self) -> float:
-        """tau = l dt in seconds."""
-        return self.delay_steps * self.dt
+        """tau = l dt in seconds ([d] per channel; (l_j + phi_j) dt for a fractional delay)."""
+        return self.delay_in_steps * self.dt
+
+    @property
+    def delay_in_steps(self):
+        """tau / dt: l, [l_j], or l_j + phi_j [d] for a fractional delay (whose ``delay_steps``
+        holds its two taps [l_j, l_j + 1])."""
+        if self.delay_fraction is None:
+            return self.delay_steps
+        return self.delay_steps[:self.n_controls] + self.delay_fraction
 
     @property
     def frame_steps(self) -> int:
@@ -297,6 +334,10 @@ class Problem:
         is traced (a framed problem under jit or vmap)."""
         if self.delay_frame is None:
             return self
+        if self.delay_fraction is not None:
+            raise ValueError(f"{where} needs a whole number of steps as the input delay; got a fractional delay "
+                             f"(delay_steps + fraction = {_delays.as_json(self.delay_steps)[:self.n_controls]} + "
+                             f"{np.asarray(self.delay_fraction).tolist() if not isinstance(self.delay_fraction, jax.core.Tracer) else 'traced'})")
         if _delays.is_per_channel(self.delay_steps):
             raise ValueError(f"{where} needs one input delay for all command channels; got per-channel "
                              f"delay_steps={_delays.as_json(self.delay_steps)}")
@@ -308,12 +349,13 @@ class Problem:
     def replace(self, **changes) -> "Problem":
         """A copy with some fields changed, validated again (e.g. ``delay_steps=0``, ``noise=None``,
         ``delay_frame=15``). Changing only the delay and the frame checks only them; in a frame the
-        delay may then be traced (a fit's delay as data), and is not checked."""
+        delay may then be traced (a fit's delay as data), and is not checked: a traced
+        floating-point delay in steps is a fractional one (differentiable, docs/derivation.md §20)."""
         if changes and set(changes) <= {"delay_steps", "delay_frame"} and self.delay_jitter is None:
             return self._with_delay(changes.get("delay_steps", self.delay_steps),
                                     changes.get("delay_frame", self.delay_frame))
         fields = dict(dynamics=self.dynamics, x0=self.x0, dt=self.dt, horizon=self.horizon,
-                      delay_steps=self.delay_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
+                      delay_steps=self.delay_in_steps, cost=self.cost, noise=self.noise, u_min=self.u_min,
                       u_max=self.u_max, n_controls=self.n_controls, name=self.name,
                       metadata=self.metadata, time_dependent=self.time_dependent, observation=self.observation,
                       delay_frame=self.delay_frame, delay_jitter=self.delay_jitter)
@@ -328,16 +370,29 @@ class Problem:
         """[`replace`][delayed_ilqr.Problem.replace] of the delay and the frame alone: a copy, the callables not re-checked."""
         new = object.__new__(Problem)
         new.__dict__.update(self.__dict__)
+        new.delay_fraction = None
         if delay_frame is not None and isinstance(delay_steps, jax.core.Tracer):
             # a traced delay is checked against the frame by the solver (Status.INVALID_TRACED_INPUT)
-            new.delay_steps, new.delay_frame = delay_steps, _frame(delay_frame, 0, new.observation, new.horizon)
+            new.delay_frame = _frame(delay_frame, 0, new.observation, new.horizon)
+            if jnp.issubdtype(delay_steps.dtype, jnp.floating):        # a fractional delay as data
+                whole = jax.lax.stop_gradient(jnp.floor(delay_steps))
+                new.delay_fraction = jnp.broadcast_to(delay_steps - whole, (new.n_controls,))
+                new.delay_steps = _delays.taps_of(whole.astype(jnp.int32), new.n_controls)
+            else:
+                new.delay_steps = delay_steps
             return new
         if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
                 and np.issubdtype(delay_steps.dtype, np.integer):
             delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
-        new.delay_steps = _delay_below_horizon(delay_steps, new.horizon, new.n_controls)
-        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation, new.horizon)
+        new.delay_steps, new.delay_fraction = _delay_below_horizon(delay_steps, new.horizon, new.n_controls)
+        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation, new.horizon,
+                                 new.delay_fraction is not None)
         return new
+
+    def _delay_repr(self):
+        if self.delay_fraction is None or isinstance(self.delay_fraction, jax.core.Tracer):
+            return self.delay_steps
+        return np.round(np.asarray(self.delay_in_steps, np.float64), 12).tolist()
 
     def _check_callables(self):
         nx, nd = self.n_states, self.n_controls
@@ -378,24 +433,37 @@ class Problem:
 
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
-                f"K={self.horizon}, dt={self.dt}, delay_steps={self.delay_steps}"
+                f"K={self.horizon}, dt={self.dt}, delay_steps={self._delay_repr()}"
                 + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}")
                 + ("" if self.delay_jitter is None else f", delay_jitter={self.delay_jitter!r}") + ")")
 
 
 def _delay_below_horizon(delay_steps, horizon: int, n_controls: int):
-    """A valid l for a horizon K: a whole number of steps, below K."""
+    """A valid (l, phi) for a horizon K: a whole number of steps below K and phi None, or for a
+    fractional delay its taps [l_j, l_j + 1] (l_j + 1 < K) and phi [d]."""
+    split = _delays.fractional(delay_steps, n_controls)
+    if split is not None:
+        whole, phi = split
+        if np.any(whole + 1 >= horizon):
+            raise ValueError(f"delay_steps must be below the horizon less one step when it is not whole: the command "
+                             f"acting over a step is u_(k-l) and u_(k-l-1), and both must act within the horizon; "
+                             f"got delay_steps={np.asarray(delay_steps).tolist()!r}, horizon={horizon}")
+        return _delays.taps_of(whole, n_controls), phi
     delay_steps = _delays.checked(delay_steps, n_controls)
     if _delays.is_per_channel(delay_steps):
         _delays.check_below_horizon(delay_steps, horizon)
     elif delay_steps >= horizon:
         raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
                          f"l >= K no command ever acts; got delay_steps={delay_steps}, horizon={horizon}")
-    return delay_steps
+    return delay_steps, None
 
 
-def _frame(delay_frame, delay_steps: int, observation, horizon: int):
+def _frame(delay_frame, delay_steps: int, observation, horizon: int, fractional: bool = False):
     """A valid delay_frame for delay l and horizon K (None, or l <= L < K), refused with sensors."""
+    if fractional and observation is not None:
+        raise ValueError("a delay_steps that is not a whole number of steps is not available with an observation "
+                         "(delayed sensors): the delayed filter takes one whole input delay; got delay_steps="
+                         f"{_delays.as_json(delay_steps)[:len(delay_steps) // 2]} plus a fraction")
     if _delays.is_per_channel(delay_steps) and observation is not None:
         raise ValueError("per-channel delay_steps are not available with an observation (delayed sensors): the "
                          f"delayed filter takes one input delay; got delay_steps={_delays.as_json(delay_steps)}")
@@ -418,7 +486,7 @@ def _jitter(delay_jitter, delay_steps, problem: "Problem"):
         raise TypeError(f"delay_jitter must be None or a delayed_ilqr.DelayJitter; got {type(delay_jitter).__name__}")
     if _delays.is_per_channel(delay_steps) or delay_steps != delay_jitter.longest:
         raise ValueError("with delay_jitter, delay_steps must be the jitter's longest delay (the commands in flight "
-                         f"the policy keeps); got delay_steps={_delays.as_json(delay_steps)} with {delay_jitter!r}")
+                         f"the policy keeps); got delay_steps={problem._delay_repr()} with {delay_jitter!r}")
     for name, value in (("observation", problem.observation), ("delay_frame", problem.delay_frame)):
         if value is not None:
             raise ValueError(f"delay_jitter is not available with {name} (the jittered solver takes full-state "
@@ -432,6 +500,10 @@ def shared_delay_frame(problems) -> Optional[int]:
     same delay (a frame would only cost) or when one has delayed sensors (an ``observation``: its
     delays must be static, no frame is available)."""
     problems = list(problems)
+    for p in problems:
+        if p.is_fractional:
+            raise ValueError("a study over delays takes whole numbers of steps per problem (one, or one per "
+                             f"channel); got delay_steps={p._delay_repr()} in {p!r}")
     delays = {delay_key(p.delay_steps) for p in problems}
     if len(delays) < 2 or any(p.observation is not None for p in problems):
         return None
@@ -517,12 +589,13 @@ def _problem_flatten(p: Problem):
     dynamics, dynamics_static = _data_or_static(p.dynamics)
     noise, noise_static = _data_or_static(p.noise)
     # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
-    framed = p.delay_frame is not None
+    # a fractional delay's phi is a leaf too: the solve is differentiable in it (derivation §20);
     # a jitter's probabilities are leaves (its support is its own static part)
+    framed, fractional = p.delay_frame is not None, p.delay_fraction is not None
     return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise, p.delay_jitter)
-            + ((_delay_leaf(p.delay_steps),) if framed else ()),
+            + ((_delay_leaf(p.delay_steps),) if framed else ()) + ((p.delay_fraction,) if fractional else ()),
             (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
-             p._has_limits, p.metadata, p.time_dependent, p.delay_frame))
+             p._has_limits, p.metadata, p.time_dependent, p.delay_frame, fractional))
 
 
 def _delay_leaf(delay_steps):
@@ -546,7 +619,10 @@ def _delay_from_leaf(leaf):
 def _problem_unflatten(aux, data):
     new = object.__new__(Problem)
     (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata, new.time_dependent, new.delay_frame) = aux
+     new._has_limits, new.metadata, new.time_dependent, new.delay_frame, fractional) = aux
+    new.delay_fraction = None
+    if fractional:
+        *data, new.delay_fraction = data
     if new.delay_frame is not None:
         *data, leaf = data
         new.delay_steps = _delay_from_leaf(leaf)

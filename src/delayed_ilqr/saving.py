@@ -11,9 +11,10 @@ Format (``FORMAT_VERSION`` 1, documented in docs/guide/saving.md):
   ``"Policy"``), ``types`` (the class of every nested record by path, ``""`` the top), ``arrays``
   (every entry's shape and dtype), the sizes ``horizon`` K, ``n_states``, ``n_controls``,
   ``delay_steps`` l (the delay the gains were designed for) and, when the problem was given,
-  ``dt``, ``delay`` = l dt (s) and ``problem`` (its ``name``, ``delay_steps``, ``delay``: the
-  plant's, which differ from the policy's for a delay-ignorant design, and ``delay_jitter``: None
-  or the jitter's ``{"steps", "probabilities"}``), plus the caller's ``info``.
+  ``dt``, ``delay`` = l dt (s) and ``problem`` (its ``name``, ``delay_steps`` and ``delay``, a
+  fractional delay's as l_j + phi_j steps: the plant's, which differ from the policy's for a
+  delay-ignorant design; and ``delay_jitter``: None or the jitter's ``{"steps", "probabilities"}``),
+  plus the caller's ``info``.
 
 Files are written atomically (``delayed_ilqr._files``: an interrupted save leaves the old file).
 Records are read field by field, by name: a field the file lacks gets the class's default (so a
@@ -99,9 +100,11 @@ def save(path, obj, problem=None, info: Optional[dict] = None) -> None:
         if problem.horizon != K or problem.n_states != n or problem.n_controls != d:
             raise ValueError(f"problem must match the saved gains (K={K}, n={n}, d={d}); got {problem!r}")
         l = header["delay_steps"]
+        # a fractional delay as its value in steps, l_j + phi_j (its taps are l_j and l_j + 1)
+        steps = np.asarray(problem.delay_in_steps, np.float64).tolist() if problem.is_fractional \
+            else _delays.as_json(problem.delay_steps)
         header.update(dt=problem.dt, delay=l * problem.dt,
-                      problem=dict(name=problem.name, delay_steps=_delays.as_json(problem.delay_steps),
-                                   delay=(np.asarray(_delays.as_json(problem.delay_steps)) * problem.dt).tolist(),
+                      problem=dict(name=problem.name, delay_steps=steps, delay=(np.asarray(steps) * problem.dt).tolist(),
                                    delay_jitter=None if problem.delay_jitter is None
                                    else problem.delay_jitter.as_json()))
     if info is not None:

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import _precision, _validate
+from .lqg.frame import current_taps, tap_channels
 from .lqg.law import augmented_feedback, delayed_law
 from .ilqg.linearize import trajectory_cost
 from .lqg import Gains
@@ -118,8 +119,9 @@ def _trial_step(problem: Problem, l_p: int, m: int, substeps: int):
             ud = u
         elif framed:    # l is data (Problem.delay_frame <= m): a dynamic index, and u itself for l = 0
             acting = jnp.minimum(m - l, m - 1)
-            # per-channel delays: channel j's command sent l_j steps ago
-            ud = jnp.where(l == 0, u, sent[acting] if jnp.ndim(l) == 0 else sent[acting, jnp.arange(nd)])
+            # per-channel delays: channel j's command sent l_j steps ago; taps: channel i mod d's
+            ud = jnp.where(l == 0, current_taps(u, l), sent[acting] if jnp.ndim(l) == 0
+                           else sent[acting, tap_channels(jnp.shape(l)[0], nd)])
         else:
             ud = sent[m - l] if l > 0 else u
 
@@ -452,6 +454,10 @@ def simulate(problem: Problem, policy: Policy, n_trials: int, seed: int = 0, sub
     _precision.require_x64("simulate")
     n_trials = _validate.positive_int(n_trials, "n_trials")
     substeps = _validate.positive_int(substeps, "substeps")
+    if substeps > 1 and problem.is_fractional:
+        raise ValueError("substeps must be 1 for a problem whose delay is not a whole number of steps: its step is "
+                         "the zero-order-hold integral over the whole step (docs/derivation.md §20), which "
+                         f"sub-steps would split; got substeps={substeps}")
     seed = _validate.seed(seed)
     policy = _check_policy(problem, policy)
     if disturbance is not None:

@@ -11,6 +11,7 @@ on the plant -> statistics -> tables and files (figures: [`delayed_ilqr.plot`][d
 | [`center_out`][delayed_ilqr.experiments.center_out] | center-out reaching with the six-muscle arm, one batched solve per delay |
 | `perturbation` | a hand kick mid-reach: mean corrective responses against the sensory delay |
 | [`fitting`][delayed_ilqr.experiments.fitting] | inverse optimal control: cost weights and noise scales fitted to reach statistics through the solver's gradients, the delay by a profile |
+| [`delay_fitting`][delayed_ilqr.experiments.delay_fitting] | the motor delays fitted by gradient with the other parameters (fractional delays), confidence intervals by a parametric bootstrap |
 | `tables` | every table row, as plain text or markdown (Monte Carlo mean [95 % CI] and median beside the local, linearised prediction; its 2x warnings) |
 | `report` | JSON records, NPZ arrays, markdown reports and figures on disk |
 

@@ -143,7 +143,7 @@ class AtDelay:
 def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
         u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
         max_iterations: int = 100, delay_steps: Optional[int] = None,
-        on_evaluation: Optional[Callable[[int, float], None]] = None) -> Fit:
+        on_evaluation: Optional[Callable[[int, float], None]] = None, bounds: Optional[dict] = None) -> Fit:
     """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
 
     Args:
@@ -164,6 +164,8 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
             data, so fits at different delays share one compilation ([`profile_delay`][delayed_ilqr.experiments.fitting.profile_delay]).
         on_evaluation: optional ``on_evaluation(count, loss)`` after each evaluation of the loss
             (a progress display).
+        bounds: optional ``{name: (low, high)}``, positive limits (or None) on some parameters,
+            which L-BFGS-B keeps (a fitted delay below its frame's longest, say).
 
     Returns:
         A [`Fit`][delayed_ilqr.experiments.fitting.Fit]. An evaluation where a solve did not converge counts as an infinite loss
@@ -208,7 +210,9 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
             return np.inf, np.zeros_like(grad)
         return float(value), grad
 
-    result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B",
+    limits = [tuple(None if b is None else float(np.log(b)) for b in (bounds or {}).get(k, (None, None)))
+              for k in names]
+    result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B", bounds=limits,
                       options=dict(gtol=gtol, ftol=0.0, maxiter=max_iterations))
     value, _ = value_and_grad(result.x)
     unconverged = [Status(int(s)).name for s in last["status"] if not Status(int(s)).converged]

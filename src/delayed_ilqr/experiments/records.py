@@ -26,7 +26,8 @@ def problem_record(problem) -> dict:
     """A JSON-ready dict of everything that defines ``problem`` ([`Problem`][delayed_ilqr.Problem]).
 
     Keys: ``name``; ``dt`` (s), ``horizon`` K and ``final_time`` = K dt (s); ``delay`` (s) and
-    ``delay_steps``; ``delay_jitter`` (None, or the jitter's ``{"steps", "probabilities"}``); ``sensory_delay`` (s) and ``sensory_delay_steps`` (None without sensors);
+    ``delay_steps`` (lists per channel, and for a delay that is not whole steps, its l + phi); ``delay_jitter`` (None, or the
+    jitter's ``{"steps", "probabilities"}``); ``sensory_delay`` (s) and ``sensory_delay_steps`` (None without sensors);
     ``n_states``, ``n_controls``; ``x0``; ``u_min``, ``u_max`` (None where unlimited);
     ``noise``: None without noise, else ``{"preset": name or None, "type": class, <its fields>}``
     (e.g. ``sigma_u``); ``dynamics``, ``cost``, ``observation``: ``{"type": class, <fields>}``
@@ -35,12 +36,15 @@ def problem_record(problem) -> dict:
     meta = getattr(problem, "metadata", None)
     observation = getattr(problem, "observation", None)
     ls = None if observation is None else int(observation.delay_steps)
+    # one delay: an int of steps; per channel, or not whole steps (derivation §20): a list
+    steps = np.asarray(getattr(problem, "delay_in_steps", problem.delay_steps))
+    steps = steps if steps.ndim or getattr(problem, "is_fractional", False) else steps.astype(int)
     noise = None
     if problem.noise is not None:
         noise = {"preset": None if meta is None else getattr(meta, "noise", None), **_describe(problem.noise)}
     return dict(
         name=problem.name, dt=problem.dt, horizon=int(problem.horizon), final_time=problem.horizon * problem.dt,
-        delay=problem.delay_steps * problem.dt, delay_steps=int(problem.delay_steps),
+        delay=(steps * problem.dt).tolist(), delay_steps=steps.tolist(),
         delay_jitter=None if getattr(problem, "delay_jitter", None) is None else problem.delay_jitter.as_json(),
         sensory_delay=None if ls is None else ls * problem.dt, sensory_delay_steps=ls,
         n_states=int(problem.n_states), n_controls=int(problem.n_controls), x0=_value(problem.x0),

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.scan import packed_scan
-from ..lqg.frame import SlotGains, slot_offsets
+from ..lqg.frame import SlotGains, current_taps, slot_offsets
 from ..problem import Problem
 from ..lqg.law import closed_loop_step
 from .linearize import delayed_commands
@@ -66,7 +66,7 @@ def nonlinear_step(problem: Problem, alpha, y, row: NominalRow):
         if du_delayed is None:      # a frame of no slots: every delay is 0
             ud = u
         elif framed:      # l is data
-            ud = jnp.where(problem.delay_steps == 0, u, row.ud_bar + du_delayed)
+            ud = jnp.where(problem.delay_steps == 0, current_taps(u, problem.delay_steps), row.ud_bar + du_delayed)
         else:
             ud = row.ud_bar + du_delayed if problem.delay_steps > 0 else u
         x_new = x + problem.dt * problem.dynamics_at(x, u, ud, row.t)

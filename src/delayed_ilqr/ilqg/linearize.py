@@ -77,7 +77,7 @@ def _step(problem: Problem, row):
     fx, fu, fud = jax.jacrev(partial(_at, problem.dynamics_at, t=t), argnums=(0, 1, 2))(x, u, ud)
     if problem.noise is None:
         c, C0 = jnp.zeros((0, nx), x.dtype), jnp.zeros((0, nx, nd), x.dtype)
-        C1 = C0
+        C1 = jnp.zeros((0, nx, ud.shape[0]), x.dtype)      # ud: [2 d] taps for a fractional delay
     else:
         root = jnp.sqrt(dt)
         Fu, Fud = jax.jacfwd(partial(_at, problem.noise_at, t=t), argnums=(1, 2))(x, u, ud)   # [n, p, d]

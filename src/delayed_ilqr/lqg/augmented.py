@@ -14,7 +14,7 @@ import jax.numpy as jnp
 
 from .. import _precision
 from .gains import unconstrained_gains
-from .model import DelayedLQG, Gains, Value, checked_entry, merged_if_undelayed
+from .model import DelayedLQG, Gains, Value, checked_entry, fold_taps, merged_if_undelayed
 
 __all__ = ["augment", "augmented_scan", "augmented_backward_pass"]
 
@@ -47,10 +47,11 @@ def augment(lqg: DelayedLQG):
         # du_{k-l} acts now: entry 0 of the buffer, or entry L - l of a frame (none for l = 0, where
         # merged_if_undelayed folded B1, C1 into B0, C0)
         # (here l is the buffer's length: the delay, or the frame L)
-        # (per-channel delays: column j of B1, C1 reads entry L - l_j, channel j's component)
+        # (per-channel delays: column j of B1, C1 reads entry L - l_j, channel j's component;
+        # taps: column i reads entry L - l_i, channel i mod d's component, taps of a channel summed)
         entry = jnp.zeros((l, 1), dt).at[0].set(1.0) if lqg.delay_frame is None else \
             (jnp.arange(l)[:, None] == lqg.frame_steps - jnp.asarray(lqg.delay_steps)).astype(dt)
-        at = lambda X: (X[..., None, :] * entry).reshape(X.shape[:-1] + (l * nd,))
+        at = lambda X: fold_taps(X[..., None, :] * entry, nd).reshape(X.shape[:-1] + (l * nd,))
         Az = Az.at[:, :nx, nx:].set(at(lqg.B1))
         Az = Az.at[:, nx:m - nd, nx + nd:].set(jnp.eye((l - 1) * nd, dtype=dt))  # buffer shifts
         Bz = Bz.at[:, m - nd:, :].set(jnp.eye(nd, dtype=dt))                # du_k enters last

@@ -18,6 +18,11 @@ command acting at step k: `acting_offset` then returns the [d] indices of those 
 `take_acting` / `put_acting` read and write them (a contiguous slice for one delay, a gather or
 scatter for several).
 
+More generally ``delay_steps`` may hold t d *tap* delays (a multiple of d): tap i acts on channel
+i mod d with that channel's command sent l_i steps ago. A fractional delay (l + phi) dt is two
+taps per channel, l and l + 1 (docs/derivation.md §20). Two taps may then read the same command
+at different steps, so the recursion *adds* the acting blocks into the frame (`add_acting`).
+
 Eq. (6)'s order and the slot order differ by a rotation that depends on k: `pending_order`
 gives the permutation, `to_slots` / `from_slots` convert gains and
 `value_blocks` the value's pending blocks. For l = 0 there is no pending command and every
@@ -32,8 +37,8 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "acting_commands", "to_slots",
-           "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "current_taps",
+           "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -62,9 +67,15 @@ def acting_offset(slot, l, frame: int, nd: int):
     offsets as a scan input made the closed loop three times slower (docs/performance.md).
 
     With one delay per channel (``l`` [d]): the [d] indices ((k - l_j) mod L) d + j of the
-    components that act at step k, channel j's command sent l_j steps ago."""
+    components that act at step k, channel j's command sent l_j steps ago; with t d taps (``l``
+    [t d]), the indices ((k - l_i) mod L) d + (i mod d)."""
     offset = (slot - l * nd) % (frame * nd)
-    return offset if jnp.ndim(l) == 0 else offset + jnp.arange(nd)
+    return offset if jnp.ndim(l) == 0 else offset + tap_channels(jnp.shape(l)[0], nd)
+
+
+def tap_channels(m: int, nd: int):
+    """The channel i mod d of each of the m taps (m = d: the channels themselves)."""
+    return jnp.arange(m) % nd
 
 
 def take_acting(v, acting, nd: int, axis: int = 0):
@@ -83,15 +94,36 @@ def put_acting(v, new, acting, axis: int = 0):
     return v.at[index].set(new)
 
 
+def current_taps(u, l):
+    """The current command u [d] as the acting one of each tap or channel with delay 0 (the
+    width of ``l``: u itself for one delay or one per channel, u repeated for t d taps)."""
+    m = jnp.shape(l)[0] if jnp.ndim(l) else u.shape[-1]
+    return u if m == u.shape[-1] else jnp.tile(u, m // u.shape[-1])
+
+
+def add_acting(v, new, acting, axis: int = 0):
+    """``v`` with ``new`` added at ``acting`` along ``axis`` (repeated indices add up): the
+    recursion's write of the acting blocks. For one tap per channel the entries there are zero
+    (the command has acted, docs/derivation.md §17-18) and this is `put_acting`; a second tap
+    reads a command that is still pending at k+1, whose blocks must be kept (§20)."""
+    if jnp.ndim(acting) == 0:
+        return put_acting(v, new, acting, axis)
+    index = (slice(None),) * axis + (acting,)
+    return v.at[index].add(new)
+
+
 def acting_commands(us, l, framed: bool):
     """u_{k-l} for k = 0..K-1, zeros before t = 0 ([K, ...] from ``us`` [K, ...]): a static shift,
     or with a frame (``framed``, l traced) a dynamic slice; l = 0 gives ``us`` itself. With one
-    delay per channel (``l`` [d], ``us`` [K, d]), column j is u_{k-l_j, j}."""
+    delay per channel (``l`` [d], ``us`` [K, d]), column j is u_{k-l_j, j}; with taps (``l`` [t d])
+    [K, t d], column i u_{k-l_i, i mod d}."""
     if framed:      # one dynamic slice of us behind K zeros (a gather made the loops that read it slower)
         K = us.shape[0]
         padded = jnp.concatenate([jnp.zeros_like(us), us])
         if jnp.ndim(l) == 1:
             rows = jnp.arange(K)[:, None] + (K - jnp.minimum(l, K))[None, :]
+            if jnp.shape(l)[0] != us.shape[1]:      # taps: column i reads channel i mod d
+                return padded[rows, tap_channels(jnp.shape(l)[0], us.shape[1])[None, :]]
             return jnp.take_along_axis(padded, rows, axis=0)
         return jax.lax.dynamic_slice_in_dim(padded, K - jnp.minimum(l, K), K)
     if l == 0:

@@ -23,7 +23,7 @@ import numpy as np
 from .. import _delays, _precision, _validate
 
 __all__ = ["DelayedLQG", "Stage", "StepModels", "Gains", "Value", "stored_models", "merged_if_undelayed", "checked_entry",
-           "stacked_dynamics", "idle_stage", "fold_current", "frame_delay_leaf"]
+           "stacked_dynamics", "idle_stage", "fold_current", "fold_taps", "frame_delay_leaf"]
 
 
 class Stage(NamedTuple):
@@ -66,7 +66,9 @@ class DelayedLQG:
         delay_steps: l >= 0, the input delay in steps; or a list [l_1, ..., l_d], one per command
             channel: column j of B1, C1 then acts with du_{k-l_j}, channel j's command sent l_j steps
             ago (docs/derivation.md §18). Per-channel delays always run in a frame of L >= max_j l_j
-            slots (``delay_frame``, default max_j l_j).
+            slots (``delay_frame``, default max_j l_j). A list of t d entries gives taps: B1, C1 then
+            have t d columns, and column i acts with du_{k-l_i} of channel i mod d (a fractional
+            delay is two taps per channel, docs/derivation.md §20).
         N: optional [K, d, n] cross cost 2 du_k'N_k dx_k (absent from eq. 4, which is N = 0; a
             general running cost l(x, u) has one).
         delay_frame: optional L >= l: keep the pending commands in a frame of L slots, with the
@@ -88,15 +90,16 @@ class DelayedLQG:
         A = _validate.array(A, "A", (K, n, n))
         B0 = _validate.array(B0, "B0", (K, n, None))
         nd = B0.shape[2]
-        self.delay_steps = _delays.checked(delay_steps, nd)
+        self.delay_steps = _delays.checked(delay_steps, nd, taps=True)
         self.delay_frame = _delays.checked_frame(delay_frame, self.delay_steps)
-        B1 = _validate.array(B1, "B1", (K, n, nd))
+        m = nd if not _delays.is_per_channel(self.delay_steps) else len(self.delay_steps)
+        B1 = _validate.array(B1, "B1", (K, n, m))
         if c is None and C0 is None and C1 is None:
-            c, C0, C1 = np.zeros((K, 0, n)), np.zeros((K, 0, n, nd)), np.zeros((K, 0, n, nd))
+            c, C0, C1 = np.zeros((K, 0, n)), np.zeros((K, 0, n, nd)), np.zeros((K, 0, n, m))
         c = _validate.array(c, "c", (K, None, n))
         p = c.shape[1]
         C0 = _validate.array(C0, "C0", (K, p, n, nd))
-        C1 = _validate.array(C1, "C1", (K, p, n, nd))
+        C1 = _validate.array(C1, "C1", (K, p, n, m))
         d_tilde = _validate.array(d_tilde, "d_tilde", (K + 1,))
         d = _validate.array(d, "d", (K + 1, n))
         D = _check_symmetric(_validate.array(D, "D", (K + 1, n, n)), "D")
@@ -239,12 +242,22 @@ def merged_if_undelayed(lqg: DelayedLQG):
 def fold_current(blocks, current):
     """(B0, B1, C0, C1) with the delayed command's columns folded into the current command's where
     ``current`` (l = 0: the command acting is the one sent now): (B0 + B1, 0, C0 + C1, 0).
-    ``current`` is a Python bool (a static l) or a traced bool (a framed l)."""
+    ``current`` is a Python bool (a static l) or a traced bool (a framed l), per column of B1 with
+    per-channel delays or taps (a tap column i folds into channel i mod d)."""
     B0, B1, C0, C1 = blocks
     if current is True:
         return B0 + B1, jnp.zeros_like(B1), C0 + C1, jnp.zeros_like(C1)
     keep = jnp.logical_not(current)
-    return B0 + jnp.where(keep, 0.0, B1), jnp.where(keep, B1, 0.0), C0 + jnp.where(keep, 0.0, C1), jnp.where(keep, C1, 0.0)
+    nd = B0.shape[-1]
+    return (B0 + fold_taps(jnp.where(keep, 0.0, B1), nd), jnp.where(keep, B1, 0.0),
+            C0 + fold_taps(jnp.where(keep, 0.0, C1), nd), jnp.where(keep, C1, 0.0))
+
+
+def fold_taps(X, nd: int):
+    """[..., t d] -> [..., d]: each channel's taps summed (X itself for one tap per channel)."""
+    if X.shape[-1] == nd:
+        return X
+    return X.reshape(X.shape[:-1] + (X.shape[-1] // nd, nd)).sum(axis=-2)
 
 
 def stacked_dynamics(lqg: DelayedLQG):

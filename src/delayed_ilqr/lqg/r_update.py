@@ -104,28 +104,41 @@ def update(R, factors, row, M, W, slot, next_slot, factor_row):
     return R, (F,), R_next
 
 
-def update_framed(R, row, M, W, slot, acting, next_slot):
+def update_framed(R, Y, X, M, W, slot, acting, next_slot):
     """R at k from R at k+1 in a frame of L slots with the delay as data (docs/derivation.md §17).
 
     The stale-column invariant above rests on the slot written being the slot eliminated, which
     a frame breaks (du_{k-l} is written into slot alpha = (k - l) mod L, du_{k-L}'s slot sigma is
-    cleared): R is kept whole and symmetric instead, rows and columns written alike.
+    cleared): R is kept whole and symmetric instead, rows and columns written alike. With w_a =
+    P w the acting components of the frame w at k (P the selection ``acting``), substituting
+    x_{k+1} = ... + B1 P w into J(k+1) adds P'Y + Y'P + P'X P to R with its slot sigma cleared:
+    Y = B1'Rt (Rt of J(k+1), slot sigma excluded) and X = B1'S B1 + sum_j C1_j'S C1_j. With one tap
+    per channel the acting rows of R are zero before (the command has acted, Y is zero there) and
+    this writes them; a fractional delay's second tap reads a command that is still pending (§20).
 
     Args:
         R: [L d, L d] the exact R of J(k+1).
-        row: [d, L d] exact rows of slot alpha at k (zero at slot sigma).
+        Y: [m, L d] B1'Rt (slot sigma is cleared here); X: [m, m] (m = d, or t d taps).
         M, W: [d, L d] the step's delay feedback and W, zero at slot sigma.
-        slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d (``acting``: the [d]
-            indices of the channels' acting components with per-channel delays, `frame.acting_offset`).
+        slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d (``acting``: the [m]
+            indices of the acting components with per-channel delays or taps, `frame.acting_offset`).
 
     Returns:
         (R, R_next): R at k and its rows [d, L d] of the slot that step k-1 eliminates.
     """
-    nd = row.shape[0]
-    R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row), (slot, 0))
-    R = jax.lax.dynamic_update_slice(R, jnp.zeros_like(row.T), (0, slot))
-    R = put_acting(R, row, acting, axis=0)
-    R = put_acting(R, row.T, acting, axis=1)
+    nd = M.shape[0]
+    clear = jnp.zeros((nd, R.shape[0]), R.dtype)
+    R = jax.lax.dynamic_update_slice(R, clear, (slot, 0))
+    R = jax.lax.dynamic_update_slice(R, clear.T, (0, slot))
+    Y = jax.lax.dynamic_update_slice(Y, jnp.zeros((Y.shape[0], nd), Y.dtype), (0, slot))
+    if jnp.ndim(acting) == 0:       # one delay: the acting slot's rows and columns are zero, written
+        row = jax.lax.dynamic_update_slice(Y, X, (0, acting))
+        R = put_acting(R, row, acting, axis=0)
+        R = put_acting(R, row.T, acting, axis=1)
+    else:
+        R = R.at[acting, :].add(Y)
+        R = R.at[:, acting].add(Y.T)
+        R = R.at[acting[:, None], acting[None, :]].add(X)
     R = add_symmetric_product(R, M, W)
     return R, jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
 

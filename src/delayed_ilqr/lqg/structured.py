@@ -34,7 +34,7 @@ from .. import _precision, _validate
 from .._kernels.dense import matmul, matmul_t
 from .._kernels.scan import Blocks, packed_scan
 from . import r_update
-from .frame import SlotGains, acting_offset, from_slots, put_acting, slot_offsets, value_blocks
+from .frame import SlotGains, acting_offset, add_acting, from_slots, slot_offsets, value_blocks
 from .gains import unconstrained_gains
 from .model import (DelayedLQG, Gains, Stage, StepModels, Value, checked_entry, fold_current, idle_stage,
                     stored_models)
@@ -189,17 +189,21 @@ def _noise_terms(stage: Stage, S, nd: int) -> Noise:
     return Noise(XSX[:-1, :-1], XSX[:-1, -1], XSX[-1, -1])
 
 
-def _moved(blocks, new, slot, acting, axis: int):
+def _moved(blocks, new, slot, acting, axis: int, nd: int):
     """``blocks`` with the acting command's ``new`` blocks written at its slot, along ``axis``.
 
     Without a frame (``acting`` None) they replace slot sigma's, where du_{k-l} follows du_k. With
-    one, slot sigma is cleared first (du_{k-L} has acted) and slot alpha = ``acting``, zero until
-    now, receives them; alpha = sigma where l = L. With one delay per channel ``acting`` holds the
-    [d] indices of the channels' acting components, and column j of ``new`` goes to index j."""
+    one, slot sigma (``nd`` wide) is cleared first (du_{k-L} has acted) and slot alpha = ``acting``
+    receives them; alpha = sigma where l = L. With one delay per channel ``acting`` holds the
+    [d] indices of the channels' acting components, and column j of ``new`` goes to index j; with
+    taps (a fractional delay), [t d] indices, and the blocks are added (`frame.add_acting`: a
+    command read by the later tap is still pending at k+1)."""
     start = lambda offset: (offset,) if blocks.ndim == 1 else ((0, offset) if axis == 1 else (offset, 0))
     if acting is not None:
-        blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros_like(new), start(slot))
-        return put_acting(blocks, new, acting, axis if blocks.ndim > 1 else 0)
+        axis = axis if blocks.ndim > 1 else 0
+        blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros(new.shape[:axis] + (nd,) + new.shape[axis + 1:],
+                                                                new.dtype), start(slot))
+        return add_acting(blocks, new, acting, axis)
     return jax.lax.dynamic_update_slice(blocks, new, start(slot))
 
 
@@ -210,7 +214,7 @@ def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, 
     Slot sigma's blocks of J(k+1) are those of du_k; in G_w the same slot is du_{k-l}, via B1 (with a
     frame, slot alpha = ``acting`` is, and slot sigma is cleared: see `_moved`)."""
     nd = stage.e.shape[0]
-    u0, u1 = slice(0, nd), slice(nd, 2 * nd)
+    u0, u1 = slice(0, nd), slice(nd, None)
     H = stage.E + dyn.ZSZ[z.u, z.u] + noise.CSC[u0, u0]
     g = stage.e + dyn.Zs[z.u] + noise.CSc[u0]
     g0 = stage.e + dyn.Zs0[z.u] + noise.CSc[u0] if r0 is not None else None
@@ -227,7 +231,7 @@ def _action_quadratic(stage: Stage, z: ZColumns, dyn: Propagated, noise: Noise, 
     Gx = Gx + ZRt_s[z.x].T
     # du_k against the other pending commands; in slot sigma, against du_{k-l} (via B1_k)
     G_new = dyn.ZSZ[z.u, z.ud] + noise.CSC[u0, u1] + ZRt_s[z.ud].T
-    Gw = _moved(ZRt[z.u] + value.R_next, G_new, slot, acting, axis=1)
+    Gw = _moved(ZRt[z.u] + value.R_next, G_new, slot, acting, axis=1, nd=nd)
     return H, g, g0, jnp.concatenate([Gx, Gw], axis=1), ZRt
 
 
@@ -270,20 +274,21 @@ def _pending_blocks(z: ZColumns, dyn: Propagated, noise: Noise, ZRt, value: Valu
     """r, Rt and R at k, and the R update's by-products (factors, R_next): J(k+1) rewritten in
     (dx_k, pending at k), where slot sigma now holds du_{k-l}, plus the gains' terms."""
     nx, nd = rows.s, W.shape[0]
-    u1 = slice(nd, 2 * nd)
+    u1 = slice(nd, None)
     # the R update's factors M, W [d, l d], slot order
     if copy_factors:
         M_p, W_p = update[rows.Kfb, nx:], update[rows.W, nx:]
     else:
         M_p, W_p = Kfb[:, nx:], W[:, nx:]
-    r_pre = _moved(value.r, dyn.Zs[z.ud] + noise.CSc[u1], data.slot, acting, axis=0)
-    Rt_pre = _moved(ZRt[z.x], dyn.ZSZ[z.x, z.ud], data.slot, acting, axis=1)
-    row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, acting, axis=1)
+    r_pre = _moved(value.r, dyn.Zs[z.ud] + noise.CSc[u1], data.slot, acting, axis=0, nd=nd)
+    Rt_pre = _moved(ZRt[z.x], dyn.ZSZ[z.x, z.ud], data.slot, acting, axis=1, nd=nd)
     r = r_pre + update[rows.s, nx:]
     Rt = Rt_pre + update[rows.S, nx:]
     if acting is not None:
-        R, R_next = r_update.update_framed(value.R, row, M_p, W_p, data.slot, acting, data.next_slot)
+        R, R_next = r_update.update_framed(value.R, ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], M_p, W_p,
+                                           data.slot, acting, data.next_slot)
         return r, Rt, R, value.factors, R_next
+    row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, acting, axis=1, nd=nd)
     R, factors, R_next = r_update.update(value.R, value.factors, row, M_p, W_p, data.slot, data.next_slot,
                                          data.factor_row)
     return r, Rt, R, factors, R_next
@@ -296,7 +301,7 @@ def _predicted(prediction: Prediction, z: ZColumns, dyn: Propagated, noise: Nois
     s0 = stage.d + dyn.Zs0[z.x] + update[rows.s0, :nx]
     r0 = prediction.r0
     if r0.shape[0] > 0:
-        r0 = _moved(r0, dyn.Zs0[z.ud] + noise.CSc[nd:2 * nd], slot, acting, axis=0) + update[rows.s0, nx:]
+        r0 = _moved(r0, dyn.Zs0[z.ud] + noise.CSc[nd:], slot, acting, axis=0, nd=nd) + update[rows.s0, nx:]
     H_I = HIK[:, 0]
     return Prediction(s0, r0, prediction.a + 2 * I @ g0, prediction.b + I @ H_I + 2 * I @ (g - g0))
 
@@ -321,7 +326,7 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     Z, stage = _step_stage(model, data.row, data.live, (l == 0) if delay is None else delay == 0)
     acting = None if delay is None or l == 0 else acting_offset(data.slot, delay, l, stage.e.shape[0])
     nx, nd = Z.shape[0], stage.e.shape[0]
-    z = ZColumns(slice(0, nx), slice(nx, nx + nd), slice(nx + nd, nx + 2 * nd))
+    z = ZColumns(slice(0, nx), slice(nx, nx + nd), slice(nx + nd, None))
     r0 = prediction.r0 if prediction else None
     dyn = _through_dynamics(Z, value, prediction.s0 if prediction else None)
     noise = _noise_terms(stage, value.S, nd)

@@ -1,7 +1,7 @@
 """Model zoo: factories that return a ready [`Problem`][delayed_ilqr.Problem].
 
-Every factory takes ``delay`` in seconds (a whole number of steps of ``dt``, checked by
-`delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
+Every factory takes ``delay`` in seconds (any tau >= 0: a fraction of a step of ``dt`` is
+the zero-order hold of docs/derivation.md §20; sensory delays are whole steps, `delay_to_steps`), ``noise`` (bool), ``dt`` and ``horizon`` (default: the model's final time
 over dt). Dynamics and noise callables are frozen dataclasses compared and hashed by value, so two
 problems built with the same arguments share one compiled solver. Each factory attaches a
 [`ModelMetadata`][delayed_ilqr.models.metadata.ModelMetadata] (``Problem.metadata``: state and control labels with units, the task space

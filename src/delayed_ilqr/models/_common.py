@@ -54,6 +54,19 @@ def delay_to_steps(delay, dt, name: str = "delay") -> int:
     return int(whole)
 
 
+def delay_in_steps(delay, dt, name: str = "delay"):
+    """An input delay tau in seconds as tau / dt steps: an int when it is a whole number of steps
+    (`delay_to_steps`'s rounding tolerance), else the float tau / dt, whose fraction the solver
+    treats by the zero-order hold (docs/derivation.md §20). The checks and messages are
+    `delay_to_steps`'s."""
+    try:
+        return delay_to_steps(delay, dt, name)
+    except ValueError as exc:
+        if "whole number of steps" not in str(exc):
+            raise
+    return _real(delay, name) / float(dt)
+
+
 def horizon_steps(horizon, final_time: float, dt: float) -> int:
     """``horizon`` checked as a positive int, or, when None, the number of steps nearest tf / dt."""
     if horizon is None:
@@ -62,10 +75,11 @@ def horizon_steps(horizon, final_time: float, dt: float) -> int:
 
 
 def time_grid(dt, delay, horizon, final_time: float) -> tuple[float, int, int]:
-    """(dt, delay_steps, horizon) of a model factory, each checked: dt > 0, the delay a whole number
-    of steps (argument name "delay"), the horizon given or round(final_time / dt)."""
+    """(dt, delay_steps, horizon) of a model factory, each checked: dt > 0, the delay any
+    non-negative number of seconds (argument name "delay"; in steps an int when whole, else a float,
+    `delay_in_steps`), the horizon given or round(final_time / dt)."""
     dt = positive(dt, "dt")
-    return dt, delay_to_steps(delay, dt, "delay"), horizon_steps(horizon, final_time, dt)
+    return dt, delay_in_steps(delay, dt, "delay"), horizon_steps(horizon, final_time, dt)
 
 
 def benchmark_cost(x_target):

@@ -174,7 +174,8 @@ def acrobot(delay=0.0, noise=False, dt=0.1, horizon=None, limits=True, u_max=U_M
     """The acrobot swing-up with a delayed, optionally limited elbow torque (parameters: module docstring).
 
     Args:
-        delay: input delay tau in seconds; a whole number of steps of ``dt``.
+        delay: input delay tau in seconds, any tau >= 0
+            (a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: add the signal-dependent torque noise F = 0.1 ud df/dud (p = 1).
         dt: time step in seconds (the cost weights are per unit time: trajax's at dt = 0.1).
         horizon: K; default ``round(5.0 / dt)`` (50 at dt = 0.1).

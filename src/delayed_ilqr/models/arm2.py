@@ -252,7 +252,8 @@ def arm2(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(math.pi / 4, math.pi
     """P2 of ``docs/models.md`` §2: a torque-driven reach in joint space.
 
     Args:
-        delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P2).
+        delay: input delay tau in seconds, any tau >= 0 (0, 0.03, 0.1 in P2;
+            a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: False (P2), True or ``"human"`` (signal-dependent torque noise at the human level,
             `SIGMA_U_HUMAN`), or ``"benchmark"`` (P2-noisy, sigma_u = 0.2): the presets of
             the module docstring, F = [0; M(q)^{-1} sigma_u diag(ud)], p = 2.

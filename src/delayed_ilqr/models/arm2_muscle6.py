@@ -324,7 +324,7 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
     """Reaching with the six-muscle arm, delayed excitations and (by default) the human preset.
 
     Args:
-        delay: motor (input) delay tau in seconds (a whole number of steps of ``dt``): the
+        delay: motor (input) delay tau in seconds (any tau >= 0, a fraction of a step by the zero-order hold): the
             excitation sent at t reaches the muscles' activation dynamics at t + tau. Default
             (`PRESET`): `MOTOR_DELAY` (20 ms) with noise, 0 without.
         target: [2] hand target in metres (shoulder at the origin); see [`center_out_targets`][delayed_ilqr.models.center_out_targets].

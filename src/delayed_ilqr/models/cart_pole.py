@@ -124,7 +124,8 @@ def cart_pole(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=
     """The cart-pole swing-up with a delayed, optionally limited force (parameters: module docstring).
 
     Args:
-        delay: input delay tau in seconds; a whole number of steps of ``dt``.
+        delay: input delay tau in seconds, any tau >= 0
+            (a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: add the signal-dependent force noise (p = 1, sigma_u = 0.1).
         dt: time step in seconds.
         horizon: K; default ``round(3.0 / dt)`` (150 at dt = 0.02).

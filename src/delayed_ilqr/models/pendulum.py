@@ -98,7 +98,8 @@ def pendulum(delay=0.0, noise=False, dt=0.02, horizon=None, limits=True, u_max=U
     """The pendulum swing-up with a delayed, optionally limited torque (parameters: module docstring).
 
     Args:
-        delay: input delay tau in seconds; a whole number of steps of ``dt``.
+        delay: input delay tau in seconds, any tau >= 0
+            (a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: add the signal-dependent torque noise F = [0; 0.1 ud / (m l^2)] (p = 1).
         dt: time step in seconds.
         horizon: K; default ``round(3.0 / dt)`` (150 at dt = 0.02).

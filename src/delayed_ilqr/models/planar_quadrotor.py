@@ -103,7 +103,8 @@ def planar_quadrotor(delay=0.0, noise=False, dt=0.01, horizon=None, x0=(0.0, 0.0
     """The planar quadrotor flying to (and holding) a target with delayed thrusts (module docstring).
 
     Args:
-        delay: actuation delay tau in seconds; a whole number of steps of ``dt``.
+        delay: actuation delay tau in seconds, any tau >= 0
+            (a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: add the thrust noise (p = 2, sigma_u = 0.05).
         dt: time step in seconds.
         horizon: K; default ``round(1.0 / dt)``.

@@ -72,7 +72,8 @@ def point_mass(delay=0.0, noise=False, dt=0.01, horizon=None, x_target=(0.2, 0.1
     """P1 of ``docs/models.md`` §2: the point mass reaching to (0.2, 0.1) m and stopping there.
 
     Args:
-        delay: input delay tau in seconds; a whole number of steps of ``dt`` (0, 0.03, 0.1 in P1).
+        delay: input delay tau in seconds, any tau >= 0 (0, 0.03, 0.1 in P1;
+            a fraction of a step of ``dt`` by the zero-order hold, docs/derivation.md §20).
         noise: False for P1; True or ``"benchmark"`` (its one preset, not a human model) for
             P1-noisy (the [4, 4] diffusion of the module docstring).
         dt: time step in seconds (0.01 in P1, 0.001 in P4).

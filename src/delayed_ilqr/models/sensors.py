@@ -41,13 +41,27 @@ PROPRIOCEPTION_DELAY = 0.05        # s
 VISION_DELAY = 0.1                 # s
 
 
+def sensory_steps(delay, dt: float, name: str) -> int:
+    """A sensory delay in seconds as whole steps. A fractional one is refused: the delayed filter
+    and the joint moments of the pair are exact for measurements of x_{k-l_s}, and a measurement
+    between two states (say the interpolation of x_{k-l_s} and x_{k-l_s-1}) would need a filter
+    over both, not available yet (docs/derivation.md §20)."""
+    try:
+        return delay_to_steps(delay, dt, name)
+    except ValueError as exc:
+        if "whole number of steps" not in str(exc):
+            raise
+        raise ValueError(f"{exc}: a sensory delay must be whole steps (unlike the input delay, a fractional "
+                         "sensory delay is not available: the delayed filter is exact for whole steps only)") from None
+
+
 def _sensors(n_states: int, densities, sensory_delay, dt: float) -> Observation:
     """Sensors of the first len(densities) states, each with additive noise density / sqrt(dt)."""
     m = len(densities)
     H = np.zeros((m, n_states))
     H[:, :m] = np.eye(m)
     G = np.diag(np.asarray(densities, float) / math.sqrt(dt))
-    return Observation(H, G, delay_steps=delay_to_steps(sensory_delay, dt, "sensory_delay"))
+    return Observation(H, G, delay_steps=sensory_steps(sensory_delay, dt, "sensory_delay"))
 
 
 def joint_sensors(n_states: int, sensory_delay, dt: float) -> Observation:
@@ -68,7 +82,7 @@ def vision_sensors(vision_delay, dt: float, params=None, period: int = 1) -> Obs
 
     G = np.eye(2) * HAND_POSITION_DENSITY / math.sqrt(dt)
     return Observation(HandPosition(ARM2_PARAMS if params is None else params), G,
-                       delay_steps=delay_to_steps(vision_delay, dt, "vision_delay"), period=period)
+                       delay_steps=sensory_steps(vision_delay, dt, "vision_delay"), period=period)
 
 
 def proprioception_and_vision(n_states: int, dt: float, proprioception_delay=PROPRIOCEPTION_DELAY,
