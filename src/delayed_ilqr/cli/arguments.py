@@ -220,6 +220,13 @@ def build_problem(model: Model, delay: float, noise, kwargs: Optional[dict] = No
     if not isinstance(problem, Problem):
         raise click.BadParameter(f"the factory must return a delayed_ilqr.Problem; {model.name} returned "
                                  f"{type(problem).__name__}", param_hint="'MODEL'")
+    if problem.is_fractional:
+        # the commands' reports, figures and controllers name one delay in whole steps; Python's
+        # models and Problem take a delay between steps (docs/guide/own_plant.md)
+        raise click.BadParameter(f"{model.name}: the delay must be a whole number of steps of dt={problem.dt!r} s on "
+                                 f"the command line (a delay between steps is set in Python, e.g. delay_steps=2.5, "
+                                 f"or make it whole with --dt); got {delay!r} s ({delay / problem.dt:.10g} steps)",
+                                 param_hint=hint)
     return problem
 
 

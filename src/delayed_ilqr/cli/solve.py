@@ -104,7 +104,7 @@ def simulate_command(model, delay, trials, seed, noise, no_noise, controller, su
         if out is not None:
             from .. import plot
             settings = dict(study_settings(model.name, problem.noise is not None, trials, seed, substeps),
-                            delay=problem.delay, controller=controller, **kwargs_settings(kwargs),
+                            delay=problem_record(problem)["delay"], controller=controller, **kwargs_settings(kwargs),
                             problem=problem_record(problem))
             report.write_runs(output.staging, r, settings)
             figures = {"trajectories.png": plot.plot_trajectories(problem, r.solution, r.runs)}

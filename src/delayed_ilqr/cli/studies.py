@@ -28,12 +28,6 @@ def _check_study(model, delays, trials, noise, controllers, substeps, kwargs=Non
     """Every delay and the memory of all the trials, checked before anything is solved; returns
     the problems."""
     problems = [build_problem(model, tau, noise, kwargs, hint="--delays") for tau in delays]
-    fractional = [tau for tau, problem in zip(delays, problems) if problem.is_fractional]
-    if fractional:
-        dt = problems[0].dt
-        raise click.BadParameter(f"each delay must be a whole number of steps of dt={dt!r} s in a delay study (its "
-                                 f"delay-ignorant controllers and shared frame take whole steps); got {fractional[0]!r} s "
-                                 f"({fractional[0] / dt:.10g} steps)", param_hint="--delays")
     check_trials(problems[-1], trials, substeps, runs=len(delays) * len(controllers))
     return problems
 

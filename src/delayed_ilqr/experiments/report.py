@@ -118,8 +118,8 @@ def write_solution(out: pathlib.Path, model: str, problem, method: str, timed, e
     label, unit, value = endpoint
     record = problem_record(problem)
     write_json(out / "solution.json", dict(
-        descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=problem.delay,
-        delay_steps=problem.delay_steps, dt=problem.dt,
+        descriptions={"expected_cost": DESCRIPTIONS["expected_cost"]}, model=model, delay=record["delay"],
+        delay_steps=record["delay_steps"], dt=problem.dt,
         noise=problem.noise is not None, method=method, converged=bool(status.converged), status=status.name,
         message=status.message, iterations=int(sol.iterations), cost=json_ready(sol.cost),
         expected_cost=json_ready(sol.expected_cost), endpoint_label=label, endpoint_error=json_ready(value),

@@ -236,8 +236,21 @@ def pairs(rows: Sequence[tuple[str, str]]) -> str:
 
 def _problem_rows(problem, description: str, noise: bool) -> list[tuple[str, str]]:
     return [("model", f"{problem.name}: {description}"),
-            ("delay", f"{problem.delay:g} s ({problem.delay_steps} steps of dt = {problem.dt:g} s)"),
+            ("delay", _delay_text(problem)),
             ("noise", "yes" if noise else "no")]
+
+
+def _delay_text(problem) -> str:
+    """tau in seconds and in steps of dt: one value, or one per channel (per-channel or fractional
+    delays, whose steps need not be whole)."""
+    steps = np.round(np.atleast_1d(np.asarray(problem.delay_in_steps, np.float64)), 12)
+    if np.all(steps == steps[0]):          # one delay for every channel
+        steps = steps[:1]
+    seconds = ", ".join(f"{v * problem.dt:g}" for v in steps)
+    in_steps = ", ".join(f"{v:g}" for v in steps)
+    if steps.size > 1:
+        seconds, in_steps = f"[{seconds}]", f"[{in_steps}]"
+    return f"{seconds} s ({in_steps} steps of dt = {problem.dt:g} s)"
 
 
 def solve_summary(problem, description: str, noise: bool, method: str, timed, endpoint) -> list[tuple[str, str]]:
