@@ -17,17 +17,6 @@ import delayed_ilqr  # noqa: E402
 # what a program using the library does first; the suite's speed depends on the flags (their
 # effect is checked in test_xla_options.py), and they must be set before any JAX computation
 jax.config.update("jax_enable_x64", True)
-# The suite's time is XLA's compilation of a thousand distinct programs, each run for milliseconds:
-# LLVM's optimisation of the generated code (level 3 by default) is most of each compilation, and
-# the code it would speed up hardly runs. Level 0 compiles the same HLO program (XLA's own passes,
-# fusion and the small-loop functions of configure_cpu are unchanged; no fast-math either way) and
-# runs it slower; results agree to round-off, not bitwise (level 3 vectorises reductions, which
-# reorders their sums: 1e-13 in a solve's states, 1e-10 in its gains). Every comparison in the
-# suite is between two computations of one process, or to a tolerance. Measured:
-# docs/performance.md, "Test-suite time".
-# A run that sets its own level keeps it.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
 delayed_ilqr.configure_cpu()
 
 # the command line turns JAX's persistent compilation cache on by default; the in-process CLI tests
