@@ -324,15 +324,12 @@ def test_bad_channel_delays_are_refused(delays, frame, match):
         problem.replace(delay_steps=delays, delay_frame=frame)
 
 
-def test_what_needs_one_delay_refuses_per_channel_delays():
-    """Delayed sensors (the filter takes one input delay) and the receding-horizon controller say so."""
+def test_delayed_sensors_refuse_per_channel_delays():
+    """Delayed sensors (the filter takes one input delay) say so (the receding-horizon controller
+    takes per-channel delays: tests/test_mpc.py)."""
     from delayed_ilqr.models import point_mass
-    from delayed_ilqr.mpc import MPC
     with pytest.raises(ValueError, match=r"per-channel delay_steps are not available with an observation"):
         point_mass(sensory_delay=0.05).replace(delay_steps=[1, 2])
-    with pytest.raises(ValueError, match=r"mpc.MPC needs one input delay for all command channels; got per-channel "
-                                         r"delay_steps=\[1, 2\]"):
-        MPC(point_mass().replace(delay_steps=[1, 2]))
 
 
 def test_every_channel_undelayed_is_the_undelayed_problem():

@@ -457,7 +457,7 @@ def test_mpc_command_writes_its_table_figure_and_manifest(tmp_path):
     assert runs["x_inflight"].shape == (1, 13, 4) and runs["u_none"].shape == (1, 12, 2)
     bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.025"])
     assert bad.exit_code == 2
-    assert "arm2: delay must be a whole number of steps of dt=0.01 s; got 0.025 s (2.5 steps)" in bad.output
+    assert "arm2: the delay must be a whole number of steps of dt=0.01 s on the command line" in bad.output
     bad = CliRunner().invoke(cli.main, ["--no-cache", "mpc", "arm2", "--delay", "0.03", "--true-delay", "0.1",
                                         "--horizon", "10"])
     assert bad.exit_code == 2

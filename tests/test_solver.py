@@ -288,7 +288,7 @@ def _problem(**kw):
     (dict(horizon=0), ValueError, r"horizon must be a positive integer; got 0"),
     (dict(horizon=2.5), ValueError, r"horizon must be a positive integer; got 2.5"),
     (dict(delay_steps=-1), ValueError, r"delay_steps must be a non-negative integer number of steps; got -1"),
-    (dict(delay_steps=1.5), ValueError, r"delay_steps must be a non-negative integer number of steps; got 1.5"),
+    (dict(delay_steps=-1.5), ValueError, r"delay_steps must be a finite, non-negative number of steps; got -1.5"),
     (dict(x0=np.zeros((4, 1))), ValueError, r"x0 must have shape \(\*,\); got shape \(4, 1\)"),
     (dict(x0=[0.0, np.nan, 0.0, 0.0]), ValueError, r"x0 must be finite; got a non-finite value at index \(1,\)"),
     (dict(cost="quadratic"), TypeError, r"cost must be a QuadraticCost or a GeneralCost; got str"),

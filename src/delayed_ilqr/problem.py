@@ -502,7 +502,7 @@ def shared_delay_frame(problems) -> Optional[int]:
     problems = list(problems)
     for p in problems:
         if p.is_fractional:
-            raise ValueError("a study over delays takes whole numbers of steps per problem (one, or one per "
+            raise ValueError("a study over delays takes a whole number of steps per problem (one, or one per "
                              f"channel); got delay_steps={p._delay_repr()} in {p!r}")
     delays = {delay_key(p.delay_steps) for p in problems}
     if len(delays) < 2 or any(p.observation is not None for p in problems):

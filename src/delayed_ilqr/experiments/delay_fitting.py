@@ -77,7 +77,9 @@ def fit_delays(make_problem: Callable[[dict, object, float], Problem], condition
     Args:
         make_problem: ``make_problem(params, condition, delay)`` as for
             [`profile_delay`][delayed_ilqr.experiments.fitting.profile_delay], depending on the delay only through ``delay_steps``.
-        conditions, data, params0: as for [`fit`][delayed_ilqr.experiments.fitting.fit] (``params0`` without the delays).
+        conditions: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
+        data: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
+        params0: as for [`fit`][delayed_ilqr.experiments.fitting.fit], without the delays.
         delay0: the starting delay in seconds (positive; best not a whole number of steps, where
             the loss has a kink: ``docs/derivation.md`` §20).
         max_delay: the longest delay the fit may reach (s): it sets the frame, and L-BFGS-B keeps

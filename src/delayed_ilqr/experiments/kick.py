@@ -111,8 +111,9 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
         kicked_errors: [N] final hand errors (m) with it.
         hand_base: [N, K+1, 2] hand positions without the kick.
         hand_kicked: [N, K+1, 2] hand positions with it.
-        estimate_base, estimate_kicked: [N, K, 2] the filter's estimates of the hand position at
-            each step (None with the state seen).
+        estimate_base: [N, K, 2] the filter's estimates of the hand position at each step without
+            the kick (None with the state seen).
+        estimate_kicked: [N, K, 2] the same with the kick.
     """
     diff = np.asarray(kicked.u) - np.asarray(base.u)
     kick_state = pulse_step + 1                     # the first state the kick moved

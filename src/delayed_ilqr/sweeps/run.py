@@ -112,6 +112,11 @@ def sweep(model, grid: Mapping[str, Sequence], seeds: Sequence[int] = (0,), tria
             problems[cell.index] = settings.problem(cell)
         except (ValueError, TypeError) as exc:
             raise type(exc)(f"grid cell {cell.kwargs}: {exc}") from None
+        if problems[cell.index].is_fractional:      # a sweep's cells share whole-step delay frames
+            p = problems[cell.index]
+            raise ValueError(f"grid cell {cell.kwargs}: delay must be a whole number of steps of dt={p.dt!r} s in a "
+                             f"sweep (its cells share one compiled solver over whole-step delays); got "
+                             f"{p._delay_repr()} steps")
     _check_delays(grid, all_cells, problems)
     settings, problems = _framed(settings, problems, delay_frame)
     plan = batches(all_cells, lambda c: problems[c.index], batch_size)
