@@ -65,17 +65,30 @@ class AugmentedSensors(Augmented):
         step, for the motor noise E[w_k w_k'] of this very loop (signal-dependent noise included):
         the second moment of xi = [Z; Z_hat; 1] and the filter's covariance advance together.
         Returns (cost, the filter's Cov(dx_k | I_k) [K, n, n])."""
+        total, current, _, _ = self._loop_kalman(Kh)
+        return total, current
+
+    def loop_kalman_gains(self, Kh):
+        """The augmented Kalman gains [K, N, M] for the motor noise of the loop of ``Kh`` (as in
+        ``loop_kalman_cost``), and that noise [K, n, n]."""
+        _, _, gains, noises = self._loop_kalman(Kh)
+        return gains, noises
+
+    def _loop_kalman(self, Kh):
+        """The walk of ``loop_kalman_cost``: (cost, Cov(dx_k | I_k) [K, n, n], the gains [K, N, M],
+        the loop's motor noise [K, n, n])."""
         N, d, n, a = self.N, self.d, self.n, self.a
         X = np.zeros((2 * N + 1, 2 * N + 1))
         X[-1, -1] = 1.0
         P = np.zeros((N, N))
-        total, current = 0.0, []
+        total, current, gains, noises = 0.0, [], [], []
         Z, Zh = slice(0, N), slice(N, 2 * N)
         for k in range(self.K):
             S = self.Hz[k] @ P @ self.Hz[k].T + self.R[k]
             Lz = np.linalg.solve(S, self.Hz[k] @ P).T
             P = P - Lz @ S @ Lz.T
             current.append(P[:n, :n])
+            gains.append(Lz)
             U = np.eye(2 * N + 1)
             U[Zh, Z] += Lz @ self.Hz[k]
             U[Zh, Zh] -= Lz @ self.Hz[k]
@@ -84,45 +97,20 @@ class AugmentedSensors(Augmented):
             X = U @ X @ U.T + V @ self.R[k] @ V.T
             stage, X, noise = self._advance(a, k, X, Kh, Z, Zh, n, N, d)
             total += stage
+            noises.append(noise)
             Qz = np.zeros((N, N))
             Qz[:n, :n] = noise
             P = self.Az[k] @ P @ self.Az[k].T + Qz
         Tc = np.zeros((N + 1, 2 * N + 1))
         Tc[:N, Z], Tc[N, -1] = np.eye(N), 1.0
-        return total + np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T)), np.array(current)
+        total += np.sum(self._stage_weight(self.K)[:N + 1, :N + 1] * (Tc @ X @ Tc.T))
+        return total, np.array(current), np.array(gains), np.array(noises)
 
     def kalman_for(self, Q):
         """``kalman`` for the motor-noise covariance Q [K, n, n] (the loop's, say): gains Lz [K, N, M]."""
         self.Qz = np.zeros((self.K, self.N, self.N))
         self.Qz[:, :self.n, :self.n] = np.asarray(Q)
         return self.kalman()[0]
-
-    def loop_kalman_gains(self, Kh):
-        """The augmented Kalman gains [K, N, M] for the motor noise of the loop of ``Kh`` (as in
-        ``loop_kalman_cost``), and that noise [K, n, n]."""
-        N, d, n, a = self.N, self.d, self.n, self.a
-        X = np.zeros((2 * N + 1, 2 * N + 1))
-        X[-1, -1] = 1.0
-        P = np.zeros((N, N))
-        Z, Zh = slice(0, N), slice(N, 2 * N)
-        gains, noises = [], []
-        for k in range(self.K):
-            S = self.Hz[k] @ P @ self.Hz[k].T + self.R[k]
-            Lz = np.linalg.solve(S, self.Hz[k] @ P).T
-            P = P - Lz @ S @ Lz.T
-            gains.append(Lz)
-            U = np.eye(2 * N + 1)
-            U[Zh, Z] += Lz @ self.Hz[k]
-            U[Zh, Zh] -= Lz @ self.Hz[k]
-            V = np.zeros((2 * N + 1, self.R.shape[1]))
-            V[Zh] = Lz
-            X = U @ X @ U.T + V @ self.R[k] @ V.T
-            _, X, noise = self._advance(a, k, X, Kh, Z, Zh, n, N, d)
-            noises.append(noise)
-            Qz = np.zeros((N, N))
-            Qz[:n, :n] = noise
-            P = self.Az[k] @ P @ self.Az[k].T + Qz
-        return np.array(gains), np.array(noises)
 
     def todorov_sweep(self, Kh, Lz, free=None):
         """Todorov's controller for the fixed filter Lz on xi = [Z; Z_hat; 1]: at each step the
