@@ -18,6 +18,14 @@ def rel_err(a, b) -> float:
     return diff / scale if scale > 0 else diff
 
 
+def solution_errors(sol, ref) -> dict:
+    """`rel_err` of two solutions' commands, states, costs and gains (state and delay feedback), by name."""
+    return dict(u=rel_err(sol.u, ref.u), x=rel_err(sol.x, ref.x), cost=rel_err(sol.cost, ref.cost),
+                expected_cost=rel_err(sol.expected_cost, ref.expected_cost),
+                L=rel_err(sol.policy.state_feedback, ref.policy.state_feedback),
+                M=rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback))
+
+
 class WorstDifference:
     """The largest relative difference a test module saw, and where (``record``); its
     :meth:`fixture` prints it at the end of the module."""

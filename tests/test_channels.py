@@ -18,7 +18,7 @@ from delayed_ilqr import lqg as _lqg
 from delayed_ilqr.lqg import DelayedLQG
 from delayed_ilqr.lqg.augmented import augment
 
-from comparisons import WorstDifference, rel_err   # tests/comparisons.py
+from comparisons import WorstDifference, rel_err, solution_errors   # tests/comparisons.py
 from test_lqg import random_arrays                  # tests/test_lqg.py
 
 RTOL = 1e-9
@@ -145,20 +145,13 @@ def arm_solves():
                 mixed=mixed, augmented=solve(mixed_problem, options=Options(method="augmented")), compiled=compiled)
 
 
-def _solution_errors(sol, ref):
-    return dict(u=rel_err(sol.u, ref.u), x=rel_err(sol.x, ref.x), cost=rel_err(sol.cost, ref.cost),
-                expected_cost=rel_err(sol.expected_cost, ref.expected_cost),
-                L=rel_err(sol.policy.state_feedback, ref.policy.state_feedback),
-                M=rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback))
-
-
 def test_equal_channel_delays_solve_as_the_single_delay(arm_solves):
     """delay_steps=[1, 1] in a frame of 4 (trimmed to 1 by solve) against delay_steps=1: the same
     iterations, commands, costs and gains to round-off."""
     sol, ref = arm_solves["equal"], arm_solves["single"]
     assert sol.status == ref.status and sol.status.converged and int(sol.iterations) == int(ref.iterations)
     assert sol.policy.delay_feedback.shape == ref.policy.delay_feedback.shape
-    errs = _solution_errors(sol, ref)
+    errs = solution_errors(sol, ref)
     _WORST.record(max(errs.values()), f"arm [1, 1] vs 1: {max(errs, key=errs.get)}")
     assert all(e <= RTOL for e in errs.values()), errs
 
@@ -170,7 +163,7 @@ def test_per_channel_solve_equals_the_augmented_solve(arm_solves):
     the solver at most once."""
     sol, ref = arm_solves["mixed"], arm_solves["augmented"]
     assert sol.status == ref.status and sol.status.converged and int(sol.iterations) == int(ref.iterations)
-    errs = _solution_errors(sol, ref)
+    errs = solution_errors(sol, ref)
     _WORST.record(max(errs.values()), f"arm [0, 4] structured vs augmented: {max(errs, key=errs.get)}")
     assert all(e <= RTOL for e in errs.values()), errs
     assert arm_solves["compiled"] <= 1

@@ -22,7 +22,7 @@ from delayed_ilqr._fractional import diffusion, drift
 from delayed_ilqr.lqg import DelayedLQG
 from delayed_ilqr.lqg.augmented import augment
 
-from comparisons import WorstDifference, rel_err   # tests/comparisons.py
+from comparisons import WorstDifference, rel_err, solution_errors   # tests/comparisons.py
 from test_lqg import random_arrays                  # tests/test_lqg.py
 
 RTOL = 1e-9
@@ -158,13 +158,6 @@ def arm_solves():
     return out
 
 
-def _solution_errors(sol, ref):
-    return dict(u=rel_err(sol.u, ref.u), x=rel_err(sol.x, ref.x), cost=rel_err(sol.cost, ref.cost),
-                expected_cost=rel_err(sol.expected_cost, ref.expected_cost),
-                L=rel_err(sol.policy.state_feedback, ref.policy.state_feedback),
-                M=rel_err(sol.policy.delay_feedback, ref.policy.delay_feedback))
-
-
 def test_fractional_problem_runs_as_two_taps(arm_solves):
     problem = arm_solves["fractional"]
     assert problem.is_fractional and problem.delay_frame == 4 and problem.n_noise == 3 * 2
@@ -180,7 +173,7 @@ def test_fractional_solve_equals_the_augmented_solve(arm_solves):
     nominal, expected cost and gains to round-off."""
     sol, ref = arm_solves["mixed_sol"], arm_solves["augmented"]
     assert sol.status == ref.status and sol.status.converged and int(sol.iterations) == int(ref.iterations)
-    errs = _solution_errors(sol, ref)
+    errs = solution_errors(sol, ref)
     _WORST.record(max(errs.values()), f"arm [1.5, 2.25] structured vs augmented: {max(errs, key=errs.get)}")
     assert all(e <= RTOL for e in errs.values()), errs
 
@@ -196,10 +189,10 @@ def test_phi_zero_and_one_are_the_whole_delays(arm_solves):
     assert sol.status.converged
     M = sol.policy.delay_feedback           # it spans the taps 3 and 4: the gains on u_{k-4} are zero
     assert M.shape[1] == 4 and not np.any(np.asarray(M[:, 0]))
-    errs = _solution_errors(sol._replace(policy=sol.policy._replace(delay_feedback=M[:, 1:])), ref)
+    errs = solution_errors(sol._replace(policy=sol.policy._replace(delay_feedback=M[:, 1:])), ref)
     _WORST.record(max(errs.values()), "arm phi = 0 vs the integer delay 3")
     assert all(e <= RTOL for e in errs.values()), {k: float(v) for k, v in errs.items()}
-    coarse, fine = (_solution_errors(arm_solves[eps], ref) for eps in (1e-6, 1e-9))
+    coarse, fine = (solution_errors(arm_solves[eps], ref) for eps in (1e-6, 1e-9))
     assert all(arm_solves[eps].status.converged for eps in (1e-6, 1e-9))
     for k in coarse:            # linear in eps, down to the solves' round-off
         assert fine[k] <= 2e-3 * coarse[k] + 1e-11, (k, float(coarse[k]), float(fine[k]))
