@@ -117,7 +117,7 @@ def test_center_out_command_exit_status_follows_convergence():
     strict = CliRunner().invoke(cli.main, args)
     lenient = CliRunner().invoke(cli.main, args + ["--allow-unconverged"])
     assert strict.exit_code == 1 and lenient.exit_code == 0
-    assert "the deterministic reach to target 1 at delay 0 s did not converge" in strict.output
+    assert "the deterministic reach to target 1 at delay 0 ms did not converge" in strict.output
     assert table_row(lenient.output, "deterministic")[:1] == ["0/1"]
 
 

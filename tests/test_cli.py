@@ -102,7 +102,7 @@ def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
     assert result.exit_code in (0, 1), result.output          # 1: a solve did not converge (said so)
     if result.exit_code == 1:
         assert "did not converge" in result.output
-    for word in ("delay [s]", "controller", "aware", "ignorant", "MC median J", "hand position error [mm]"):
+    for word in ("50 ms", "100 ms", "controller", "aware", "ignorant", "MC median J", "hand position error [mm]"):
         assert word in result.output
     data = json.loads((tmp_path / "compare.json").read_text())
     assert data["settings"]["delays"] == [0.05, 0.1] and data["settings"]["trials"] == 300
@@ -121,7 +121,7 @@ def test_compare_on_the_arm_writes_table_json_npz_and_figures(tmp_path):
         assert npz["aware_100ms_x"].shape == (300, 51, 4)
         assert npz["ignorant_100ms_delay_feedback"].shape == (50, 0, 2, 2)
         assert npz["aware_100ms_delay_feedback"].shape == (50, 10, 2, 2)
-    assert "| delay [s] |" in (tmp_path / "compare.md").read_text()
+    assert "| delay | controller |" in (tmp_path / "compare.md").read_text()
     for png in ("cost_vs_delay.png", "hand_paths.png", "convergence.png"):
         assert (tmp_path / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
@@ -134,7 +134,7 @@ def test_demo_writes_the_report(tmp_path):
         assert "did not converge" in result.output
     assert result.output.count("aware") >= 3 and result.output.count("ignorant") >= 3
     report = (out / "report.md").read_text()
-    assert "| delay [s] |" in report and "![" in report
+    assert "| delay | controller |" in report and "| 50 ms | aware |" in report and "![" in report
     data = json.loads((out / "report.json").read_text())
     assert data["settings"]["model"] == "arm2" and data["settings"]["noise"] is True
     noise = data["settings"]["problems"][0]["noise"]            # human-level noise, not P2-noisy's 0.2

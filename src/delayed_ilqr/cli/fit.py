@@ -10,6 +10,7 @@ import time
 import click
 
 from ..experiments import report, tables
+from ..experiments.delay_text import delay_text
 from ..experiments.records import problem_record
 from .arguments import DelayList, ParamPair, import_callable, progress_option
 from .output import Output, out_option
@@ -109,7 +110,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
                  str(f.iterations), str(f.evaluations)] for d, f in zip(delays, fits)]
         click.echo(tables.text_table((header, rows)))
         chosen = fits[delays.index(best)]
-        click.echo(f"delay {best:g} s (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
+        click.echo(f"delay {delay_text(best)} (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
         if out is not None:
             # the problem of the first condition at the first delay and the starting values, and
             # the one fitted (the chosen delay and parameters)
@@ -125,7 +126,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
     if not chosen.converged:
-        click.echo(f"warning: the fit at delay {best:g} s did not converge: {chosen.message}", err=True)
+        click.echo(f"warning: the fit at delay {delay_text(best)} did not converge: {chosen.message}", err=True)
         sys.exit(1)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from .._files import write_text
 from ..experiments import (delay_growth, fitts, kick, minimal_intervention, reach_tasks, report, tables,
                            target_jump)
+from ..experiments.delay_text import delay_text
 from ..experiments.records import problem_record
 from ..statistics import divergence_bound, diverged_trials, prediction_warning, sample_stats
 from .arguments import SEED, DelayList
@@ -233,7 +234,7 @@ def fitts_command(arm, delays, sensory_delay, distances, widths, movement_times,
             if any(bad):
                 worst = int(np.nanargmax(np.abs(np.log(r.mc_cost.ravel() / r.predicted_cost.ravel()))))
                 warned.append(prediction_warning(
-                    f"fitts at motor delay {1e3 * r.delay:g} ms, {sum(map(bool, bad))} of {len(bad)} conditions "
+                    f"fitts at motor delay {delay_text(r.delay)}, {sum(map(bool, bad))} of {len(bad)} conditions "
                     "(the worst shown)", r.mc_cost.ravel()[worst], r.predicted_cost.ravel()[worst]))
         _finish("fitts", "Fitts' law", fitts.comparison(results), warned, records, plot_fitts(results), out, output,
                 settings, elapsed, [s for r in results for s in r.status.ravel()])
@@ -300,7 +301,7 @@ def delay_growth_command(arm, delays, sensory_delays, targets, trials, seed, out
                         trials=trials, seed=seed, problem=problem_record(r.problem))
         def label(p):
             sensory = "none" if p.sensory_delay is None else f"{1e3 * p.sensory_delay:.0f} ms"
-            return f"delay growth at motor {1e3 * p.delay:.0f} ms, sensory {sensory}"
+            return f"delay growth at motor {delay_text(p.delay)}, sensory {sensory}"
         warned = [w for w in (prediction_warning(label(p), p.cost.mean, p.predicted_cost)
                               for p in r.motor + r.sensory) if w]
         _finish("delay_growth", "Cost, error and scatter against the delay", rows, warned, records,

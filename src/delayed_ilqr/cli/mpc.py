@@ -9,6 +9,7 @@ import click
 import numpy as np
 
 from .._files import savez, write_text
+from ..experiments.delay_text import delay_text
 from ..experiments.records import problem_record
 from .arguments import (SEED, ModelType, OneDelay, build_problem, factory_kwargs, model_options, noise_option,
                         noise_value)
@@ -61,8 +62,8 @@ def mpc_command(model, delay, true_delay, mismatch, compensations, horizon, tick
     strategies = [s for s in mpc_baselines.STRATEGIES if s[1] in chosen and s[0] != "replay (planned)"]
     with Output(out, overwrite) as output:
         runs, rows = mpc_baselines.compare(controller_model, plant, ticks, trials, seed, iterations, strategies)
-        click.echo(f"{model.name}: model delay {1e3 * controller_model.delay:g} ms, plant delay "
-                   f"{1e3 * plant.delay:g} ms, actuator gain {1 + mismatch:g}, {ticks} ticks, {trials} trial(s)")
+        click.echo(f"{model.name}: model delay {delay_text(controller_model)}, plant delay "
+                   f"{delay_text(plant)}, actuator gain {1 + mismatch:g}, {ticks} ticks, {trials} trial(s)")
         click.echo(mpc_baselines.markdown(rows, [label for label, _, _ in strategies]))
         if out is not None:
             from ..experiments import report

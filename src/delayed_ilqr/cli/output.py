@@ -14,6 +14,7 @@ from typing import Optional
 import click
 
 from .._files import write_text
+from ..experiments.delay_text import delay_text
 from . import interrupts
 
 OUT_TYPE = click.Path(file_okay=False, dir_okay=True, writable=True, path_type=pathlib.Path)
@@ -89,7 +90,7 @@ def out_option(**kwargs):
 def warn_not_converged(results) -> bool:
     failed = [r for r in results if not r.converged]
     for r in failed:
-        click.echo(f"warning: the {r.controller} solve at delay {r.delay:g} s did not converge "
+        click.echo(f"warning: the {r.controller} solve at delay {delay_text(r.problem)} did not converge "
                    f"({r.status}): {r.message}", err=True)
     return bool(failed)
 

@@ -15,6 +15,7 @@ import numpy as np
 from .._files import savez, write_text
 from ..experiments import center_out, delay_study, perturbation, report, tables
 from ..models import REGISTRY, arm2_muscle6
+from ..experiments.delay_text import delay_text
 from ..experiments.records import problem_record
 from .arguments import (SEED, DelayFrame, DelayList, Model, ModelType, build_problem, check_trials, factory_kwargs,
                         model_options, noise_option, noise_value, progress_option, substeps_option)
@@ -213,9 +214,10 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
                                            figures)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
-    failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
-    for delay, design, j in failed:
-        click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay:g} s did not converge", err=True)
+    failed = [(r.plants[0], r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
+    for plant, design, j in failed:
+        click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay_text(plant)} did not converge",
+                   err=True)
     if failed and not allow_unconverged:
         sys.exit(1)
 

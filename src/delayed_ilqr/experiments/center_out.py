@@ -46,6 +46,7 @@ from ..models.arm2_muscle6 import LI_TODOROV, SIGMA_U, arm2_muscle6, center_out_
 from ..models.metadata import task_position, task_target
 from . import designs
 from ..statistical import statistical_feedback
+from .delay_text import delay_text
 from .engine import Timed, monte_carlo, stack, take, timed_batched_solve
 from .progress import progress_bar
 
@@ -268,7 +269,7 @@ def center_out(delays: Sequence[float] = (0.0, 0.05, 0.1), n_targets: int = 8, r
                                    noise=True, geometry=geometry, sigma_u=sigma_u) for t in targets]
             solved = {}                 # design solved -> Timed, shared by the designs built on it
             for name in names:
-                bar.set_postfix_str(f"{1e3 * delay:g} ms, {name}")
+                bar.set_postfix_str(f"{delay_text(delay)}, {name}")
                 results.append(_reaches(float(delay), name, plants, options, n_trials, seed, solved, bar))
     return results
 

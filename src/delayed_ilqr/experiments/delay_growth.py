@@ -28,6 +28,7 @@ import numpy as np
 from .. import Options, Problem, Status
 from ..prediction import predict, task_prediction
 from ..statistics import SampleStats, divergence_bound, diverged_trials, sample_stats
+from .delay_text import seconds
 from .engine import monte_carlo, solve_batch, take
 from .reach_tasks import MODEL_DEFAULT, loop_latency, reach, reach_targets, solver_options
 
@@ -109,7 +110,7 @@ def _point(arm, targets, delay, sensory_delay, trials, seed, final_time, options
     dev = np.concatenate(deviations)
     p0 = problems[0]
     return DelayPoint(
-        p0.delay_steps * p0.dt, None if p0.observation is None else p0.observation.delay_steps * p0.dt,
+        seconds(p0), None if p0.observation is None else p0.observation.delay_steps * p0.dt,
         loop_latency(p0), sample_stats(cost, ~np.isfinite(cost)), float(np.nanmedian(np.concatenate(errors))),
         float(np.sqrt(np.nanmean(np.sum(dev ** 2, axis=1)))), float(np.mean(np.asarray(sols.expected_cost))),
         float(np.sqrt(np.mean(p_err))) if p_err else None, float(np.sqrt(np.mean(p_scatter))) if p_scatter else None,

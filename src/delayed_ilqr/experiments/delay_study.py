@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
-from typing import Callable, Optional, Sequence
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
@@ -35,7 +35,9 @@ from ..problem import shared_delay_frame
 from ..statistics import SampleStats, Summary, divergence_bound, diverged_trials, sample_stats, summarize
 from . import designs
 from .engine import endpoint_description, monte_carlo, timed_solve
+from .delay_text import delay_text
 from .progress import progress_bar
+from .records import delay_values
 
 __all__ = ["CONTROLLERS", "ControllerResult", "evaluate", "compare_delays"]
 
@@ -48,8 +50,10 @@ class ControllerResult:
     """One controller at one delay: solve diagnostics and Monte Carlo statistics.
 
     Attributes:
-        model: the problem's name; delay: tau in seconds; delay_steps: l; noise: whether the plant
-            is stochastic; controller: one of `CONTROLLERS`.
+        model: the problem's name; delay, delay_steps: tau in seconds and l, lists of one per
+            channel for per-channel delays and delays between steps (l_j + phi_j steps;
+            [`delay_values`][delayed_ilqr.experiments.records.delay_values]); noise: whether the
+            plant is stochastic; controller: one of `CONTROLLERS`.
         converged, status, message, iterations: from the solve (``status`` is the Status name).
         solve_time: seconds for a solve once compiled; first_solve_time: the first call's seconds
             (compilation included, about zero when an equal-shaped problem was compiled before).
@@ -70,8 +74,8 @@ class ControllerResult:
     """
 
     model: str
-    delay: float
-    delay_steps: int
+    delay: Union[float, list]
+    delay_steps: Union[int, float, list]
     noise: bool
     controller: str
     converged: bool
@@ -144,9 +148,10 @@ def evaluate(problem: Problem, controller: str = "aware", n_trials: int = 1000, 
     label, unit = endpoint_description(problem)
     status = Status(int(sol.status))
     bound = divergence_bound(problem)
+    delay, delay_steps = delay_values(problem)
     diverged = diverged_trials(trials.runs.cost, bound)
     return ControllerResult(
-        model=problem.name, delay=problem.delay, delay_steps=problem.delay_steps, noise=problem.noise is not None,
+        model=problem.name, delay=delay, delay_steps=delay_steps, noise=problem.noise is not None,
         controller=controller, converged=bool(status.converged), status=status.name, message=status.message,
         iterations=int(sol.iterations), solve_time=solve_time, first_solve_time=first,
         nominal_cost=float(sol.cost), predicted_cost=float(sol.expected_cost), cost=sample_stats(trials.runs.cost, diverged),
@@ -239,7 +244,7 @@ def compare_delays(model, delays: Sequence[float], n_trials: int = 1000, seed: i
         for problem in problems:
             init = u_init(problem) if callable(u_init) else u_init
             for c in controllers:
-                bar.set_postfix_str(f"tau={problem.delay:g} s, {c}")
+                bar.set_postfix_str(f"{delay_text(problem)}, {c}")
                 results.append(evaluate(problem, c, n_trials, seed, options=options, substeps=substeps, u_init=init))
                 bar.update()
     return results

@@ -30,6 +30,7 @@ import numpy as np
 from .. import Options, Problem, Status
 from ..models.arm2 import hand_position
 from ..statistics import divergence_bound, diverged_trials, sample_stats
+from .delay_text import delay_text, seconds
 from .engine import monte_carlo, solve_batch, take
 from .reach_tasks import MODEL_DEFAULT, hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
@@ -146,7 +147,7 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
             fit = None
         predicted = np.asarray(sols.expected_cost, dtype=float).reshape(ds.size, ts.size)
         p0 = problems[0]
-        results.append(FittsResult(p0.delay_steps * p0.dt, None if p0.observation is None
+        results.append(FittsResult(seconds(p0), None if p0.observation is None
                                    else p0.observation.delay_steps * p0.dt, ds, ws, ts, bias, sd, status, mt, index,
                                    fit, mc_cost, predicted, p0))
     return results
@@ -159,7 +160,7 @@ def comparison(results: list) -> list[dict]:
         n_met = int(np.count_nonzero(r.mt > r.movement_times[0]))
         fit = "no fit (fewer than 3 conditions met the criterion)" if r.fit is None else \
             f"MT = {r.fit.a:.3f} s + {1e3 * r.fit.b:.0f} ms/bit x ID, R^2 = {r.fit.r2:.2f}"
-        rows.append(dict(finding=f"motor delay {1e3 * r.delay:.0f} ms", source="Fitts 1954; MacKenzie 1992",
+        rows.append(dict(finding=f"motor delay {delay_text(r.delay)}", source="Fitts 1954; MacKenzie 1992",
                          published="MT linear in ID, b = 100-200 ms/bit",
                          measured=f"{fit} ({n_met} of {r.mt.size} conditions inside the grid; "
                                   f"mean MT {np.nanmean(r.mt):.3f} s)"))

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, NamedTuple, Optional
+from typing import Callable, NamedTuple, Optional, Union
 
 import jax
 import jax.numpy as jnp
@@ -35,6 +35,7 @@ from ..models.arm2 import ARM2_PARAMS, Arm2Dynamics
 from ..models.cart_pole import CartPoleDynamics
 from ..models.planar_quadrotor import INERTIA, MASS
 from ..problem import QuadraticCost
+from .delay_text import milliseconds, ms_text
 
 __all__ = ["Scenario", "SCENARIOS", "CONDITIONS", "STRATEGIES", "Row", "run_scenario", "markdown", "InputGain",
            "compare"]
@@ -156,7 +157,7 @@ class Row(NamedTuple):
     """One cell of the study: a scenario at a model delay, a plant condition and a controller."""
 
     scenario: str
-    delay_ms: float
+    delay_ms: Union[float, tuple]       # the model's delay: one value, or one per command channel
     condition: str
     strategy: str
     median_cost: float
@@ -209,7 +210,7 @@ def run_scenario(scenario: Scenario, n_trials: int = 16, seed: int = 0, iteratio
                     far = _tracking_errors(model, run)[:, scenario.failure_from:] > scenario.max_error
                 failed = failed | np.any(far, axis=1)
                 rms = _tracking_rms(model, run)
-                rows.append(Row(scenario.name, round(1e3 * delay, 6), condition, label,
+                rows.append(Row(scenario.name, milliseconds(model), condition, label,
                                 float(np.median(np.asarray(run.cost))), float(np.mean(failed)),
                                 float(np.mean(rms[~failed])) if np.any(~failed) else math.nan,
                                 model.metadata.task.unit))
@@ -236,7 +237,7 @@ def markdown(rows: list[Row], labels=None) -> str:
                 "|---|---|" + "---|" * len(labels)]
         for key in dict.fromkeys((r.delay_ms, r.condition) for r in mine):
             cells = {r.strategy: _cell(r) for r in mine if (r.delay_ms, r.condition) == key}
-            out.append(f"| {key[0]:g} ms | {key[1]} | " + " | ".join(cells.get(s, "") for s in labels) + " |")
+            out.append(f"| {ms_text(key[0])} | {key[1]} | " + " | ".join(cells.get(s, "") for s in labels) + " |")
         out.append("")
     return "\n".join(out)
 
@@ -270,7 +271,7 @@ def compare(model, plant, ticks: int, n_trials: int = 1, seed: int = 0, iteratio
         failed = np.asarray(run.failed)
         task = getattr(model.metadata, "task", None)
         rms = _tracking_rms(model, run) if task is not None else np.full(n_trials, math.nan)
-        rows.append(Row(model.name, round(1e3 * model.delay, 6), plant.name, label,
+        rows.append(Row(model.name, milliseconds(model), plant.name, label,
                         float(np.median(np.asarray(run.cost))), float(np.mean(failed)),
                         float(np.mean(rms[~failed])) if np.any(~failed) else math.nan,
                         task.unit if task is not None else ""))

@@ -113,9 +113,11 @@ def reach(arm: str = "arm2", target=None, delay=MODEL_DEFAULT, noise: bool = Tru
 
 def loop_latency(problem: Problem) -> float:
     """(l_s + l_m) dt in seconds: the sensory delay (0 when the state is seen) plus the motor delay,
-    the earliest a response to a disturbance can reach the plant."""
+    the earliest a response to a disturbance can reach the plant (l_m: the shortest channel's, l + phi
+    for a delay between steps, a jitter's shortest delay)."""
     ls = 0 if problem.observation is None else int(problem.observation.delay_steps)
-    return (ls + int(problem.delay_steps)) * problem.dt
+    lm = problem.delay_jitter.shortest if problem.delay_jitter is not None else np.min(problem.delay_in_steps)
+    return (ls + float(lm)) * problem.dt
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["problem_record"]
+__all__ = ["problem_record", "delay_values"]
 
 # arrays larger than this are recorded by shape only (a record is metadata, not data)
 _MAX_ARRAY_SIZE = 1000
@@ -36,21 +36,29 @@ def problem_record(problem) -> dict:
     meta = getattr(problem, "metadata", None)
     observation = getattr(problem, "observation", None)
     ls = None if observation is None else int(observation.delay_steps)
-    # one delay: an int of steps; per channel, or not whole steps (derivation §20): a list
-    steps = np.asarray(getattr(problem, "delay_in_steps", problem.delay_steps))
-    steps = steps if steps.ndim or getattr(problem, "is_fractional", False) else steps.astype(int)
+    delay, delay_steps = delay_values(problem)
     noise = None
     if problem.noise is not None:
         noise = {"preset": None if meta is None else getattr(meta, "noise", None), **_describe(problem.noise)}
     return dict(
         name=problem.name, dt=problem.dt, horizon=int(problem.horizon), final_time=problem.horizon * problem.dt,
-        delay=(steps * problem.dt).tolist(), delay_steps=steps.tolist(),
+        delay=delay, delay_steps=delay_steps,
         delay_jitter=None if getattr(problem, "delay_jitter", None) is None else problem.delay_jitter.as_json(),
         sensory_delay=None if ls is None else ls * problem.dt, sensory_delay_steps=ls,
         n_states=int(problem.n_states), n_controls=int(problem.n_controls), x0=_value(problem.x0),
         u_min=_value(problem.u_min), u_max=_value(problem.u_max), noise=noise,
         dynamics=_describe(problem.dynamics), cost=_describe(problem.cost),
         observation=None if observation is None else _describe(observation))
+
+
+def delay_values(problem) -> tuple:
+    """(delay in s, delay in steps) of ``problem`` as JSON values: for one whole delay a float and
+    an int; per channel, or not whole steps (docs/derivation.md §20), lists of one per channel (l_j + phi_j
+    steps); a jittered problem's are its longest delay (``delay_jitter`` is recorded beside them)."""
+    # one delay: an int of steps; per channel, or not whole steps: a list
+    steps = np.asarray(getattr(problem, "delay_in_steps", problem.delay_steps))
+    steps = steps if steps.ndim or getattr(problem, "is_fractional", False) else steps.astype(int)
+    return (steps * problem.dt).tolist(), steps.tolist()
 
 
 def _describe(obj, depth: int = 0) -> Any:

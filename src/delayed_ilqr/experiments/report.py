@@ -15,7 +15,8 @@ import numpy as np
 from .. import Status, _files
 from .delay_study import ControllerResult
 from .designs import REGISTRY
-from .records import problem_record
+from .delay_text import delay_tag, delay_text
+from .records import delay_values, problem_record
 from .tables import delay_study_rows, delay_study_warnings, markdown_table
 
 __all__ = ["DESCRIPTIONS", "DPI", "json_ready", "write_json", "save_figures", "policy_arrays", "delay_study_records",
@@ -94,8 +95,8 @@ def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
 def center_out_records(results: Sequence) -> list[dict]:
     """Every number of the center-out study as JSON-ready dicts (one per delay and design, with a
     list of targets; the statistical design's targets add ``sl_change``, SL's last relative feedback
-    change)."""
-    return [dict(delay=r.delay, delay_steps=r.delay_steps, dt=r.dt, design=r.design, solve_time=r.solve_time,
+    change); the delay as [`delay_values`][delayed_ilqr.experiments.records.delay_values] writes it."""
+    return [dict(zip(("delay", "delay_steps"), delay_values(r.plants[0])), dt=r.dt, design=r.design, solve_time=r.solve_time,
                  first_call=r.first_call,
                  targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
                                predicted_cost=t.predicted_cost, mc_cost=t.cost_stats.to_dict(),
@@ -146,13 +147,14 @@ def write_runs(out: pathlib.Path, result: ControllerResult, settings: dict) -> l
 
 def write_delay_study(results: Sequence[ControllerResult], out: pathlib.Path, settings: dict, stem: str) -> list[str]:
     """``<stem>.json`` (settings and every number of the table) and ``<stem>_runs.npz`` (per
-    controller and delay ``<controller>_<delay>ms_<name>``: trials, nominal, gains, trace)."""
+    controller and delay ``<controller>_<delay>_<name>``, the delay as `delay_text.delay_tag` writes
+    it, e.g. ``aware_50ms_x``: trials, nominal, gains, trace)."""
     write_json(out / f"{stem}.json", dict(settings=settings, descriptions=_descriptions("predicted_cost", "cost"),
                                           warnings=delay_study_warnings(results),
                                           results=delay_study_records(results)))
     arrays = {}
     for r in results:
-        key = f"{r.controller}_{1e3 * r.delay:g}ms"
+        key = f"{r.controller}_{delay_tag(r.problem)}"
         arrays[f"{key}_x"] = np.asarray(r.runs.x)
         arrays[f"{key}_u"] = np.asarray(r.runs.u)
         arrays[f"{key}_cost"] = np.asarray(r.runs.cost)
@@ -227,7 +229,7 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
         "",
         f"Model: `arm2` (the P2 reach): {description}; signal-dependent torque noise at the human level "
         "(sigma_u = 0.01, calibrated to human force variability, docs/models.md §4.5).",
-        f"Delays: {', '.join(f'{1e3 * d:g} ms' for d in delays)}. {trials} noisy trials per controller and "
+        f"Delays: {', '.join(delay_text(d) for d in delays)}. {trials} noisy trials per controller and "
         f"delay (seed {seed}). Study time {elapsed:.1f} s (compilation included).",
         "",
         "- **aware**: " + REGISTRY["aware"].description,
@@ -245,7 +247,7 @@ def write_demo_report(out: pathlib.Path, results: Sequence[ControllerResult], de
     failed = [r for r in results if not r.converged]
     if failed:
         lines += ["## Solver warnings", ""]
-        lines += [f"- {r.controller} at {1e3 * r.delay:g} ms: {r.status}: {r.message}" for r in failed]
+        lines += [f"- {r.controller} at {delay_text(r.problem)}: {r.status}: {r.message}" for r in failed]
         lines += [""]
     _files.write_text(out / "report.md", "\n".join(lines) + "\n" + _DEMO_FILES)
     return "report.md"

@@ -20,6 +20,7 @@ import numpy as np
 from .. import Status
 from ..statistics import prediction_warning, sample_stats
 from .delay_study import ControllerResult
+from .delay_text import delay_text
 from .designs import REGISTRY
 
 __all__ = ["num", "unit_scale", "PREDICTED", "mc_record", "delay_study_rows", "center_out_rows", "records_table",
@@ -76,13 +77,13 @@ def delay_study_rows(results: Sequence[ControllerResult]) -> Table:
     scale, unit = unit_scale(results[0].endpoint_unit) if results else (1.0, "")
     label = results[0].endpoint_label if results else "endpoint error"
     unit_text = f" [{unit}]" if unit else ""
-    header = ["delay [s]", "controller", "converged", "iter", "solve [ms]", PREDICTED,
+    header = ["delay", "controller", "converged", "iter", "solve [ms]", PREDICTED,
               "MC mean J [95% CI]", "MC median J [IQR]", "diverged", f"{label}{unit_text}: mean [95% CI]",
               f"{label}{unit_text}: median [IQR]"]
     rows = []
     for r in results:
         c, e = r.cost, r.endpoint_error
-        rows.append([f"{r.delay:g}", r.controller, "yes" if r.converged else "NO", str(r.iterations),
+        rows.append([delay_text(r.problem), r.controller, "yes" if r.converged else "NO", str(r.iterations),
                      f"{1e3 * r.solve_time:.1f}", num(r.predicted_cost), _mean_ci(c), _median_iqr(c),
                      f"{c.n_diverged}/{c.n}", _mean_ci(e, scale, 3), _median_iqr(e, scale, 3)])
     return header, rows
@@ -106,7 +107,7 @@ def _center_out_row(r) -> list[str]:
     n = len(r.targets)
     spreads = [1e3 * t.spread for t in r.targets]
     cost, error = _pooled(r, "mc_cost"), _pooled(r, "mc_error")
-    return [f"{1e3 * r.delay:g} ms", r.design, f"{sum(t.converged for t in r.targets)}/{n}",
+    return [delay_text(r.plants[0]), r.design, f"{sum(t.converged for t in r.targets)}/{n}",
             f"{int(np.median(its))} [{min(its)}-{max(its)}]", f"{1e3 * r.solve_time / n:.0f} ms",
             f"{1e3 * max(t.hand_error for t in r.targets):.2f} mm",
             f"{1e2 * max(t.hand_speed for t in r.targets):.2f} cm/s",
@@ -172,7 +173,7 @@ def _seeds_mean_ci(cell) -> str:
 def delay_study_warnings(results: Sequence[ControllerResult]) -> list[str]:
     """One line per controller and delay whose Monte Carlo mean cost departs from its local
     (linearised) prediction by more than the factor of `prediction_warning`."""
-    lines = [prediction_warning(f"{r.model}, {r.controller} at {1e3 * r.delay:g} ms", r.cost.mean, r.predicted_cost)
+    lines = [prediction_warning(f"{r.model}, {r.controller} at {delay_text(r.problem)}", r.cost.mean, r.predicted_cost)
              for r in results]
     return [w for w in lines if w]
 
@@ -189,7 +190,7 @@ def center_out_warnings(results: Sequence) -> list[str]:
             continue
         ratios = [t.cost_stats.mean / t.predicted_cost if t.predicted_cost > 0 else math.inf for _, t in bad]
         worst = bad[int(np.argmax([abs(math.log(x)) if 0 < x < math.inf else math.inf for x in ratios]))][1]
-        line = prediction_warning(f"{r.design} at {1e3 * r.delay:g} ms, targets "
+        line = prediction_warning(f"{r.design} at {delay_text(r.plants[0])}, targets "
                                   f"{', '.join(str(j + 1) for j, _ in bad)} of {len(r.targets)} (the worst shown)",
                                   worst.cost_stats.mean, worst.predicted_cost)
         lines.append(line + f"; MC / prediction on these targets {num(min(ratios), 3)}-{num(max(ratios), 3)}")
@@ -236,21 +237,8 @@ def pairs(rows: Sequence[tuple[str, str]]) -> str:
 
 def _problem_rows(problem, description: str, noise: bool) -> list[tuple[str, str]]:
     return [("model", f"{problem.name}: {description}"),
-            ("delay", _delay_text(problem)),
+            ("delay", delay_text(problem, steps=True)),
             ("noise", "yes" if noise else "no")]
-
-
-def _delay_text(problem) -> str:
-    """tau in seconds and in steps of dt: one value, or one per channel (per-channel or fractional
-    delays, whose steps need not be whole)."""
-    steps = np.round(np.atleast_1d(np.asarray(problem.delay_in_steps, np.float64)), 12)
-    if np.all(steps == steps[0]):          # one delay for every channel
-        steps = steps[:1]
-    seconds = ", ".join(f"{v * problem.dt:g}" for v in steps)
-    in_steps = ", ".join(f"{v:g}" for v in steps)
-    if steps.size > 1:
-        seconds, in_steps = f"[{seconds}]", f"[{in_steps}]"
-    return f"{seconds} s ({in_steps} steps of dt = {problem.dt:g} s)"
 
 
 def solve_summary(problem, description: str, noise: bool, method: str, timed, endpoint) -> list[tuple[str, str]]:

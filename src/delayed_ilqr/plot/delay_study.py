@@ -6,6 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..experiments.delay_text import delay_axis, delay_key, delay_text
 from ..experiments.tables import unit_scale
 from ..models.metadata import task_position, task_space, task_target
 from ..statistics import diverged_trials
@@ -133,32 +134,35 @@ def plot_hand_paths(results: Sequence, n_paths: int = 10):
     results = list(results)
     if not results:
         raise ValueError("results must hold at least one ControllerResult; got none")
-    delays = sorted({r.delay for r in results})
+    keys = [delay_key(r.problem) for r in results]
+    positions = delay_axis([r.problem for r in results])[0]
+    delays = sorted(set(keys), key=lambda k: positions[keys.index(k)])
     fig = figure(figsize=(5.0 * len(delays), 13.0), layout="constrained")
     axes = fig.subplots(3, len(delays), squeeze=False)
     for ax in axes[1, 1:]:
         ax.sharey(axes[1, 0])
     fastest, zooms = 0.0, []
     for col, tau in enumerate(delays):
-        group = [r for r in results if r.delay == tau]
+        group = [r for r in results if delay_key(r.problem) == tau]
+        text = delay_text(group[0].problem)
         top, middle, bottom = axes[:, col]
         zoom, drawn = _paths_panel(top, group, n_paths)
         zooms.append(zoom)
         task = task_space(group[0].problem)
         top.set_xlabel(f"{task.point} x [{task.unit}]")
         top.set_ylabel(f"{task.point} y [{task.unit}]")
-        top.set_title(f"{1e3 * tau:g} ms: {task.point} paths")
+        top.set_title(f"{text}: {task.point} paths")
         top.grid(alpha=0.3)
         top.legend(loc="lower left", fontsize=8, framealpha=0.9)
         fastest = max(fastest, _speed_panel(middle, group, n_paths))
-        middle.set_title(f"{1e3 * tau:g} ms: {task.point} speed")
+        middle.set_title(f"{text}: {task.point} speed")
         middle.grid(alpha=0.3)
         middle.legend(loc="upper right", fontsize=7)
     half = max(_endpoints_half(zoom) for zoom in zooms)          # one endpoint scale for all delays
-    for col, (tau, zoom) in enumerate(zip(delays, zooms)):
+    for col, zoom in enumerate(zooms):
         bottom = axes[2, col]
         _endpoints_panel(bottom, zoom, unit_scale(task_space(zoom[0][0].problem).unit)[1], half)
-        bottom.set_title(f"{1e3 * tau:g} ms: endpoints (N = {zoom[0][0].runs.x.shape[0]})")
+        bottom.set_title(f"{delay_text(zoom[0][0].problem)}: endpoints (N = {zoom[0][0].runs.x.shape[0]})")
         bottom.grid(alpha=0.3)
         bottom.legend(loc="upper left", fontsize=7)
     axes[1, 0].set_ylim(0.0, 1.3 * fastest)
@@ -197,9 +201,11 @@ def _spread(r) -> float:
     return math.sqrt(float(np.max(np.linalg.eigvalsh(np.cov(ends[kept], rowvar=False)))))
 
 
-def _finish(ax, ylabel: str, title: str):
+def _finish(ax, ylabel: str, title: str, xlabel: str, ticks):
     ax.set_yscale("log")
-    ax.set_xlabel("input delay [ms]")
+    ax.set_xlabel(xlabel)
+    if ticks is not None:               # per-channel or jittered delays: one tick per delay, named
+        ax.set_xticks(*ticks)
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(alpha=0.3, which="both")
@@ -231,12 +237,14 @@ def plot_delay_study(results: Sequence):
     controllers = list(dict.fromkeys(r.controller for r in results))
     scale, unit_text = unit_scale(results[0].endpoint_unit)
     offsets = np.linspace(-1, 1, len(controllers)) * (0.6 if len(controllers) > 1 else 0.0)
-    delays = sorted({r.delay for r in results})
-    step = 1e3 * (min(np.diff(delays)) if len(delays) > 1 else 0.05)
+    positions, ticks, xlabel = delay_axis([r.problem for r in results])
+    where = {id(r): x for r, x in zip(results, positions)}
+    distinct = np.unique(positions)
+    step = min(np.diff(distinct)) if len(distinct) > 1 else (1.0 if ticks else 50.0)
     for ci, (c, off) in enumerate(zip(controllers, offsets)):
-        rows = sorted((r for r in results if r.controller == c), key=lambda r: r.delay)
+        rows = sorted((r for r in results if r.controller == c), key=lambda r: where[id(r)])
         color = COLORS.get(c, None)
-        tau = np.array([1e3 * r.delay for r in rows]) + off * 0.04 * step
+        tau = np.array([where[id(r)] for r in rows]) + off * 0.04 * step
         _series(ax_cost, tau, [r.cost for r in rows], 1.0, color, c, ci)
         _series(ax_err, tau, [r.endpoint_error for r in rows], scale, color, c, ci)
         ax_cost.plot(tau, np.array([r.predicted_cost for r in rows]), ls="--", marker="o", mfc="white", color=color,
@@ -244,12 +252,12 @@ def plot_delay_study(results: Sequence):
         if spread:
             axes[2].plot(tau, [scale * _spread(r) for r in rows], marker="o", ms=7, color=color,
                          label=f"{controller_label(c)}: Monte Carlo")
-    _finish(ax_cost, "cost J, eq. 2 [-]", "expected cost")
+    _finish(ax_cost, "cost J, eq. 2 [-]", "expected cost", xlabel, ticks)
     label = results[0].endpoint_label
-    _finish(ax_err, f"{label} [{unit_text or '-'}]", label)
+    _finish(ax_err, f"{label} [{unit_text or '-'}]", label, xlabel, ticks)
     if spread:
         point = task_space(results[0].problem).point
-        _finish(axes[2], f"1-sigma major axis [{unit_text}]", f"spread of the final {point} positions")
+        _finish(axes[2], f"1-sigma major axis [{unit_text}]", f"spread of the final {point} positions", xlabel, ticks)
     n = results[0].cost.n
     noise = "noisy" if results[0].noise else "deterministic"
     suptitle(fig, f"{results[0].model}: delay-aware vs delay-ignorant control, {n} {noise} trials per point")
@@ -262,7 +270,7 @@ def delay_study_figures(results: Sequence) -> dict:
     the delay-aware one at 0 ms is drawn) and, for a model whose task space draws paths,
     hand_paths.png."""
     figures = {"cost_vs_delay.png": plot_delay_study(results)}
-    sols = {f"{r.controller}, {1e3 * r.delay:g} ms": r.solution for r in results if r.controller != "ignorant"}
+    sols = {f"{r.controller}, {delay_text(r.problem)}": r.solution for r in results if r.controller != "ignorant"}
     ignorant = [r for r in results if r.controller == "ignorant"]
     zero_aware = any(r.controller == "aware" and r.delay_steps == 0 for r in results)
     if ignorant and not zero_aware:

@@ -7,6 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..experiments.delay_text import delay_text
 from ..models.arm2 import hand_position
 from ._common import ellipse, figure
 
@@ -30,7 +31,7 @@ def _command_axis(problem) -> str:
 def _delays(problem) -> str:
     ls = None if problem.observation is None else problem.observation.delay_steps * problem.dt
     sensory = "state seen" if ls is None else f"sensory {1e3 * ls:.0f} ms"
-    return f"{problem.name}, motor delay {1e3 * problem.delay_steps * problem.dt:.0f} ms, {sensory}"
+    return f"{problem.name}, motor delay {delay_text(problem)}, {sensory}"
 
 
 def plot_kick(result):
@@ -113,7 +114,7 @@ def plot_fitts(results: Sequence):
     colors = ("tab:blue", "tab:red", "tab:green", "tab:purple")
     for i, r in enumerate(results):
         c = colors[i % len(colors)]
-        ax.scatter(r.index.ravel(), r.mt.ravel(), color=c, label=f"motor delay {1e3 * r.delay:.0f} ms")
+        ax.scatter(r.index.ravel(), r.mt.ravel(), color=c, label=f"motor delay {delay_text(r.delay)}")
         if r.fit is not None:
             x = np.linspace(np.nanmin(r.index), np.nanmax(r.index), 10)
             ax.plot(x, r.fit.a + r.fit.b * x, color=c,

@@ -5,6 +5,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ..experiments.delay_text import delay_text
 from ..models.metadata import task_position, task_space
 from ._common import command_unit, figure, speed_unit, suptitle
 
@@ -60,7 +61,7 @@ def plot_perturbation(results: Sequence):
     ax_path.legend(fontsize=8)
     noise = "noisy" if first.problem.noise is not None else "deterministic"
     suptitle(fig, f"{first.problem.name}: correction of a kick at {1e3 * (first.pulse_step + 1) * first.problem.dt:g} "
-                  f"ms against the sensory delay (input delay {1e3 * first.problem.delay:g} ms, {noise} plant, "
+                  f"ms against the sensory delay (input delay {delay_text(first.problem)}, {noise} plant, "
                   f"means over {np.shape(first.base.x)[0]} trials)")
     return fig
 

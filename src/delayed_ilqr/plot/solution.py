@@ -7,6 +7,7 @@ from typing import Optional
 
 import numpy as np
 
+from ..experiments.delay_text import delay_text
 from ..models.metadata import labels
 from ._common import figure, robust_limits, suptitle
 
@@ -87,7 +88,7 @@ def plot_trajectories(problem, policy, runs=None, n_trials: int = 5, title: Opti
                       None if all_u is None else all_u[:, :, k], u_labels[k])
     axes[0].legend(loc="best", fontsize=8)
     if title is None:
-        title = (f"{problem.name}: states and commands sent (acting {1e3 * problem.delay:g} ms later), "
+        title = (f"{problem.name}: states and commands sent (acting {delay_text(problem)} later), "
                  + ("noisy plant" if problem.noise is not None else "deterministic plant"))
     suptitle(fig, title)
     return fig
