@@ -53,7 +53,8 @@ ODD = ("per-channel", "fractional", "fractional per channel", "jittered")
 
 def test_the_text_of_every_kind_of_delay(plants):
     for name, (problem, text, with_steps, tag) in plants.items():
-        assert (delay_text(problem), delay_text(problem, steps=True), delay_tag(problem)) == (text, with_steps, tag), name
+        assert delay_text(problem) == text and delay_text(problem, steps=True) == with_steps, name
+        assert delay_tag(problem) == tag, name
     # seconds: floating-point round-off is not written (1e3 * 0.07 = 70.00000000000001)
     assert [delay_text(s) for s in (0.0, 0.07, 0.0255, [0.05, 0.07], (0.03, 0.03))] == \
         ["0 ms", "70 ms", "25.5 ms", "[50, 70] ms", "30 ms"]
@@ -181,7 +182,8 @@ def test_an_unconverged_solve_names_its_delay(plants, capsys):
 def test_center_out_at_a_delay_between_steps(tmp_path):
     """25.5 ms on the 10 ms grid: the table, the figures' titles and file names, the records."""
     n_trials = 6
-    plants = [arm2_muscle6(**LI_TODOROV, delay=0.0255, target=(-0.02 + 0.1 * np.cos(a), 0.45 + 0.1 * np.sin(a))) for a in (0.0, 2.0)]
+    plants = [arm2_muscle6(**LI_TODOROV, delay=0.0255, target=(-0.02 + 0.1 * np.cos(a), 0.45 + 0.1 * np.sin(a)))
+              for a in (0.0, 2.0)]
     rng = np.random.default_rng(0)
     targets = []
     for plant in plants:

@@ -110,7 +110,8 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
                  str(f.iterations), str(f.evaluations)] for d, f in zip(delays, fits)]
         click.echo(tables.text_table((header, rows)))
         chosen = fits[delays.index(best)]
-        click.echo(f"delay {delay_text(best)} (smallest loss); " + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
+        click.echo(f"delay {delay_text(best)} (smallest loss); "
+                   + ", ".join(f"{k} = {chosen.params[k]:.6g}" for k in names))
         if out is not None:
             # the problem of the first condition at the first delay and the starting values, and
             # the one fitted (the chosen delay and parameters)

@@ -12,6 +12,7 @@ on the plant -> statistics -> tables and files (figures: [`delayed_ilqr.plot`][d
 | `perturbation` | a hand kick mid-reach: mean corrective responses against the sensory delay |
 | [`fitting`][delayed_ilqr.experiments.fitting] | inverse optimal control: cost weights and noise scales fitted to reach statistics through the solver's gradients, the delay by a profile |
 | [`delay_fitting`][delayed_ilqr.experiments.delay_fitting] | the motor delays fitted by gradient with the other parameters (fractional delays), confidence intervals by a parametric bootstrap |
+| `delay_text` | a delay as every report, figure and file name writes it: "50 ms", "[50, 70] ms" per channel, exact between steps, a jitter with its distribution |
 | `tables` | every table row, as plain text or markdown (Monte Carlo mean [95 % CI] and median beside the local, linearised prediction; its 2x warnings) |
 | `report` | JSON records, NPZ arrays, markdown reports and figures on disk |
 

@@ -52,8 +52,8 @@ class ControllerResult:
     Attributes:
         model: the problem's name; delay, delay_steps: tau in seconds and l, lists of one per
             channel for per-channel delays and delays between steps (l_j + phi_j steps;
-            [`delay_values`][delayed_ilqr.experiments.records.delay_values]); noise: whether the
-            plant is stochastic; controller: one of `CONTROLLERS`.
+            ``records.delay_values``); noise: whether the plant is stochastic; controller: one of
+            `CONTROLLERS`.
         converged, status, message, iterations: from the solve (``status`` is the Status name).
         solve_time: seconds for a solve once compiled; first_solve_time: the first call's seconds
             (compilation included, about zero when an equal-shaped problem was compiled before).

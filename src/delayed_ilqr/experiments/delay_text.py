@@ -143,6 +143,8 @@ def delay_axis(delays: Sequence) -> tuple[np.ndarray, Optional[tuple[list, list]
     if all(jitter is None and not isinstance(ms, tuple) for ms, jitter in keys):
         return np.array([ms for ms, _ in keys], np.float64), None, "input delay [ms]"
     distinct = sorted(dict.fromkeys(keys), key=_order)
-    first = {k: d for k, d in zip(reversed(keys), reversed(list(delays)))}
+    first = {}                                  # each distinct delay's first occurrence, for its text
+    for k, d in zip(keys, delays):
+        first.setdefault(k, d)
     return (np.array([distinct.index(k) for k in keys], np.float64),
             (list(range(len(distinct))), [delay_text(first[k]) for k in distinct]), "input delay")

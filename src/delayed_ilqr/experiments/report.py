@@ -95,9 +95,9 @@ def delay_study_records(results: Sequence[ControllerResult]) -> list[dict]:
 def center_out_records(results: Sequence) -> list[dict]:
     """Every number of the center-out study as JSON-ready dicts (one per delay and design, with a
     list of targets; the statistical design's targets add ``sl_change``, SL's last relative feedback
-    change); the delay as [`delay_values`][delayed_ilqr.experiments.records.delay_values] writes it."""
-    return [dict(zip(("delay", "delay_steps"), delay_values(r.plants[0])), dt=r.dt, design=r.design, solve_time=r.solve_time,
-                 first_call=r.first_call,
+    change); the delay as `records.delay_values` writes it."""
+    return [dict(zip(("delay", "delay_steps"), delay_values(r.plants[0])), dt=r.dt, design=r.design,
+                 solve_time=r.solve_time, first_call=r.first_call,
                  targets=[dict(target=t.target.tolist(), status=t.status, iterations=t.iterations, cost=t.cost,
                                predicted_cost=t.predicted_cost, mc_cost=t.cost_stats.to_dict(),
                                hand_error=t.hand_error, hand_speed=t.hand_speed, mc_error=t.error_stats.to_dict(),
