@@ -16,8 +16,6 @@ machine, most of them crocoddyl at l = 50 (20-40 s a solve, timed once).
 from __future__ import annotations
 
 import ctypes
-import statistics
-import time
 
 import crocoddyl
 import jax
@@ -27,19 +25,10 @@ import delayed_ilqr as di
 from delayed_ilqr.models import point_mass
 
 from crocoddyl_ref import MAXITER, augmented_lqr
+from timing import median_time
 
 DT, HORIZON, DELAYS, FRACTION = 0.001, 600, (0, 10, 50), 0.6
 SOLVERS = {"BoxDDP": crocoddyl.SolverBoxDDP, "BoxFDDP": crocoddyl.SolverBoxFDDP}
-
-
-def _median(fn, repeats: int = 5, slow_s: float = 2.0) -> float:
-    """Median wall time of ``repeats`` calls; one call when the first takes over ``slow_s``."""
-    times = []
-    while len(times) < (1 if times and times[0] > slow_s else repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def delayed_ilqr_rows(l: int):
@@ -52,7 +41,7 @@ def delayed_ilqr_rows(l: int):
     bounded = problem.replace(u_min=-limit, u_max=limit)
     for name, p in (("delayed_ilqr unbounded", problem), ("delayed_ilqr bounded", bounded)):
         sol = jax.block_until_ready(di.solve(p))
-        seconds = _median(lambda: jax.block_until_ready(di.solve(p)))
+        seconds = median_time(lambda: di.solve(p), warmup=False, slow_repeats=1)   # one call over 2 s
         rows.append((name, seconds, int(sol.iterations), float(sol.cost), sol.converged))
     return limit, rows
 
@@ -68,7 +57,7 @@ def crocoddyl_rows(l: int, limit):
         xs0 = problem.rollout(us0)
         solver = cls(problem)
         converged = solver.solve(xs0, us0, MAXITER, True)
-        seconds = _median(lambda: solver.solve(xs0, us0, MAXITER, True))
+        seconds = median_time(lambda: solver.solve(xs0, us0, MAXITER, True), warmup=False, slow_repeats=1)
         rows.append((f"crocoddyl {name}", seconds, solver.iter, solver.cost, converged))
     return rows
 

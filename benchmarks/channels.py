@@ -23,9 +23,7 @@ each, and on a loaded machine its ratio at l = 50 fell to 13 (docs/performance.m
 """
 from __future__ import annotations
 
-import statistics
 import sys
-import time
 
 import jax
 
@@ -38,6 +36,7 @@ from delayed_ilqr.ilqg.linearize import linearize, rollout  # noqa: E402
 from delayed_ilqr.lqg.augmented import augmented_scan  # noqa: E402
 from delayed_ilqr.lqg.structured import structured_slot_scan  # noqa: E402
 from delayed_ilqr.models import point_mass  # noqa: E402
+from timing import interleaved  # noqa: E402
 
 LONGEST = (50, 200)
 
@@ -45,21 +44,6 @@ LONGEST = (50, 200)
 def problem(l: int) -> di.Problem:
     """P4 with channel 0 delayed by l / 2 steps and channel 1 by l."""
     return point_mass(dt=0.001).replace(delay_steps=[l // 2, l])
-
-
-def interleaved(fns: dict, repeats: int) -> dict:
-    """{name: (median, min) seconds} of ``repeats`` rounds, each calling every function once, after
-    a first (compiling) call of each: a change of the machine's load hits them alike. The minimum
-    is the call least disturbed by the other processes on the shared machine."""
-    for fn in fns.values():
-        jax.block_until_ready(fn())
-    times = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            start = time.perf_counter()
-            jax.block_until_ready(fn())
-            times[name].append(time.perf_counter() - start)
-    return {name: (statistics.median(t), min(t)) for name, t in times.items()}
 
 
 def ms(t) -> str:

@@ -16,11 +16,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
-import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import jax
@@ -28,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import delayed_ilqr
+from timing import interleaved
 
 ROOT = Path(__file__).resolve().parents[1]
 # name -> (model, keyword arguments): the benchmark problems of docs/models.md §2, variants, the
@@ -100,14 +99,8 @@ def main(argv=None) -> None:
         print(f"working tree against {args.revision}: medians (minima) of {args.rounds} interleaved solves each")
         for name in names:
             (run_base, cost_base), (run_new, cost_new) = (compiled_solve(p, name) for p in (base, delayed_ilqr))
-            times = ([], [])
-            for _ in range(args.rounds):
-                for run, recorded in zip((run_base, run_new), times):
-                    start = time.perf_counter()
-                    run()
-                    recorded.append(time.perf_counter() - start)
-            med_base, med_new = (statistics.median(t) * 1e3 for t in times)
-            min_base, min_new = (min(t) * 1e3 for t in times)
+            times = interleaved(dict(base=run_base, new=run_new), args.rounds, warmup=False)   # compiled above
+            (med_base, min_base), (med_new, min_new) = ((1e3 * med, 1e3 * low) for med, low in times.values())
             print(f"{name:9s} {args.revision}: {med_base:9.3f} ms ({min_base:.3f})   working tree: "
                   f"{med_new:9.3f} ms ({min_new:.3f})   ratio {med_new / med_base:5.2f}   "
                   f"cost rel. diff {abs(cost_new - cost_base) / abs(cost_base):.1e}")

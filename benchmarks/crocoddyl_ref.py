@@ -52,11 +52,10 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import statistics
-import time
-
 import crocoddyl
 import numpy as np
+
+from timing import median_time
 
 MASS, DAMPING, FINAL_TIME = 1.0, 0.5, 0.6
 X_TARGET = np.array([0.2, 0.1, 0.0, 0.0])
@@ -94,16 +93,6 @@ def augmented_lqr(dt: float, l: int, horizon: int, x0=(0.0, 0.0, 0.0, 0.0)):
     return crocoddyl.ShootingProblem(z0, [running] * horizon, terminal)
 
 
-def _median_time(fn, repeats=7, slow_repeats=3, slow_s=2.0, fill_s=0.5) -> float:
-    times = []
-    while (len(times) < (slow_repeats if times and times[0] > slow_s else repeats)
-           or sum(times) < fill_s):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def crocoddyl_solve_times(cases=CASES, solvers=("DDP", "FDDP"), threads: int = 1, repeats: int = 7):
     """{(problem, K, l, solver): (median seconds, iterations, cost)} for (name, dt, l) in cases.
 
@@ -125,7 +114,7 @@ def crocoddyl_solve_times(cases=CASES, solvers=("DDP", "FDDP"), threads: int = 1
             run = lambda: solver.solve(xs0, us0, MAXITER, True)  # noqa: E731
             if not run():
                 raise RuntimeError(f"crocoddyl {solver_name} did not converge on {name} l={l}")
-            seconds = _median_time(run, repeats=repeats, slow_repeats=min(3, repeats))
+            seconds = median_time(run, repeats=repeats, warmup=False, slow_repeats=min(3, repeats), fill_s=0.5)
             out[name, horizon, l, solver_name] = (seconds, solver.iter, solver.cost)
     return out
 

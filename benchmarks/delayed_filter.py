@@ -6,18 +6,17 @@ compilation, and the largest relative difference of the gains.
 Run: .venv/bin/python benchmarks/delayed_filter.py [l_s ...]   (default 10 50 100)
 """
 import sys
-import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr import lqg
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from delayed_sensing import random_problem  # noqa: E402  (a test helper, not in the package)
+from timing import median_time  # noqa: E402
 
 
 @jax.jit
@@ -40,16 +39,6 @@ def augmented_kalman(A, Q, H, R, P0):
     return gains
 
 
-def median_time(fn, repeats):
-    jax.block_until_ready(fn())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
-
-
 def main():
     jax.config.update("jax_enable_x64", True)
     di.configure_cpu()
@@ -61,8 +50,8 @@ def main():
         model, obs = random_problem(0, K, n, d, m, m, 2, 5, ls)
         Q = jnp.einsum("kpn,kpm->knm", model.c, model.c)
         P0 = jnp.zeros((n * (ls + 1),) * 2)
-        t_delayed = median_time(lambda: lqg.delayed_kalman(model, obs), 7)
-        t_aug = median_time(lambda: augmented_kalman(model.A, Q, obs.H, obs.measurement_cov, P0), 3)
+        t_delayed = median_time(lambda: lqg.delayed_kalman(model, obs), repeats=7)
+        t_aug = median_time(lambda: augmented_kalman(model.A, Q, obs.H, obs.measurement_cov, P0), repeats=3)
         fg, _ = lqg.delayed_kalman(model, obs)
         gains = augmented_kalman(model.A, Q, obs.H, obs.measurement_cov, P0)
         diff = max(float(jnp.max(jnp.abs(fg.delayed_gain - gains[:, ls * n:])) / jnp.max(jnp.abs(gains[:, ls * n:]))),

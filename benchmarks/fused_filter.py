@@ -21,7 +21,7 @@ from delayed_ilqr import lqg
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from fused_sensing import random_fusion_problem  # noqa: E402  (a test helper, not in the package)
 
-from delayed_filter import median_time  # noqa: E402  (the median wall time after compilation, as there)
+from timing import median_time  # noqa: E402
 
 
 def augmented_model(sensors, n):

@@ -9,31 +9,20 @@ repeated calls after compilation. The gradient includes its own solve.
 Run: .venv/bin/python benchmarks/gradients.py [--muscle]
 """
 import argparse
-import time
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr.models import arm2, arm2_muscle6
 from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
 from delayed_ilqr.models.arm2_muscle6 import rest_commands
+from timing import median_time
 
 
 def loss(sol):
     return (jnp.sum(sol.u ** 2) + jnp.sum(sol.x[-1] ** 2) + sol.cost + sol.expected_cost
             + jnp.sum(sol.policy.state_feedback ** 2))
-
-
-def median_time(fn, arg, repeats):
-    jax.block_until_ready(fn(arg))
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(arg))
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def main():
@@ -54,8 +43,8 @@ def main():
         solve = jax.jit(lambda p: di.solve(p, u_init))
         grad = jax.jit(jax.value_and_grad(lambda p: loss(di.solve(p, u_init))))
         sol = solve(problem)
-        t_solve = median_time(solve, problem, args.repeats)
-        t_grad = median_time(grad, problem, args.repeats)
+        t_solve = median_time(solve, problem, repeats=args.repeats)
+        t_grad = median_time(grad, problem, repeats=args.repeats)
         print(f"{name:13} {delay:6.2f} {str(noisy):>6} {int(sol.iterations):5d} {di.Status(int(sol.status)).name:>16} "
               f"{t_solve * 1e3:7.2f}ms {t_grad * 1e3:7.2f}ms {t_grad / t_solve:6.2f}")
 

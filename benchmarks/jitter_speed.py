@@ -6,7 +6,6 @@ Run: .venv/bin/python benchmarks/jitter_speed.py [--delays 5,10,20,40] [--horizo
 """
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -17,16 +16,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import delayed_ilqr as di                     # noqa: E402
 from delayed_ilqr import lqg                  # noqa: E402
 from test_lqg import random_arrays            # noqa: E402  (tests/test_lqg.py: a random convex delayed LQG)
-
-
-def median_time(call, repeats=5):
-    jax.block_until_ready(call())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(call())
-        times.append(time.perf_counter() - start)
-    return sorted(times)[len(times) // 2]
+from timing import median_time                # noqa: E402
 
 
 def main():

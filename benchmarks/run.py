@@ -31,7 +31,6 @@ import platform
 import statistics
 import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +44,7 @@ from delayed_ilqr.lqg.augmented import augmented_scan
 from delayed_ilqr.lqg.structured import structured_slot_scan
 from delayed_ilqr.models import arm2, point_mass
 from delayed_ilqr.ilqg.solver import compiled_solver
+from timing import first_and_median, timed
 
 RESULTS = Path(__file__).with_name("results.md")
 OPTIONS = {"structured": di.Options(), "augmented": di.Options(method="augmented")}
@@ -72,28 +72,6 @@ print(time.perf_counter() - start)
 # ---------------------------------------------------------------------------------------------
 # timing and formatting
 # ---------------------------------------------------------------------------------------------
-
-def timed(fn):
-    """(fn(), wall seconds), waiting for the result."""
-    start = time.perf_counter()
-    out = jax.block_until_ready(fn())
-    return out, time.perf_counter() - start
-
-
-def first_and_median(fn, repeats: int = 7, slow_repeats: int = 3, slow_s: float = 2.0, fill_s: float = 0.5):
-    """(result, first-call seconds, median seconds of the calls after the first).
-
-    At least ``repeats`` calls (``slow_repeats`` when one takes over ``slow_s``), and more for fast
-    calls until ``fill_s`` seconds are spent: a median of 7 sub-millisecond solves moved by 20 %
-    between runs on these shared machines (P1: 0.82 ms in one run, 0.60 to 0.69 ms over 30 to 50
-    solves in others).
-    """
-    out, first = timed(fn)
-    out, t = timed(fn)
-    times = [t]
-    while len(times) < (slow_repeats if t > slow_s else repeats) or sum(times) < fill_s:
-        times.append(timed(fn)[1])
-    return out, first, statistics.median(times)
 
 
 def fmt_time(seconds: float) -> str:

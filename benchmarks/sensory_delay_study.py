@@ -16,7 +16,6 @@ the full-state solve and the added design, on the same problem.
 Run: .venv/bin/python benchmarks/sensory_delay_study.py [--trials N] [--delay S] [--sensory-delays a,b,...]
 """
 import argparse
-import time
 
 import jax
 
@@ -27,16 +26,7 @@ from delayed_ilqr.ilqg.estimation import with_estimator
 from delayed_ilqr.experiments.sensing_study import sensory_delay_study, study_rows
 from delayed_ilqr.models import arm2_muscle6, rest_commands
 from delayed_ilqr.models.arm2_muscle6 import LI_TODOROV
-
-
-def timed(call, repeats=5):
-    jax.block_until_ready(call())
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(call())
-        times.append(time.perf_counter() - start)
-    return sorted(times)[len(times) // 2]
+from timing import median_time
 
 
 def main():
@@ -61,9 +51,9 @@ def main():
         plant = arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=args.delay)
         full = plant.replace(observation=None)
         u0 = rest_commands(plant)
-        t_full = timed(lambda: di.solve(full, u_init=u0, options=DEFAULT_OPTIONS))
+        t_full = median_time(lambda: di.solve(full, u_init=u0, options=DEFAULT_OPTIONS))
         sol = di.solve(full, u_init=u0, options=DEFAULT_OPTIONS)
-        t_design = timed(lambda: with_estimator(plant, sol, DEFAULT_OPTIONS))
+        t_design = median_time(lambda: with_estimator(plant, sol, DEFAULT_OPTIONS))
         rows.append({"sensory delay [ms]": 1000 * ls, "iterations": int(sol.iterations),
                      "full-state solve": t_full, "filter design + exact cost": t_design,
                      "added": t_design / t_full})

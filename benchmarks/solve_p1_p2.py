@@ -4,29 +4,16 @@ and agreement with an independent direct method (L-BFGS-B over all commands, aut
 Run: .venv/bin/python benchmarks/solve_p1_p2.py
 """
 import sys
-import time
 from pathlib import Path
 
 import jax
-import numpy as np
 
 import delayed_ilqr as di
 from delayed_ilqr.models import arm2, point_mass
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from direct import direct_optimum  # noqa: E402  (tests/direct.py: a test reference, not in the package)
-
-
-def timed_solve(problem, repeats=7):
-    start = time.perf_counter()
-    sol = jax.block_until_ready(di.solve(problem))
-    first = time.perf_counter() - start
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(di.solve(problem))
-        times.append(time.perf_counter() - start)
-    return sol, first, float(np.median(times))
+from timing import first_and_median  # noqa: E402
 
 
 def main():
@@ -37,7 +24,7 @@ def main():
     for name, factory in (("P1", point_mass), ("P2", arm2)):
         for delay in (0.0, 0.03, 0.1):
             problem = factory(delay=delay)
-            sol, first, median = timed_solve(problem)
+            sol, first, median = first_and_median(lambda: di.solve(problem), repeats=7, slow_repeats=7, fill_s=0.0)
             reference = direct_optimum(problem)
             print(f"{name:8} {delay:6.2f} {problem.delay_steps:3d} {float(sol.cost):14.8e} {int(sol.iterations):5d} "
                   f"{di.Status(int(sol.status)).name:>18} {first:9.2f}s {median * 1e3:7.1f}ms {reference:16.8e} "
