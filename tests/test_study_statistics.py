@@ -10,6 +10,7 @@ import pytest
 from delayed_ilqr.experiments import tables
 from delayed_ilqr.experiments.center_out import TargetResult
 from delayed_ilqr.experiments.delay_study import ControllerResult
+from delayed_ilqr.models import point_mass
 from delayed_ilqr.statistics import PREDICTION_FACTOR, prediction_warning, sample_stats, summarize
 
 
@@ -46,7 +47,7 @@ def _controller(costs, predicted, errors=None):
         predicted_cost=predicted, cost=sample_stats(costs, diverged), endpoint_error=sample_stats(errors, diverged),
         divergence_bound=math.inf, endpoint_label="hand position error", endpoint_unit="m",
         summary=summarize(costs, np.zeros((costs.size, 2))), n_trials=costs.size, seed=0, substeps=1,
-        problem=None, solution=None, runs=None)
+        problem=point_mass(delay=0.1), solution=None, runs=None)
 
 
 def test_the_delay_study_table_has_the_mean_with_its_interval_and_the_median_of_the_trials():

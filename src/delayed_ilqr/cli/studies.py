@@ -214,9 +214,9 @@ def center_out_command(delays, n_targets, radius, trials, seed, sigma_u, designs
                                            figures)
             written = output.commit(settings)
             click.echo(f"wrote {', '.join(written)} to {out} ({elapsed:.1f} s)")
-    failed = [(r.plants[0], r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
-    for plant, design, j in failed:
-        click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay_text(plant)} did not converge",
+    failed = [(r.delay, r.design, j) for r in results for j, t in enumerate(r.targets) if not t.converged]
+    for delay, design, j in failed:
+        click.echo(f"warning: the {design} reach to target {j + 1} at delay {delay_text(delay)} did not converge",
                    err=True)
     if failed and not allow_unconverged:
         sys.exit(1)

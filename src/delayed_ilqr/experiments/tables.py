@@ -107,7 +107,7 @@ def _center_out_row(r) -> list[str]:
     n = len(r.targets)
     spreads = [1e3 * t.spread for t in r.targets]
     cost, error = _pooled(r, "mc_cost"), _pooled(r, "mc_error")
-    return [delay_text(r.plants[0]), r.design, f"{sum(t.converged for t in r.targets)}/{n}",
+    return [delay_text(r.delay), r.design, f"{sum(t.converged for t in r.targets)}/{n}",
             f"{int(np.median(its))} [{min(its)}-{max(its)}]", f"{1e3 * r.solve_time / n:.0f} ms",
             f"{1e3 * max(t.hand_error for t in r.targets):.2f} mm",
             f"{1e2 * max(t.hand_speed for t in r.targets):.2f} cm/s",
@@ -190,7 +190,7 @@ def center_out_warnings(results: Sequence) -> list[str]:
             continue
         ratios = [t.cost_stats.mean / t.predicted_cost if t.predicted_cost > 0 else math.inf for _, t in bad]
         worst = bad[int(np.argmax([abs(math.log(x)) if 0 < x < math.inf else math.inf for x in ratios]))][1]
-        line = prediction_warning(f"{r.design} at {delay_text(r.plants[0])}, targets "
+        line = prediction_warning(f"{r.design} at {delay_text(r.delay)}, targets "
                                   f"{', '.join(str(j + 1) for j, _ in bad)} of {len(r.targets)} (the worst shown)",
                                   worst.cost_stats.mean, worst.predicted_cost)
         lines.append(line + f"; MC / prediction on these targets {num(min(ratios), 3)}-{num(max(ratios), 3)}")

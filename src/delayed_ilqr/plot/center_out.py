@@ -98,7 +98,7 @@ def _reaches_panel(ax, r, n_paths: int, colors):
     ax.set_xlabel(f"{task.point} x [{task.unit}]")
     ax.set_ylabel(f"{task.point} y [{task.unit}]")
     converged = sum(t.converged for t in r.targets)
-    ax.set_title(f"{_label(r.design)}, {delay_text(r.plants[0])} (converged {converged}/{len(r.targets)})")
+    ax.set_title(f"{_label(r.design)}, {delay_text(r.delay)} (converged {converged}/{len(r.targets)})")
     ax.grid(alpha=0.3)
 
 
@@ -162,7 +162,7 @@ def plot_speed_profiles(results: Sequence):
         t_axis = r.dt * np.arange(1, speed.shape[1] + 1)
         for j in range(speed.shape[0]):
             ax.plot(t_axis, speed[j], color=colors[j], lw=1.5, label=f"target {j + 1}")
-        ax.set_title(f"{_label(r.design)}, {delay_text(r.plants[0])}")
+        ax.set_title(f"{_label(r.design)}, {delay_text(r.delay)}")
         ax.grid(alpha=0.3)
     for ax in grid[-1]:
         ax.set_xlabel("time [s]")
@@ -214,7 +214,7 @@ def plot_endpoints(results: Sequence):
         ax.set_aspect("equal")
         ax.set_xlabel("endpoint x - target x [mm]")
         ax.set_ylabel("endpoint y - target y [mm]")
-        ax.set_title(f"{_label(r.design)}, {delay_text(r.plants[0])}")
+        ax.set_title(f"{_label(r.design)}, {delay_text(r.delay)}")
         ax.grid(alpha=0.3)
     grid[0, 0].legend(fontsize=7, loc="upper left", ncol=2)
     suptitle(fig, f"six-muscle arm, center-out: endpoints relative to the target (N = "
@@ -299,7 +299,7 @@ def plot_excitations(result):
     for ax in axes[::cols]:
         ax.set_ylabel("excitation [-]")
     suptitle(fig, f"six-muscle arm: nominal excitations per target, {_label(result.design)} design, "
-                  f"delay {delay_text(result.plants[0])}")
+                  f"delay {delay_text(result.delay)}")
     return fig
 
 
@@ -321,5 +321,5 @@ def center_out_figures(results: Sequence) -> dict:
         if any(d == r.delay and np.array_equal(u, v) for d, v in drawn):
             continue
         drawn.append((r.delay, u))
-        figures[f"center_out_excitations_{r.design}_{delay_tag(r.plants[0])}.png"] = plot_excitations(r)
+        figures[f"center_out_excitations_{r.design}_{delay_tag(r.delay)}.png"] = plot_excitations(r)
     return figures
