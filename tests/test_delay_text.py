@@ -176,6 +176,24 @@ def test_an_unconverged_solve_names_its_delay(plants, capsys):
     assert "the aware solve at delay [50, 70] ms did not converge" in capsys.readouterr().err
 
 
+def test_a_sweep_table_writes_its_grid_delays_as_delays():
+    """A sweep over delays in seconds: one delay between steps (25.5 ms, not "0.0255"), and a
+    user's factory argument with one delay per channel (its ``delay_value`` components)."""
+    xr = pytest.importorskip("xarray")
+    dims = ("delay", "seed")
+    data = dict(status=(("delay",), np.array([0, 0])), iterations=(("delay",), np.array([4, 5])),
+                expected_cost=(("delay",), np.array([1.0, 1.0])),
+                mc_cost_mean=(dims, np.ones((2, 1))), mc_cost_ci_low=(dims, np.ones((2, 1))),
+                mc_cost_ci_high=(dims, np.ones((2, 1))), mc_cost_median=(dims, np.ones((2, 1))),
+                mc_diverged=(dims, np.zeros((2, 1))), mc_endpoint_error_median=(dims, np.ones((2, 1)), {"units": "m"}))
+    ds = xr.Dataset(data, coords=dict(delay=("delay", [0.0255, 0.1], {"units": "s"})), attrs=dict(trials=10))
+    assert [row[0] for row in tables.sweep_rows(ds)[1]] == ["25.5 ms", "100 ms"]
+    per_channel = xr.Dataset(data, coords=dict(
+        delay=("delay", [0, 1]), delay_value=(("delay", "delay_component"), [[0.05, 0.07], [0.1, 0.1]], {"units": "s"})),
+        attrs=dict(trials=10))
+    assert [row[0] for row in tables.sweep_rows(per_channel)[1]] == ["[50, 70] ms", "100 ms"]
+
+
 # --------------------------------------------------------------------------------------------
 # Center-out (a fractional delay: the study takes one delay in seconds), the gallery, MPC
 # --------------------------------------------------------------------------------------------

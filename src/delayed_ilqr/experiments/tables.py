@@ -136,7 +136,8 @@ def sweep_rows(ds) -> Table:
     solve (status, iterations, the local (linearised) prediction E[J]) and the Monte Carlo over the
     seeds: the mean cost with its 95 % interval (one seed: its bootstrap interval; several: the
     mean of the seeds' means +/- 1.96 standard errors across seeds), the median cost and the median
-    endpoint error (means of the seeds' medians), the diverged trials."""
+    endpoint error (means of the seeds' medians), the diverged trials. A delay of the grid (in s) is
+    written as `delay_text.delay_text` writes it."""
     dims = list(ds["status"].dims)
     scale, unit = unit_scale(ds.mc_endpoint_error_median.attrs.get("units", ""))
     header = dims + ["status", "iter", PREDICTED, "MC mean J [95% CI]", "MC median J", "diverged",
@@ -148,8 +149,11 @@ def sweep_rows(ds) -> Table:
         values = []
         for d in dims:
             v = np.asarray(cell[f"{d}_value"].values if f"{d}_value" in cell.coords else cell[d].values)
-            values.append(np.array2string(v, precision=3) if v.ndim else
-                          (num(float(v)) if np.issubdtype(v.dtype, np.number) else str(v)))
+            if _is_delay(ds, d) and np.issubdtype(v.dtype, np.number):
+                values.append(delay_text(v))            # "50 ms", "[50, 70] ms", 25.5 ms not rounded
+            else:
+                values.append(np.array2string(v, precision=3) if v.ndim else
+                              (num(float(v)) if np.issubdtype(v.dtype, np.number) else str(v)))
         status = int(cell.status)
         rows.append(values + [Status(status).name if status >= 0 else "missing", str(int(cell.iterations)),
                               num(float(cell.expected_cost)), _seeds_mean_ci(cell),
@@ -157,6 +161,12 @@ def sweep_rows(ds) -> Table:
                               f"{int(cell.mc_diverged.sum())}/{trials}",
                               num(scale * float(cell.mc_endpoint_error_median.mean("seed")))])
     return header, rows
+
+
+def _is_delay(ds, dim: str) -> bool:
+    """Whether grid dimension ``dim`` is a delay in seconds (``delay``, ``sensory_delay``, ...)."""
+    coord = ds.coords[f"{dim}_value"] if f"{dim}_value" in ds.coords else ds.coords.get(dim)
+    return dim.endswith("delay") and coord is not None and coord.attrs.get("units") == "s"
 
 
 def _seeds_mean_ci(cell) -> str:
