@@ -27,7 +27,7 @@ OPTIONS = di.Options(max_iterations=100)
 DELAYED = point_mass(delay=0.02)     # every point-mass case: 2 steps of delay, one compiled structure
 
 
-@pytest.mark.parametrize("u_max, reference", [(3.0, 50.282205), (2.2, 74.495176)])
+@pytest.mark.parametrize("u_max, reference", [pytest.param(3.0, 50.282205, marks=pytest.mark.full), (2.2, 74.495176)])
 def test_acrobot_from_rest_reaches_the_good_minimum(u_max, reference):
     problem = acrobot(u_max=u_max)
     starts = di.solve_from_starts(problem, OPTIONS, looser=(math.inf, 5.0 / u_max))
@@ -64,7 +64,7 @@ def test_delayed_bounded_start_reaches_the_bounded_optimum():
     assert float(trajectory_cost(problem, rollout(problem, start), start)) <= (1 + 1e-3) * reference
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_delayed_acrobot_start_beats_rest_at_a_minimum():
     # the acrobot at 2.2 N m with a 2-step (0.2 s) delay: the augmented-Lagrangian start ends below
     # the solve from rest, at a point bounded L-BFGS-B started there does not improve (a minimum

@@ -13,6 +13,10 @@ import pytest
 ROOT = pathlib.Path(__file__).parents[1]
 DOCS = ROOT / "docs"
 PAGES = ["index.md"] + sorted(str(p.relative_to(DOCS)) for p in (DOCS / "guide").glob("*.md"))
+# the pages whose examples compile several large programs (the six-muscle arm, receding horizon,
+# sensors with their filter, bounded solves): run by `make bench` (pytest -m full); every other
+# page runs in the suite, and each of these pages' APIs has its own tests
+HEAVY_PAGES = {"guide/sensors.md", "guide/limits.md", "guide/mpc.md", "guide/statistics.md"}
 BLOCK = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
 
 
@@ -39,7 +43,7 @@ def test_every_guide_page_is_in_the_navigation():
     assert all(page in nav for page in PAGES)
 
 
-@pytest.mark.parametrize("page", PAGES)
+@pytest.mark.parametrize("page", [pytest.param(p, marks=pytest.mark.full) if p in HEAVY_PAGES else p for p in PAGES])
 def test_page_examples_run(page):
     blocks = BLOCK.findall((DOCS / page).read_text())
     if page != "index.md":

@@ -77,7 +77,7 @@ def _exact_data(params, delay=DELAY):
     return fitting.ReachData(*jax.jit(jax.vmap(one))(TARGETS))
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_fit_recovers_weights_noise_and_delay():
     """From exact statistics at known (r, w_v, sigma_u) and delay, with w_p fixed: the profile over
     whole steps picks the true delay, and at it L-BFGS-B on the implicit gradients finds the

@@ -83,7 +83,7 @@ def _muscle_arm_tangent_against_resolves(problem: Problem, steps, polish: bool):
     return np.max(np.abs(fds[1] - du)) / scale, np.max(np.abs(fds[0] - fds[1])) / scale
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_six_muscle_arm_delayed_commands_match_finite_differences():
     """The six-muscle arm at 50 ms without noise: du*/dx0 against central differences of re-solves
     made exact by dense Newton steps on their free commands (the solver stops with |G_free| ~ 4e-14
@@ -100,9 +100,9 @@ def test_six_muscle_arm_delayed_commands_match_finite_differences():
     assert err < 1e-5, err
 
 
-# make bench (pytest -m full): the suite keeps its two parts, the noise-aware fixed point's derivative
-# against re-solves on the arm (test_gradients.py, test_arm_noisy_limited_delayed_matches_finite_differences,
-# the same 1e-5) and the muscle arm's near-zero free excitations (the test above)
+# Both six-muscle checks run under make bench (pytest -m full): the suite keeps the noise-aware fixed
+# point's derivative with held commands against re-solves on the point mass (test_gradients.py,
+# test_point_mass_noisy_limited_delayed_matches_finite_differences, the same 1e-5)
 @pytest.mark.full
 def test_six_muscle_arm_delayed_noisy_commands_match_finite_differences():
     """The six-muscle arm at 50 ms with its signal-dependent noise (the noise-aware solve's fixed

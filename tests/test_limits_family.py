@@ -49,7 +49,8 @@ def family_problem(seed: int):
     return problem, free, bounded
 
 
-SEEDS = list(range(8))
+# one member of each kind in the suite (an arm, a point mass, a cart-pole), the other five under make bench
+SEEDS = [0, 2, 3] + [pytest.param(s, marks=pytest.mark.full) for s in (1, 4, 5, 6, 7)]
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -64,7 +65,7 @@ def test_bounded_family_converges_fast_to_the_bounded_optimum(seed):
     assert int(sol.iterations) <= 3 * int(free.iterations) + 10, (int(sol.iterations), int(free.iterations))
 
 
-@pytest.mark.parametrize("factory", [pendulum, pytest.param(cart_pole, marks=pytest.mark.slow), acrobot])
+@pytest.mark.parametrize("factory", [pendulum, pytest.param(cart_pole, marks=pytest.mark.full), acrobot])
 def test_swing_up_from_rest_reaches_the_multi_start_optimum(factory):
     # the torque-limited swing-ups of models.pendulum (4 N m), models.cart_pole (10 N) and
     # models.acrobot (5 N m at the elbow) from u_init = 0: the cost of bounded L-BFGS-B from zero and

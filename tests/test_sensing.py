@@ -62,7 +62,7 @@ DELAYS = [(0, 0), (1, 3), (5, 0), (5, 3)]       # (l_s, l_m)
 N_TRIALS = 2000             # one compiled Monte Carlo per problem serves the tests below
 
 
-@pytest.mark.parametrize("ls,lm", DELAYS)
+@pytest.mark.parametrize("ls,lm", [d if d in ((0, 0), (5, 3)) else pytest.param(*d, marks=pytest.mark.full) for d in DELAYS])
 def test_linear_plant_equals_the_lqg_layer(ls, lm):
     problem, sol = linear_solution(ls, lm)
     assert sol.converged, sol.message
@@ -325,6 +325,7 @@ def test_models_attach_their_default_sensors():
         arm2(sensory_delay=0.025)
 
 
+@pytest.mark.full
 def test_sensing_study_runs_both_filters_on_the_delayed_sensors():
     """l_s = 5: both designs share the controller and nominal; the aware one has an exact expected
     cost, the ignorant one (its filter made for l_s = 0, run on sensors 5 steps late: the plant's

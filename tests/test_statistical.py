@@ -155,7 +155,7 @@ def test_bad_input_is_refused_by_name():
         statistical_feedback(sensed, policy)
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_muscle_arm_sl_design_beats_both_designs_where_the_tail_dominates():
     """Issue 19's ordering on its worst case: the six-muscle arm at 50 ms, target 8 of the
     center-out study (down and to the right), where the noise-aware design's Monte Carlo mean is
