@@ -143,7 +143,8 @@ def plot_fitts(results: Sequence):
     ax.set_xlabel("index of difficulty log$_2$(2D/W) [bit]")
     ax.set_ylabel("movement time MT [ms]")
     ax.legend(fontsize=7)
-    ax.set_title("The movement time the model chooses (Fitts 1954; MacKenzie 1992)", fontsize=10)
+    ax.set_title("MT against the index of difficulty", fontsize=10)
+    fig.suptitle("Fitts' law: the movement time the model chooses (Fitts 1954; MacKenzie 1992)")
     r = results[0]
     for d, bias, sd in zip(r.distances, np.asarray(r.bias), np.asarray(r.sd)):
         ax_w.plot(1e3 * np.asarray(r.movement_times), 1e3 * (EFFECTIVE_WIDTH_SD * sd + 2 * np.abs(bias)), marker="o",
