@@ -4,7 +4,7 @@ is that time linear in the index of difficulty log2(2D/W), and how does it depen
 Published: movement time MT = a + b log2(2D/W) (Fitts 1954, J Exp Psychol 47:381: b about 100 ms/bit
 for reciprocal tapping); in discrete aimed movements Schmidt, Zelaznik, Hawkins, Frank & Quinn 1979
 (Psychol Rev 86:415) found the effective width proportional to D / MT; slopes of 100-200 ms/bit are
-usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006 (J Biomech 39:2578), cited by the seed
+usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006, cited by the seed
 paper, explain the law by the feedback delay.
 
 The model (after Harris & Wolpert 1998's account of Fitts' law by signal-dependent noise): a reach
@@ -189,7 +189,7 @@ def comparison(results: list) -> list[dict]:
         floor = 1e3 * narrowest_width(r)
         rows.append(dict(finding=f"narrowest width met, motor delay {1e3 * r.delay:.0f} ms", source="Fitts 1954",
                          published="0.25 in (6.35 mm) met at every amplitude",
-                         measured=f"{floor.min():.1f}-{floor.max():.1f} mm (4.133 SD + 2 |bias| at "
+                         measured=f"{floor.min():.1f}-{floor.max():.1f} mm (the effective width at "
                                   f"T = {r.movement_times[-1]:g} s, D = {1e2 * r.distances.min():g}-"
                                   f"{1e2 * r.distances.max():g} cm)"))
     return rows

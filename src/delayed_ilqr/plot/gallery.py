@@ -157,7 +157,8 @@ def plot_fitts(results: Sequence):
     ax_w.set_yscale("log")
     ax_w.set_xlabel("movement time allowed T [ms]")
     ax_w.set_ylabel("effective width 4.133 SD + 2 |bias| [mm]")
-    ax_w.set_title(f"Endpoint spread at T, motor delay {1e3 * r.delay:.0f} ms\n(widths: the grid's dotted, Fitts 1954's others dashed)", fontsize=10)
+    ax_w.set_title(f"Endpoint spread at T, motor delay {1e3 * r.delay:.0f} ms\n"
+                   "(widths: the grid's dotted, Fitts 1954's others dashed)", fontsize=10)
     ax_w.legend(fontsize=7)
     return fig
 
