@@ -22,9 +22,9 @@ met is NaN; both are left out of the fit.
 
 **The floor.** The endpoint SD along the movement stops shrinking when more time is allowed: it is
 the delayed filter's error in estimating the hand from noisy proprioception (with the state seen, the
-same reaches scatter ten times less; measured in ``docs/gallery/fitts.md``), so a width below about
-4.133 times that floor is never met. The default widths lie above it (`WIDTHS`); Fitts 1954's narrower ones
-(`FITTS_1954_WIDTHS`) cost nothing more to judge on the same trials (`narrowest_width`).
+same reaches scatter far less; measured in ``docs/gallery/fitts.md``), so a width below about 4.133
+times that floor is never met. The default widths lie above it (`WIDTHS`); Fitts 1954's narrower
+ones (`FITTS_1954_WIDTHS`) cost nothing more to judge on the same trials (`narrowest_width`).
 """
 from __future__ import annotations
 
@@ -107,8 +107,9 @@ def criterion_margin(bias, sd, width) -> np.ndarray:
 
 
 def narrowest_width(result: "FittsResult") -> np.ndarray:
-    """[D] the effective width (m) at the grid's longest movement time: where the endpoint SD has
-    stopped shrinking, the narrowest width the model meets on the grid (a narrower one is never met)."""
+    """[D] the effective width (m) at the grid's longest movement time, where the endpoint SD has
+    stopped shrinking: the narrowest width met on the grid (`shortest_meeting` gives NaN for any
+    narrower one)."""
     return effective_width(result.bias[:, -1], result.sd[:, -1])
 
 
