@@ -272,25 +272,44 @@ def test_target_jump_command_writes_an_atomic_folder_with_its_manifest(tmp_path)
 @pytest.fixture(scope="module")
 def fitts_result():
     from delayed_ilqr.experiments.fitts import DISTANCES, WIDTHS, fitts_experiment
-    (r,) = fitts_experiment(ARM, distances=DISTANCES, widths=WIDTHS,                     # Fitts 1954's grid
-                            movement_times=(0.2, 0.3, 0.4, 0.5, 0.6, 0.7), delays=("model",), trials=40, seed=SEED)
+    (r,) = fitts_experiment(ARM, distances=DISTANCES[:3], widths=WIDTHS,     # Fitts 1954's 2, 4, 8 in; 1-2 in
+                            movement_times=(0.1, 0.15, 0.2, 0.25, 0.3, 0.4), delays=("model",), trials=40, seed=SEED)
     return r
 
 
-FITTS_NOT_YET = pytest.mark.xfail(strict=True, reason=(
-    "not reproduced with the six-muscle arm's defaults: on Fitts 1954's grid b = 244 ms/bit, R^2 = 0.54 over 4 of 12 "
-    "conditions at the default delay, 40 trials (the effective width stops falling at 10-19 mm, so the 6.4 mm "
-    "width is never met and most others at the grid's shortest times); docs/gallery/fitts.md"))
-
-
-@FITTS_NOT_YET
-def test_chosen_movement_time_follows_fitts_law(fitts_result):
-    from delayed_ilqr.experiments.fitts import SLOPE_RANGE
+def test_fitts_movement_time_is_linear_in_the_index_above_the_floor(fitts_result):
+    from delayed_ilqr.experiments.fitts import criterion_margin
     r = fitts_result
+    unfinished = np.array([[not s.startswith("CONVERGED") for s in row] for row in r.status])
+    assert np.all(criterion_margin(r.bias, r.sd, max(r.widths))[unfinished] < 0), r.status   # none counts as met
     inside = np.isfinite(r.mt) & (r.mt > r.movement_times[0])
     assert inside.sum() >= 6, r.mt                              # enough conditions to fit
     assert r.fit is not None and r.fit.r2 >= 0.9, r.fit         # Fitts 1954: MT linear in log2(2D/W)
-    assert SLOPE_RANGE[0] <= r.fit.b <= SLOPE_RANGE[1], r.fit   # 100-200 ms/bit (MacKenzie 1992)
+    assert r.fit.b > 0.05, r.fit                                # at least 50 ms/bit
+    met = np.where(np.isfinite(r.mt), r.mt, np.inf)
+    assert np.all(np.diff(met, axis=0) >= 0) and np.all(np.diff(met, axis=1) <= 0), r.mt   # farther, narrower: slower
+
+
+FITTS_SLOPE_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "the slope is below the published range: 72 ms/bit at the model's delays over 1-2 in widths and 2-12 in "
+    "amplitudes (100 trials; 70 ms/bit here: docs/gallery/fitts.md); 100-200 ms/bit in discrete pointing "
+    "(MacKenzie 1992)"))
+FITTS_FLOOR_NOT_YET = pytest.mark.xfail(strict=True, reason=(
+    "the endpoint SD stops shrinking at 3-5 mm (the delayed filter's error in estimating the hand from "
+    "proprioception): the narrowest width met is 13-20 mm, Fitts 1954's 0.25 in (6.35 mm) is never met: "
+    "docs/gallery/fitts.md"))
+
+
+@FITTS_SLOPE_NOT_YET
+def test_fitts_slope_within_the_published_range(fitts_result):
+    from delayed_ilqr.experiments.fitts import SLOPE_RANGE
+    assert SLOPE_RANGE[0] <= fitts_result.fit.b <= SLOPE_RANGE[1], fitts_result.fit   # 100-200 ms/bit
+
+
+@FITTS_FLOOR_NOT_YET
+def test_fitts_1954_narrowest_width_is_met(fitts_result):
+    from delayed_ilqr.experiments.fitts import FITTS_1954_WIDTHS, narrowest_width
+    assert np.all(narrowest_width(fitts_result) <= min(FITTS_1954_WIDTHS)), narrowest_width(fitts_result)
 
 
 @pytest.fixture(scope="module")
@@ -339,14 +358,25 @@ def test_full_bar_target_scatters_along_the_bar():
     assert bar.status.startswith("CONVERGED") and bar.ratio >= 1.5
 
 
+@pytest.fixture(scope="module")
+def full_fitts():
+    from delayed_ilqr.experiments.fitts import fitts_experiment
+    return fitts_experiment(ARM, trials=100, seed=SEED)                 # the command's default: the docs' numbers
+
+
 @pytest.mark.full
-@FITTS_NOT_YET
-def test_full_fitts_law_at_two_delays():
-    from delayed_ilqr.experiments.fitts import SLOPE_RANGE, fitts_experiment
-    results = fitts_experiment(ARM, trials=100, seed=SEED)
-    for r in results:
-        assert r.fit is not None and r.fit.r2 >= 0.9 and SLOPE_RANGE[0] <= r.fit.b <= SLOPE_RANGE[1], r.fit
-    assert np.nanmean(results[1].mt) > np.nanmean(results[0].mt)       # a longer delay, slower
+def test_full_fitts_law_at_two_delays(full_fitts):
+    model, late = full_fitts
+    assert model.fit is not None and model.fit.r2 >= 0.9, model.fit
+    both = np.isfinite(model.mt) & np.isfinite(late.mt) & (model.mt > model.movement_times[0])
+    assert both.sum() >= 3 and np.all(late.mt[both] > model.mt[both])    # a longer delay, slower
+
+
+@pytest.mark.full
+@FITTS_SLOPE_NOT_YET
+def test_full_fitts_slope_within_the_published_range(full_fitts):
+    from delayed_ilqr.experiments.fitts import SLOPE_RANGE
+    assert SLOPE_RANGE[0] <= full_fitts[0].fit.b <= SLOPE_RANGE[1], full_fitts[0].fit
 
 
 @pytest.mark.full

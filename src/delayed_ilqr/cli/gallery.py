@@ -194,7 +194,7 @@ def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, tria
 @click.option("--distances", type=DelayList(), default=",".join(f"{d:g}" for d in fitts.DISTANCES), show_default=True,
               help="Comma-separated movement distances (m).")
 @click.option("--widths", type=DelayList(), default=",".join(f"{w:g}" for w in fitts.WIDTHS), show_default=True,
-              help="Comma-separated target widths (m).")
+              help="Comma-separated target widths (m); Fitts 1954's are 0.00635,0.0127,0.0254,0.0508.")
 @click.option("--movement-times", type=DelayList(), show_default=True,
               default=",".join(f"{t:g}" for t in fitts.MOVEMENT_TIMES),
               help="Comma-separated movement times (s, increasing): the grid the model chooses from.")

@@ -4,7 +4,7 @@ is that time linear in the index of difficulty log2(2D/W), and how does it depen
 Published: movement time MT = a + b log2(2D/W) (Fitts 1954, J Exp Psychol 47:381: b about 100 ms/bit
 for reciprocal tapping); in discrete aimed movements Schmidt, Zelaznik, Hawkins, Frank & Quinn 1979
 (Psychol Rev 86:415) found the effective width proportional to D / MT; slopes of 100-200 ms/bit are
-usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006 (J Biomech 39:2578), cited by the seed
+usual in pointing, and Beamish, Bhatti, MacKenzie & Wu 2006, cited by the seed
 paper, explain the law by the feedback delay.
 
 The model (after Harris & Wolpert 1998's account of Fitts' law by signal-dependent noise): a reach
@@ -19,6 +19,12 @@ effective width 4.133 SD, MacKenzie 1992). MT(D, W) is the shortest T that meets
 squares (`responses.fitts_fit`) over the conditions whose MT lies inside the grid: a condition met
 already at the shortest time on the grid is censored (its MT is at most that time) and one never
 met is NaN; both are left out of the fit.
+
+**The floor.** The endpoint SD along the movement stops shrinking when more time is allowed: it is
+the delayed filter's error in estimating the hand from noisy proprioception (with the state seen, the
+same reaches scatter far less; measured in ``docs/gallery/fitts.md``), so a width below about 4.133
+times that floor is never met. The default widths lie above it (`WIDTHS`); Fitts 1954's narrower
+ones (`FITTS_1954_WIDTHS`) cost nothing more to judge on the same trials (`narrowest_width`).
 """
 from __future__ import annotations
 
@@ -35,8 +41,8 @@ from .engine import monte_carlo, solve_batch, take
 from .reach_tasks import MODEL_DEFAULT, hold_from, reach, reach_targets, solver_options
 from .responses import EFFECTIVE_WIDTH_SD, FittsFit, fitts_fit, index_of_difficulty, shortest_meeting
 
-__all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "MOVEMENT_TIMES", "FittsResult", "criterion_margin",
-           "fitts_experiment", "comparison"]
+__all__ = ["PUBLISHED", "SLOPE_RANGE", "DISTANCES", "WIDTHS", "FITTS_1954_WIDTHS", "MOVEMENT_TIMES", "FittsResult",
+           "effective_width", "criterion_margin", "narrowest_width", "fitts_experiment", "comparison"]
 
 PUBLISHED = (
     ("MT linear in log2(2D/W)", "Fitts 1954", "MT = a + b ID, b about 0.1 s/bit (tapping)"),
@@ -44,13 +50,17 @@ PUBLISHED = (
     ("delay as a cause", "Beamish, Bhatti, MacKenzie & Wu 2006", "longer feedback delay, longer MT"),
 )
 
-#: The default grid: the amplitudes and widths of Fitts 1954's reciprocal tapping (A = 2, 4, 8, 16 in;
-#: W = 0.25, 0.5, 1, 2 in) in metres, without the 16 in amplitude (41 cm to the right of the start
-#: would bring the arm to full extension); and the movement times (s) the model chooses from.
+#: The default grid: Fitts 1954's amplitudes (reciprocal tapping: A = 2, 4, 8, 16 in) with 12 in in place
+#: of 16 in (41 cm to the right of the start would bring the arm to full extension; 30 cm is the upper end
+#: of arm-scale discrete pointing), in metres; the widths 1, 1.5 and 2 in, those of Fitts 1954's widths
+#: (0.25, 0.5, 1, 2 in, `FITTS_1954_WIDTHS`) that lie above the narrowest the model can meet at its
+#: default delays (`narrowest_width`, the floor of the module docstring), with 1.5 in added to make
+#: three; and the movement times (s) the model chooses from.
 INCH = 0.0254
-DISTANCES = tuple(round(a * INCH, 6) for a in (2, 4, 8))
-WIDTHS = tuple(round(w * INCH, 6) for w in (0.25, 0.5, 1, 2))
-MOVEMENT_TIMES = tuple(float(t) for t in np.round(np.arange(0.15, 0.801, 0.05), 3))
+DISTANCES = tuple(round(a * INCH, 6) for a in (2, 4, 8, 12))
+WIDTHS = tuple(round(w * INCH, 6) for w in (1, 1.5, 2))
+FITTS_1954_WIDTHS = tuple(round(w * INCH, 6) for w in (0.25, 0.5, 1, 2))
+MOVEMENT_TIMES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6)
 
 #: The published range of the slope b (s/bit) that the docs compare with.
 SLOPE_RANGE = (0.1, 0.2)
@@ -86,9 +96,22 @@ class FittsResult(NamedTuple):
     problem: Optional[Problem] = None
 
 
+def effective_width(bias, sd) -> np.ndarray:
+    """4.133 SD + 2 |bias| (m): the narrowest target, centred on the aim, that holds the endpoints by the
+    criterion of the module docstring."""
+    return EFFECTIVE_WIDTH_SD * np.asarray(sd) + 2 * np.abs(bias)
+
+
 def criterion_margin(bias, sd, width) -> np.ndarray:
     """W / 2 - (|bias| + 4.133 SD / 2): >= 0 where the endpoints lie within the width (module docstring)."""
-    return 0.5 * np.asarray(width) - (np.abs(bias) + 0.5 * EFFECTIVE_WIDTH_SD * np.asarray(sd))
+    return 0.5 * (np.asarray(width) - effective_width(bias, sd))
+
+
+def narrowest_width(result: "FittsResult") -> np.ndarray:
+    """[D] the effective width (m) at the grid's longest movement time, where the endpoint SD has
+    stopped shrinking: the narrowest width met on the grid (`shortest_meeting` gives NaN for any
+    narrower one)."""
+    return effective_width(result.bias[:, -1], result.sd[:, -1])
 
 
 def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, widths: Sequence[float] = WIDTHS,
@@ -154,14 +177,21 @@ def fitts_experiment(arm: str = "arm2", distances: Sequence[float] = DISTANCES, 
 
 
 def comparison(results: list) -> list[dict]:
-    """Rows (finding, source, published, measured) of the docs' table: the fit at each delay."""
+    """Rows (finding, source, published, measured) of the docs' table: the fit at each delay, and the
+    narrowest width the model meets (`narrowest_width`)."""
     rows = []
     for r in results:
         n_met = int(np.count_nonzero(r.mt > r.movement_times[0]))
         fit = "no fit (fewer than 3 conditions met the criterion)" if r.fit is None else \
-            f"MT = {r.fit.a:.3f} s + {1e3 * r.fit.b:.0f} ms/bit x ID, R^2 = {r.fit.r2:.2f}"
+            f"MT = {1e3 * r.fit.a:.0f} ms + {1e3 * r.fit.b:.0f} ms/bit x ID, R^2 = {r.fit.r2:.2f}"
         rows.append(dict(finding=f"motor delay {delay_text(r.delay)}", source="Fitts 1954; MacKenzie 1992",
                          published="MT linear in ID, b = 100-200 ms/bit",
                          measured=f"{fit} ({n_met} of {r.mt.size} conditions inside the grid; "
-                                  f"mean MT {np.nanmean(r.mt):.3f} s)"))
+                                  f"mean MT {1e3 * np.nanmean(r.mt):.0f} ms)"))
+        floor = 1e3 * narrowest_width(r)
+        rows.append(dict(finding=f"narrowest width met, motor delay {delay_text(r.delay)}", source="Fitts 1954",
+                         published="0.25 in (6.35 mm) met at every amplitude",
+                         measured=f"{floor.min():.1f}-{floor.max():.1f} mm (the effective width at "
+                                  f"T = {r.movement_times[-1]:g} s, D = {1e2 * r.distances.min():g}-"
+                                  f"{1e2 * r.distances.max():g} cm)"))
     return rows

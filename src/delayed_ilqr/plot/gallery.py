@@ -107,28 +107,60 @@ def plot_target_jump(result):
 
 
 def plot_fitts(results: Sequence):
-    """The chosen movement time against log2(2D/W), one colour per delay, with the fitted lines and
-    the published slope range 0.1-0.2 s/bit (shaded, through the model's mean point)."""
-    fig = figure(figsize=(6.5, 4.8), layout="constrained")
-    ax = fig.subplots()
+    """Two panels. Left: the chosen movement time (ms) against log2(2D/W) (bit), one colour per
+    motor delay: filled where MT lies inside the grid of movement times (the fitted conditions),
+    open triangles down at the grid's shortest time where the criterion was met already there
+    (MT at most that), triangles up at the longest time where it was never met; each fit drawn
+    over the indices it was fitted on, with the published slopes 100-200 ms/bit (shaded, from the
+    first delay's fit at its smallest index). Right: the effective width 4.133 SD + 2 |bias| (mm) against the
+    time allowed, one line per distance (first delay), beside the grid's widths (dotted) and Fitts
+    1954's (dashed): a width below the lines' floor is never met."""
+    from ..experiments.fitts import FITTS_1954_WIDTHS
+    from ..experiments.responses import EFFECTIVE_WIDTH_SD
+    fig = figure(figsize=(11, 4.8), layout="constrained")
+    ax, ax_w = fig.subplots(1, 2, gridspec_kw=dict(width_ratios=(1.25, 1)))
     colors = ("tab:blue", "tab:red", "tab:green", "tab:purple")
     for i, r in enumerate(results):
         c = colors[i % len(colors)]
-        ax.scatter(r.index.ravel(), r.mt.ravel(), color=c, label=f"motor delay {delay_text(r.delay)}")
+        ts, index, mt = np.asarray(r.movement_times), np.asarray(r.index), np.asarray(r.mt)
+        inside = np.isfinite(mt) & (mt > ts[0])
+        censored, never = np.isfinite(mt) & ~inside, ~np.isfinite(mt)
+        name = f"motor delay {delay_text(r.delay)}"
+        ax.scatter(index[inside], 1e3 * mt[inside], color=c, label=f"{name}: MT inside the grid")
+        if censored.any():
+            ax.scatter(index[censored], np.full(censored.sum(), 1e3 * ts[0]), facecolors="none", edgecolors=c,
+                       marker="v", label=f"{name}: met at {1e3 * ts[0]:.0f} ms already (MT <=)")
+        if never.any():
+            ax.scatter(index[never], np.full(never.sum(), 1e3 * ts[-1]), color=c, marker="^", alpha=0.5,
+                       label=f"{name}: not met by {1e3 * ts[-1]:.0f} ms")
         if r.fit is not None:
-            x = np.linspace(np.nanmin(r.index), np.nanmax(r.index), 10)
-            ax.plot(x, r.fit.a + r.fit.b * x, color=c,
-                    label=f"MT = {r.fit.a:.3f} + {r.fit.b:.3f} ID, R^2 = {r.fit.r2:.2f}")
-    ok = [r for r in results if r.fit is not None]
-    if ok:
-        x = np.linspace(np.nanmin(ok[0].index), np.nanmax(ok[0].index), 10)
-        xm, ym = float(np.nanmean(ok[0].index)), float(np.nanmean(ok[0].mt))
-        ax.fill_between(x, ym + 0.1 * (x - xm), ym + 0.2 * (x - xm), color="0.8", alpha=0.5,
-                        label="published slopes 0.1-0.2 s/bit")
-    ax.set_xlabel("index of difficulty log2(2D/W) [bit]")
-    ax.set_ylabel("movement time [s]")
-    ax.legend(fontsize=8)
-    ax.set_title("Fitts' law: the movement time the model chooses", fontsize=10)
+            x = np.linspace(index[inside].min(), index[inside].max(), 10)
+            ax.plot(x, 1e3 * (r.fit.a + r.fit.b * x), color=c,
+                    label=f"fit: {1e3 * r.fit.b:.0f} ms/bit, a = {1e3 * r.fit.a:.0f} ms, R$^2$ = {r.fit.r2:.2f}")
+            if i == 0:
+                y0 = r.fit.a + r.fit.b * x[0]
+                ax.fill_between(x, 1e3 * (y0 + 0.1 * (x - x[0])), 1e3 * (y0 + 0.2 * (x - x[0])), color="0.8",
+                                alpha=0.5, label="published slopes 100-200 ms/bit (from the fit's first point)")
+    ax.set_xlabel("index of difficulty log$_2$(2D/W) [bit]")
+    ax.set_ylabel("movement time MT [ms]")
+    ax.legend(fontsize=7)
+    ax.set_title("MT against the index of difficulty", fontsize=10)
+    fig.suptitle("Fitts' law: the movement time the model chooses (Fitts 1954; MacKenzie 1992)")
+    r = results[0]
+    for d, bias, sd in zip(r.distances, np.asarray(r.bias), np.asarray(r.sd)):
+        ax_w.plot(1e3 * np.asarray(r.movement_times), 1e3 * (EFFECTIVE_WIDTH_SD * sd + 2 * np.abs(bias)), marker="o",
+                  label=f"D = {1e2 * d:g} cm")
+    for w in sorted(set(np.round(np.asarray(r.widths), 6)) | set(FITTS_1954_WIDTHS)):
+        fitted = bool(np.any(np.isclose(r.widths, w)))
+        ax_w.axhline(1e3 * w, color="0.3" if fitted else "0.6", linestyle=":" if fitted else "--", linewidth=1)
+        ax_w.annotate(f"W = {1e3 * w:.3g} mm", (0.99, 1e3 * w), xycoords=("axes fraction", "data"), ha="right",
+                      va="bottom", fontsize=7, color="0.3" if fitted else "0.6")
+    ax_w.set_yscale("log")
+    ax_w.set_xlabel("movement time allowed T [ms]")
+    ax_w.set_ylabel("effective width 4.133 SD + 2 |bias| [mm]")
+    ax_w.set_title(f"Endpoint spread at T, motor delay {delay_text(r.delay)}\n"
+                   "(widths: the grid's dotted, Fitts 1954's others dashed)", fontsize=10)
+    ax_w.legend(fontsize=7)
     return fig
 
 
