@@ -148,9 +148,28 @@ def test_muscles_can_respond_in_both_directions(measured):
         assert r.at_bound < 0.15 and r.zero_rows < 0.35, r
 
 
-@pytest.mark.xfail(strict=True, reason="the endpoint ellipses keep the posture's orientation (8-44 deg from +x) "
-                   "whichever noise source dominates, so they align with the movement only near that axis: "
-                   "docs/results/center_out_human.md, 'The noise sources'")
+def _axis_difference(a, b) -> float:
+    """The angle in [0, 90] deg between two axes given by their orientations in degrees."""
+    d = abs(a - b) % 180.0
+    return min(d, 180.0 - d)
+
+
+def test_the_endpoint_scatter_is_the_filters_final_error(measured):
+    """Why the ellipses keep the posture's orientation: the hand ends where the delayed Kalman filter
+    believes the target is, so the endpoint scatter is, for the most part, the filter's own error at
+    the last command (its hand error e(x) - e(x_hat)). Its ellipse has the endpoints' orientation
+    and it explains most of their variance (measured 2026-12-06, 8 targets, 100 trials: axes within
+    7 deg, correlation 0.66-0.87 per coordinate; docs/results/center_out_human.md). A noise whose
+    uncorrected part set the endpoints instead (the movement-aligned scatter that is published)
+    would break this."""
+    for r in measured:
+        assert _axis_difference(r.orientation, r.estimate_orientation) <= 20, r
+        assert r.estimate_share >= 0.4, r
+
+
+@pytest.mark.xfail(strict=True, reason="the endpoint ellipses keep the orientation of the filter's final error "
+                   "(8-47 deg from +x), whichever noise source dominates, so they align with the movement only "
+                   "near that axis: docs/results/center_out_human.md, 'Why the ellipses keep the posture's orientation'")
 def test_endpoint_ellipses_lie_along_the_movement(measured):
     assert sum(r.angle <= 30 for r in measured) >= 2
 
