@@ -40,7 +40,8 @@ The human preset (``noise=True``, the default; §4.7 has every value with its so
   2004 model both). The delayed Kalman filter takes its process noise from F at the nominal, so
   it expects unexplained torques.
 - Delays and sensors: a motor (efferent and electromechanical) delay `MOTOR_DELAY` = 20 ms and
-  proprioception (joint angles and velocities, `sensors.joint_sensors`) delayed by
+  proprioception (joint angles and velocities, `sensors.joint_sensors`, noise densities
+  ``joint_angle_noise`` and ``joint_velocity_noise``) delayed by
   `SENSORY_DELAY` = 40 ms: a 60 ms loop, in the long-latency range (50-100 ms; short-latency
   reflexes 20-50 ms, voluntary responses after 100 ms; Pruszynski & Scott 2012).
 
@@ -52,10 +53,11 @@ curved (``docs/results/reach_shape.md``), because the force A ~ (a / (0.56 N_f))
 N_f >= 2.11 makes an effort on the excitations concave in the force, which favours bursts.
 
 What the preset gives, measured (``docs/results/center_out_human.md``): on the 8 center-out
-reaches of 10 cm, single-peaked hand speed with peak/mean 1.63-1.78, mean paths within 0.4-7.9 %
-of straight, endpoint SD 3.0-4.0 mm; the endpoint ellipses keep roughly the posture's orientation
-rather than the movement's (3 of 8 within 30 deg of it), and one unseen reach (15 cm at
-112.5 deg) curves by 10.5 %.
+reaches of 10 cm, single-peaked hand speed with peak/mean 1.62-1.78, mean paths within 0.5-7.7 %
+of straight, endpoint SD 2.8-3.9 mm; the endpoint ellipses are the delayed filter's final error,
+along the shoulder's rotation rather than the movement (3 of 8 within 30 deg of it; 5 of 8 with
+proprioception at the precision of human position sense, `POSITION_SENSE`), and one unseen reach
+(15 cm at 112.5 deg) curves by 10.5 %.
 """
 from __future__ import annotations
 
