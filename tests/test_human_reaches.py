@@ -174,8 +174,8 @@ def test_the_endpoint_scatter_is_the_filters_final_error(measured):
     """Why the ellipses keep the posture's orientation: the hand ends where the delayed Kalman filter
     believes the target is, so the endpoint scatter is, for the most part, the filter's own error at
     the last command (its hand error e(x) - e(x_hat)). Its ellipse has the endpoints' orientation
-    and it explains most of their variance (measured 2026-12-06, 8 targets, 100 trials: axes within
-    7 deg, correlation 0.66-0.87 per coordinate; docs/results/center_out_human.md). A noise whose
+    and it explains most of their variance (measured 2026-12-06, 8 targets, 300 trials: axes within
+    7 deg, 55-68 % of the variance; docs/results/center_out_human.md). A noise whose
     uncorrected part set the endpoints instead (the movement-aligned scatter that is published)
     would break this."""
     for r in measured:
@@ -184,7 +184,7 @@ def test_the_endpoint_scatter_is_the_filters_final_error(measured):
 
 
 @pytest.mark.xfail(strict=True, reason="the endpoint ellipses keep the orientation of the filter's final error "
-                   "(8-47 deg from +x), whichever noise source dominates, so they align with the movement only "
+                   "(8-44 deg from +x), whichever noise source dominates, so they align with the movement only "
                    "near that axis: docs/results/center_out_human.md, 'Why the ellipses keep the posture's orientation'")
 def test_endpoint_ellipses_lie_along_the_movement(measured):
     assert sum(r.angle <= 30 for r in measured) >= 2
