@@ -38,6 +38,11 @@ class Reach(NamedTuple):
         angle: between the major axis and the movement direction, in [0, 90].
         orientation: of the major axis, counter-clockwise from +x, in [0, 180).
         bias: distance of the mean endpoint from the target.
+        estimate_sd_major, estimate_orientation: SD along the major axis and its orientation (from
+            +x, in [0, 180)) of the filter's hand error at the last command, e(x_{K-1}) - e(x_hat_{K-1})
+            (x_hat the delayed Kalman filter's estimate the command u_{K-1} was computed from).
+        estimate_share: fraction of the endpoint variance that this estimation error explains
+            (multivariate linear regression of the endpoints on it; 0 without a filter).
         mc_cost, predicted_cost: Monte Carlo mean cost and the LQG's expected cost (linearised).
         at_bound: fraction of the nominal's (step, muscle) excitations at a bound (0 or 1).
         zero_rows: fraction of (step, muscle) rows of the state feedback that are exactly zero.
@@ -57,6 +62,9 @@ class Reach(NamedTuple):
     angle: float
     orientation: float
     bias: float
+    estimate_sd_major: float
+    estimate_orientation: float
+    estimate_share: float
     mc_cost: float
     predicted_cost: float
     at_bound: float
@@ -92,6 +100,7 @@ def _measure(plant, sol, n_trials: int, seed: int) -> Reach:
     ends = hand[:, -1]
     eigval, eigvec = np.linalg.eigh(np.cov(ends, rowvar=False))
     major = eigvec[:, -1]
+    est = _estimation_error(plant, trials.runs, ends)
     angle = np.degrees(np.arccos(min(1.0, abs(np.cos(np.arctan2(major[1], major[0]) - direction)))))
     return Reach(direction=float(np.degrees(direction)), distance=float(np.linalg.norm(chord)),
                  status=Status(int(sol.status)).name, peaks=len(peaks), peak_to_mean=float(speed.max() / speed.mean()),
@@ -101,10 +110,26 @@ def _measure(plant, sol, n_trials: int, seed: int) -> Reach:
                  trial_deviation=float(np.median([s.deviation for s in shapes])),
                  sd_major=float(np.sqrt(eigval[-1])), sd_minor=float(np.sqrt(eigval[0])), angle=float(angle),
                  orientation=float(np.degrees(np.arctan2(major[1], major[0])) % 180.0),
-                 bias=float(np.linalg.norm(ends.mean(axis=0) - target)),
+                 bias=float(np.linalg.norm(ends.mean(axis=0) - target)), **est,
                  mc_cost=float(np.mean(np.asarray(trials.runs.cost))), predicted_cost=float(sol.expected_cost),
                  at_bound=float(np.mean((u <= np.asarray(plant.u_min)) | (u >= np.asarray(plant.u_max)))),
                  zero_rows=float(np.mean(np.all(np.asarray(sol.policy.state_feedback) == 0.0, axis=-1))))
+
+
+def _estimation_error(plant, runs, ends) -> dict:
+    """The filter's hand error at the last command (`Reach`'s estimate_* fields) and the share of the
+    endpoint variance [N, 2] ``ends`` that it explains; NaN and 0 under full-state feedback."""
+    if runs.x_hat is None:
+        return dict(estimate_sd_major=float("nan"), estimate_orientation=float("nan"), estimate_share=0.0)
+    err = np.asarray(task_position(plant, np.asarray(runs.x)[:, -2])) - np.asarray(task_position(plant, np.asarray(runs.x_hat)[:, -1]))
+    cov = np.cov(np.hstack([ends, err]), rowvar=False)       # [4, 4]: endpoints, then errors
+    c_ee, c_ye, c_yy = cov[2:, 2:], cov[:2, 2:], cov[:2, :2]
+    explained = np.trace(c_ye @ np.linalg.solve(c_ee, c_ye.T)) / np.trace(c_yy)
+    eigval, eigvec = np.linalg.eigh(c_ee)
+    major = eigvec[:, -1]
+    return dict(estimate_sd_major=float(np.sqrt(eigval[-1])),
+                estimate_orientation=float(np.degrees(np.arctan2(major[1], major[0])) % 180.0),
+                estimate_share=float(explained))
 
 
 def markdown(reaches: list[Reach], label: str = "target") -> str:
@@ -112,12 +137,14 @@ def markdown(reaches: list[Reach], label: str = "target") -> str:
     head = (f"| {label} | direction [deg] | distance [cm] | status | speed peaks (mean) | peak/mean (mean) | "
             "single-peaked trials | peak/mean (median trial) | path deviation (mean path) | path deviation (median trial) | "
             "endpoint SD major / minor [mm] | major axis vs movement [deg] | major axis from +x [deg] | "
+            "filter's final hand error SD major [mm], from +x [deg] | endpoint variance it explains | "
             "MC mean cost / linearised prediction |")
-    rows = [head, "|" + "---|" * 14]
+    rows = [head, "|" + "---|" * 16]
     for j, r in enumerate(reaches, 1):
         rows.append(f"| {j} | {r.direction:.0f} | {100 * r.distance:.0f} | {r.status} | {r.peaks} | {r.peak_to_mean:.2f} | "
                     f"{100 * r.single_peaked:.0f} % | {r.trial_peak_to_mean:.2f} | {100 * r.deviation:.1f} % | "
                     f"{100 * r.trial_deviation:.1f} % | "
                     f"{1e3 * r.sd_major:.1f} / {1e3 * r.sd_minor:.1f} | {r.angle:.0f} | {r.orientation:.0f} | "
+                    f"{1e3 * r.estimate_sd_major:.1f}, {r.estimate_orientation:.0f} | {100 * r.estimate_share:.0f} % | "
                     f"{r.mc_cost / r.predicted_cost:.2f} |")
     return "\n".join(rows)

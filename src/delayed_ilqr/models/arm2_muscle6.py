@@ -40,7 +40,8 @@ The human preset (``noise=True``, the default; §4.7 has every value with its so
   2004 model both). The delayed Kalman filter takes its process noise from F at the nominal, so
   it expects unexplained torques.
 - Delays and sensors: a motor (efferent and electromechanical) delay `MOTOR_DELAY` = 20 ms and
-  proprioception (joint angles and velocities, `sensors.joint_sensors`) delayed by
+  proprioception (joint angles and velocities, `sensors.joint_sensors`, noise densities
+  ``joint_angle_noise`` and ``joint_velocity_noise``) delayed by
   `SENSORY_DELAY` = 40 ms: a 60 ms loop, in the long-latency range (50-100 ms; short-latency
   reflexes 20-50 ms, voluntary responses after 100 ms; Pruszynski & Scott 2012).
 
@@ -52,10 +53,11 @@ curved (``docs/results/reach_shape.md``), because the force A ~ (a / (0.56 N_f))
 N_f >= 2.11 makes an effort on the excitations concave in the force, which favours bursts.
 
 What the preset gives, measured (``docs/results/center_out_human.md``): on the 8 center-out
-reaches of 10 cm, single-peaked hand speed with peak/mean 1.63-1.78, mean paths within 0.4-7.9 %
-of straight, endpoint SD 3.0-4.0 mm; the endpoint ellipses keep roughly the posture's orientation
-rather than the movement's (3 of 8 within 30 deg of it), and one unseen reach (15 cm at
-112.5 deg) curves by 10.5 %.
+reaches of 10 cm, single-peaked hand speed with peak/mean 1.62-1.78, mean paths within 0.5-7.7 %
+of straight, endpoint SD 2.8-3.9 mm; the endpoint ellipses are the delayed filter's final error,
+along the shoulder's rotation rather than the movement (3 of 8 within 30 deg of it; 5 of 8 with
+proprioception at the precision of human position sense, `POSITION_SENSE`), and one unseen reach
+(15 cm at 112.5 deg) curves by 10.5 %.
 """
 from __future__ import annotations
 
@@ -74,12 +76,12 @@ from . import muscle as _muscle
 from .arm2 import (ARM2_PARAMS, ARM_STATE_LABELS, Arm2Params, _check_params, hand_position, hand_task,
                    hand_velocity, joint_acceleration, mass_matrix_inverse)
 from .metadata import CostParameter, ModelMetadata
-from .sensors import arm_sensors
+from .sensors import JOINT_ANGLE_DENSITY, JOINT_VELOCITY_DENSITY, arm_sensors
 
 __all__ = ["arm2_muscle6", "center_out_targets", "rest_commands", "rest_activations", "default_x0",
            "force_cv", "Arm2Muscle6Dynamics", "Arm2Muscle6Noise", "ReachRunningCost", "MuscleEffort", "ReachFinalCost", "FINAL_TIME",
            "SIGMA_U", "SIGMA_TAU", "COACTIVATION", "A_REST", "LI_TODOROV", "MOTOR_DELAY", "SENSORY_DELAY", "PRESET", "Q0", "TARGET",
-           "GEOMETRIES", "DISTURBANCE_TORQUE", "DisturbanceTorqueNoise", "with_disturbance_model"]
+           "GEOMETRIES", "POSITION_SENSE", "DISTURBANCE_TORQUE", "DisturbanceTorqueNoise", "with_disturbance_model"]
 
 FINAL_TIME = 0.5  # s
 SIGMA_U = 0.01  # signal-dependent excitation noise (module docstring)
@@ -97,6 +99,15 @@ R_EFFORT, R_FORCE, W_POS, W_VEL, W_ACT = 1e-4, 1e-2, 1.0, 0.1, 0.0
 #: rest (start activations `A_REST`), effort r |u|^2 on the excitations only, excitation noise
 #: only, the state seen.
 LI_TODOROV = {"coactivation": None, "r_f": 0.0, "sigma_tau": 0.0, "sensory_delay": None}
+
+#: Proprioception at the precision of human position sense, for ``arm2_muscle6(**POSITION_SENSE)``:
+#: the joint-angle noise density 0.016 rad s^1/2, with which a held posture averaged for 1 s is
+#: known to 0.9 deg (van Beers, Sittig & Denier van der Gon 1998: shoulder and elbow angles are
+#: known to the nervous system with a precision of 0.6-1.1 deg), 8 times the preset's, and the
+#: velocity noise in the preset's ratio (10 per second). Under it the endpoint scatter is set by the
+#: execution noise that the sensors cannot resolve rather than by the filter's final error
+#: (``docs/results/center_out_human.md``).
+POSITION_SENSE = {"joint_angle_noise": 0.016, "joint_velocity_noise": 0.16}
 
 GEOMETRIES = {"angle_dependent": _muscle.ANGLE_DEPENDENT, "constant": _muscle.CONSTANT}
 
@@ -320,7 +331,8 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
                  geometry="angle_dependent", x0=None, sigma_u=SIGMA_U, sigma_tau=SIGMA_TAU, r=R_EFFORT,
                  r_f=R_FORCE, w_p=W_POS, w_v=W_VEL, w_a=W_ACT, arm: Arm2Params = ARM2_PARAMS,
                  t_act=_muscle.T_ACT, t_deact=_muscle.T_DEACT, sensory_delay=PRESET,
-                 coactivation=COACTIVATION, vision_delay=None) -> Problem:
+                 coactivation=COACTIVATION, vision_delay=None, joint_angle_noise=JOINT_ANGLE_DENSITY,
+                 joint_velocity_noise=JOINT_VELOCITY_DENSITY) -> Problem:
     """Reaching with the six-muscle arm, delayed excitations and (by default) the human preset.
 
     Args:
@@ -357,6 +369,10 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
             tonic rest (effort measured from zero, start activations `A_REST`, not an equilibrium).
         vision_delay: None (default): no vision. A delay in seconds: the hand position seen that
             late (`sensors.vision_sensors`), fused with proprioception when ``sensory_delay`` is set.
+        joint_angle_noise: the proprioceptive joint-angle noise density in rad s^1/2 (per-sample SD
+            density / sqrt(dt); used with ``sensory_delay``); `POSITION_SENSE` has the precision of
+            human position sense.
+        joint_velocity_noise: the joint-velocity noise density in rad s^-1/2 (likewise).
 
     Returns:
         A [`Problem`][delayed_ilqr.Problem] named ``"arm2_muscle6"`` with limits 0 <= u <= 1. Solve it
@@ -384,6 +400,8 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
     target = _common.vector(target, "target", 2)
     t_act, t_deact = _common.positive(t_act, "t_act"), _common.positive(t_deact, "t_deact")
     sigma_tau = _common.non_negative(sigma_tau, "sigma_tau")
+    joint_densities = (_common.positive(joint_angle_noise, "joint_angle_noise"),
+                       _common.positive(joint_velocity_noise, "joint_velocity_noise"))
     params = {"target": jnp.asarray(target), "u_rest": jnp.asarray(u_rest), "r": _common.positive(r, "r"),
               "r_f": _common.non_negative(r_f, "r_f"), "w_p": _common.non_negative(w_p, "w_p"),
               "w_v": _common.non_negative(w_v, "w_v"), "w_a": _common.non_negative(w_a, "w_a")}
@@ -393,4 +411,4 @@ def arm2_muscle6(delay=PRESET, target=TARGET, noise=True, dt=0.01, horizon=None,
     return Problem(dynamics=dynamics, x0=jnp.asarray(x0), dt=dt, horizon=horizon, delay_steps=delay_steps,
                    cost=cost, noise=noise_fn, u_min=np.zeros(6), u_max=np.ones(6), name="arm2_muscle6",
                    metadata=dataclasses.replace(METADATA if arm == ARM2_PARAMS else _metadata(arm), noise=preset),
-                   observation=arm_sensors(10, dt, sensory_delay, vision_delay, arm))
+                   observation=arm_sensors(10, dt, sensory_delay, vision_delay, arm, joint_densities))

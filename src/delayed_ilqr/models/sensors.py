@@ -64,9 +64,11 @@ def _sensors(n_states: int, densities, sensory_delay, dt: float) -> Observation:
     return Observation(H, G, delay_steps=sensory_steps(sensory_delay, dt, "sensory_delay"))
 
 
-def joint_sensors(n_states: int, sensory_delay, dt: float) -> Observation:
-    """Proprioception of an arm whose states begin [q1, q2, dq1, dq2]: joint angles and velocities."""
-    return _sensors(n_states, (JOINT_ANGLE_DENSITY,) * 2 + (JOINT_VELOCITY_DENSITY,) * 2, sensory_delay, dt)
+def joint_sensors(n_states: int, sensory_delay, dt: float, angle_density: float = JOINT_ANGLE_DENSITY,
+                  velocity_density: float = JOINT_VELOCITY_DENSITY) -> Observation:
+    """Proprioception of an arm whose states begin [q1, q2, dq1, dq2]: joint angles and velocities,
+    with the noise densities ``angle_density`` (rad s^1/2) and ``velocity_density`` (rad s^-1/2)."""
+    return _sensors(n_states, (angle_density,) * 2 + (velocity_density,) * 2, sensory_delay, dt)
 
 
 def point_sensors(sensory_delay, dt: float) -> Observation:
@@ -92,9 +94,11 @@ def proprioception_and_vision(n_states: int, dt: float, proprioception_delay=PRO
     return [joint_sensors(n_states, proprioception_delay, dt), vision_sensors(vision_delay, dt, params)]
 
 
-def arm_sensors(n_states: int, dt: float, sensory_delay, vision_delay, params=None):
-    """The arms' ``observation``: None, proprioception (``sensory_delay``), vision
-    (``vision_delay``), or both (a list of two sensors)."""
-    sensors = ([] if sensory_delay is None else [joint_sensors(n_states, sensory_delay, dt)]) + (
+def arm_sensors(n_states: int, dt: float, sensory_delay, vision_delay, params=None,
+                joint_densities=(JOINT_ANGLE_DENSITY, JOINT_VELOCITY_DENSITY)):
+    """The arms' ``observation``: None, proprioception (``sensory_delay``; ``joint_densities``, the
+    angle's and the velocity's noise density, `joint_sensors`), vision (``vision_delay``), or both
+    (a list of two sensors)."""
+    sensors = ([] if sensory_delay is None else [joint_sensors(n_states, sensory_delay, dt, *joint_densities)]) + (
         [] if vision_delay is None else [vision_sensors(vision_delay, dt, params)])
     return None if not sensors else sensors[0] if len(sensors) == 1 else sensors
