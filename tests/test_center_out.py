@@ -52,13 +52,17 @@ def _check_designs_at_the_longest_delay(n_targets):
 
 @pytest.mark.full
 def test_reaches_converge_to_all_eight_targets_with_delay():
-    # the full study at 100 ms (make bench: pytest -m full); the suite checks four of its targets below
+    # the full study at 100 ms (make bench: pytest -m full)
     _check_designs_at_the_longest_delay(8)
 
 
+@pytest.mark.full
 def test_reaches_converge_to_four_targets_with_delay():
-    # every other target of the eight (0, 90, 180 and 270 degrees): the same checks as the full
-    # study above, on half of its solves
+    # every other target of the eight (0, 90, 180 and 270 degrees). Its three designs are three large
+    # compiled programs: the suite keeps the statistical design, equal to statistical linearisation of
+    # the noise-aware solve, on two targets (test_statistical_design_is_sl_of_the_noise_aware_solve_on_the_same_noise), the
+    # delayed law on the muscle arm (test_delay_feedback_keeps_noisy_reaches_on_target) and the
+    # noise-aware design against the deterministic one on the benchmark problems (test_solver.py)
     _check_designs_at_the_longest_delay(4)
 
 
@@ -182,7 +186,7 @@ def test_center_out_command_refuses_a_delay_off_the_grid():
     assert "--delays" in result.output
 
 
-@pytest.mark.slow
+@pytest.mark.full
 def test_reaches_that_stalled_on_the_activation_switch_converge():
     """Derivation §12, cause 4: with the activation switch smoothed over 1e-3, these four noise-aware
     reaches (twice the default noise, 150 ms) took steps of a few per cent and ended MAX_ITERATIONS
