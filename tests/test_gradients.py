@@ -18,7 +18,7 @@ import pytest
 
 from delayed_ilqr import Options, Problem, QuadraticCost, Status, solve
 from delayed_ilqr.ilqg import implicit
-from delayed_ilqr.models import arm2, point_mass
+from delayed_ilqr.models import arm2
 
 from comparisons import WorstDifference, rel_err
 
@@ -131,27 +131,20 @@ def _held(problem: Problem) -> int:
     return int(np.sum(implicit.fixed_commands(problem, solve(problem, None, TIGHT).u, TIGHT.limit_margin)[0]))
 
 
-def test_point_mass_noisy_limited_delayed_matches_finite_differences():
-    """The suite's check of the full-size ones below, in one small problem: the point mass with its
-    signal-dependent noise 3 steps late, with limits at 0.7 of its noise-aware optimum's largest
-    commands. Forward mode against re-solves in every output (sigma_u and the limits among the
-    leaves): the noise-aware fixed point, whose dF/du is not symmetric, with the held commands
-    following the limit; reverse mode against forward mode."""
-    problem = _limited(point_mass(delay=0.03, noise=True), 0.7)
-    assert _held(problem) > 3
-    check_against_fd("point mass noisy limits 30 ms", problem, None, h=3e-4, rtol=1e-5)
-
-
-@pytest.mark.full
 def test_arm_noisy_limited_delayed_matches_finite_differences():
-    """The three arm cases below in one problem: the noisy arm at 50 ms with limits at 0.7 of its
-    noise-aware optimum's largest commands (11 commands held), forward mode against re-solves."""
+    """The suite's check of the three full-size ones below, in one problem: the noisy arm at 50 ms
+    with limits at 0.7 of its noise-aware optimum's largest commands (11 commands held). Forward
+    mode against re-solves in every output (sigma_u and the limits among the leaves): the
+    noise-aware fixed point, whose dF/du is not symmetric, with the held commands following the
+    limit. Reverse mode against forward mode on the arm (most of this check's compilation) is in
+    the full-size noisy check below; the suite holds it on the sensed point mass with additive noise
+    (test_solve_with_sensors_matches_finite_differences)."""
     problem = _limited(arm2(delay=0.05, noise="benchmark"), 0.7)
     assert _held(problem) > 5
     check_against_fd("arm noisy limits 50 ms", problem, None, h=3e-4, rtol=1e-5, reverse=False)
 
 
-# make bench (pytest -m full): the arm's cases one at a time; the suite keeps the point mass above
+# make bench (pytest -m full): the three cases one at a time; the suite keeps the combined one above
 @pytest.mark.full
 def test_arm_noisy_delayed_matches_finite_differences():
     """With noise: the derivative of the noise-aware fixed point, sigma_u among the leaves; dF/du is
@@ -285,6 +278,7 @@ def test_solve_with_sensors_matches_finite_differences(noise):
     before, reverse mode raised JAX's "Reverse-mode differentiation does not work for
     lax.while_loop" (Todorov's alternation). With signal-dependent noise the alternation runs, and
     its derivative is that of the alternations it ran."""
+    from delayed_ilqr.models import point_mass
     problem = point_mass(delay=0.02, noise=True, sensory_delay=0.01)
     if noise == "additive":
         problem = problem.replace(noise=_AdditiveForce())
@@ -303,6 +297,7 @@ def test_grad_over_a_framed_problem_equals_the_unframed_one():
     """``jax.grad`` over a whole framed problem (its delay a leaf): before, JAX refused the integer
     delay ("grad requires real- or complex-valued inputs"); now the gradient in every array equals
     the unframed problem's, and the delay's own entry is zero (a whole number of steps)."""
+    from delayed_ilqr.models import point_mass
     problem = point_mass(delay=0.02, noise=True)
     gradient = jax.jit(jax.grad(lambda p: solve(p, None, TIGHT).expected_cost))
     framed = gradient(problem.replace(delay_frame=4))

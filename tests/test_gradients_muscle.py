@@ -101,8 +101,8 @@ def test_six_muscle_arm_delayed_commands_match_finite_differences():
 
 
 # Both six-muscle checks run under make bench (pytest -m full): the suite keeps the noise-aware fixed
-# point's derivative with held commands against re-solves on the point mass (test_gradients.py,
-# test_point_mass_noisy_limited_delayed_matches_finite_differences, the same 1e-5)
+# point's derivative with held commands against re-solves on the torque arm (test_gradients.py,
+# test_arm_noisy_limited_delayed_matches_finite_differences, the same 1e-5)
 @pytest.mark.full
 def test_six_muscle_arm_delayed_noisy_commands_match_finite_differences():
     """The six-muscle arm at 50 ms with its signal-dependent noise (the noise-aware solve's fixed
