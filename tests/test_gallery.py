@@ -314,8 +314,11 @@ def test_fitts_1954_narrowest_width_is_met(fitts_result):
 
 @pytest.fixture(scope="module")
 def growth_result():
+    # the torque-driven arm with its human preset (the same experiment code; its four delay pairs
+    # compile in a fraction of the six-muscle arm's time): the six-muscle arm's sweeps are the full
+    # test below
     from delayed_ilqr.experiments.delay_growth import delay_growth_experiment
-    return delay_growth_experiment(ARM, motor_delays=(0.0, 0.06), sensory_delays=(0.0, 0.08), targets=1,
+    return delay_growth_experiment("arm2", motor_delays=(0.0, 0.06), sensory_delays=(0.0, 0.08), targets=1,
                                    trials=60, seed=SEED)
 
 
