@@ -1,4 +1,4 @@
-"""Issue 20, item 4: Todorov's alternation against the separation design, with motor and sensory delay.
+"""Todorov's alternation against the separation design, with motor and sensory delay.
 
 For each plant, one full-state iLQG solve, then the two output-feedback designs at its nominal
 (``ilqg.estimation.with_estimator``): the separation design (``Options(max_alternations=0)``: iLQG's

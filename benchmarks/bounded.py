@@ -1,4 +1,4 @@
-"""Bounded solves (issue 21): delayed_ilqr with box limits against its unbounded solve and against
+"""Bounded solves: delayed_ilqr with box limits against its unbounded solve and against
 crocoddyl's BoxDDP and BoxFDDP on the augmented problem, in the same run.
 
 Problem: P4 of ``docs/models.md`` §2 (the point mass, dt = 0.001, K = 600) at delays l = 0, 10 and

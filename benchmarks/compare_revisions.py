@@ -57,7 +57,7 @@ def import_revision(rev: str, where: Path):
 def compiled_solve(package, name: str):
     """(a function running one compiled solve, its cost) for problem ``name`` of ``package``."""
     models = importlib.import_module(f"{package.__name__}.models")
-    # the solver module moved to ilqg/ in the redesign of issue 18; older revisions have it at the top
+    # the solver module moved to ilqg/ in a redesign; older revisions have it at the top
     layout = "ilqg.solver" if importlib.util.find_spec(f"{package.__name__}.ilqg") else "solver"
     solver = importlib.import_module(f"{package.__name__}.{layout}")
     model, kwargs = PROBLEMS[name]

@@ -1,4 +1,4 @@
-"""Issue 23, item 1: the 16-delay arm sweep in fresh processes, first calls included.
+"""The 16-delay arm sweep in fresh processes, first calls included.
 
 ``solve(arm2(delay=t))`` for 16 delays t = 0, 10, ..., 150 ms, each run in a fresh process:
 
@@ -9,7 +9,7 @@
   for all delays, docs/derivation.md §17).
 
 Per run: the time of each delay's first call (trace, lower, compile or cache read, solve), their
-sum (the whole sweep), and the ratio of the sum to the first delay's first call (the issue's goal:
+sum (the whole sweep), and the ratio of the sum to the first delay's first call (the goal:
 at most 2.5). Then, in the framed process, the solve time of each delay once compiled, framed and
 unframed interleaved (median of 9 each): what the frame costs per solve.
 

@@ -1,4 +1,4 @@
-"""The benchmark suite of issue #5: prints one report and writes it to ``benchmarks/results.md``.
+"""The benchmark suite: prints one report and writes it to ``benchmarks/results.md``.
 
 Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU. What it measures:
 
@@ -6,7 +6,7 @@ Run with ``make bench`` (never by CI); it takes several minutes on a 2-core CPU.
    structured (Theorem 1) and augmented (Riccati on the augmented state), in the same run. "First
    call" is the first ``solve`` of that problem and method in this process (compilation included);
    "median" is the median of the solves after it (at least 7, more until 0.5 s are spent, 3 when a
-   solve takes over 2 s). The reference times of other tools are quoted from issue #5; where
+   solve takes over 2 s). The reference times of other tools are quoted, not measured; where
    crocoddyl is installed (``make bench`` installs it), its DDP is also timed in this run on P1
    and P4 up to l = 100 (``crocoddyl_ref.py``).
 2. The backward pass alone: P4 linearised at u = 0 for l = 10 ... 200, the compiled structured
@@ -50,7 +50,7 @@ RESULTS = Path(__file__).with_name("results.md")
 OPTIONS = {"structured": di.Options(), "augmented": di.Options(method="augmented")}
 P4_DELAYS = (1, 10, 50, 100, 200)
 SCALING_DELAYS = (10, 20, 50, 100, 200)
-# best compiled median of other tools (state augmentation, 2-core machine), quoted from issue #5
+# best compiled median of other tools (state augmentation, 2-core machine), quoted, not measured
 REFERENCE = {("P1", 10): ("crocoddyl", 0.7e-3), ("P2", 10): ("trajax", 8.1e-3),
              ("P3", 50): ("trajax", 0.293), ("P4", 100): ("trajax", 0.79), ("P4", 200): ("trajax", 5.3)}
 # solved by crocoddyl's DDP in this run too, when it is installed (P4 l = 200: minutes a solve)
@@ -167,7 +167,7 @@ def full_solve_section(problems, runs, croc) -> list[str]:
     return ["## 1. Full solves, both methods, same run", "",
             "First call includes compilation; median of the solves after it (at least 7, more until "
             "0.5 s are spent; 3 when a solve takes over 2 s). \"reference\" is the best compiled median of other tools (state augmentation, "
-            "2-core machine) quoted from issue #5, **not measured here**; \"ref / ours\" divides it by "
+            "2-core machine) quoted, **not measured here**; \"ref / ours\" divides it by "
             f"the structured median. \"crocoddyl DDP, this run\" is crocoddyl {croc_version()} timed in this "
             "process on the same problem by state augmentation (C++ LQR action models, one thread; "
             "`crocoddyl_ref.py`), \"it\" its steps taken. "
@@ -328,7 +328,7 @@ def batch_section(b, single_median) -> list[str]:
 
 
 # ---------------------------------------------------------------------------------------------
-# goals of issue #5 and the report
+# the performance goals and the report
 # ---------------------------------------------------------------------------------------------
 
 def goals_section(runs, exponents, memory, first_fresh, recompiled, batch, croc) -> list[str]:
@@ -359,15 +359,15 @@ def goals_section(runs, exponents, memory, first_fresh, recompiled, batch, croc)
         ["vmap of 64 P2 solves vs 64 separate", "< 1x per problem", f"{batch['batch_s'] / batch['separate_s']:.2f}x",
          "met" if batch["batch_s"] < batch["separate_s"] else "**not met**"],
     ]
-    return ["## Goals of issue #5", "",
-            "Speed-ups use the structured median of section 1; the reference times are quoted from issue #5, "
+    return ["## Goals", "",
+            "Speed-ups use the structured median of section 1; the reference times are quoted, "
             "except the row that says it was timed in this run.",
             ""] + table(["goal", "target", "measured", "status"], rows)
 
 
 def header() -> list[str]:
     cpu = platform.processor() or platform.machine()
-    return ["# delayed_ilqr benchmarks (issue #5)", "",
+    return ["# delayed_ilqr benchmarks", "",
             f"{datetime.date.today().isoformat()}; {cpu}, {os.cpu_count()} CPUs; JAX {jax.__version__} on "
             f"{jax.default_backend()}, float64. Produced by `make bench` (`benchmarks/run.py`).", "",
             "These 2-core machines are shared and noisy: absolute times move between runs, so every "

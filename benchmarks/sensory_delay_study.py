@@ -1,14 +1,14 @@
-"""Issue 20, items 6 and 7: the six-muscle arm with its motor delay fixed and proprioception seen
+"""The six-muscle arm with its motor delay fixed and proprioception seen
 0-150 ms late.
 
-Item 6 (the study): per sensory delay, the estimator-based design (the delayed Kalman filter made
+The study: per sensory delay, the estimator-based design (the delayed Kalman filter made
 for l_s) and one that ignores the sensory delay (the filter made for l_s = 0, run on the delayed
 sensors), on the same trials: the expected cost (exact on the linearisation, aware design only),
 the Monte Carlo cost, the endpoint spread and error of the hand, and the latency of the
 correction of a lateral kick of the hand (first command that responds, half-peak of the mean
 command response), ``experiments.sensing_study``.
 
-Item 7 (the benchmark): what the sensors add to a solve. The output-feedback solve is the
+The benchmark: what the sensors add to a solve. The output-feedback solve is the
 full-state solve plus the filter's design and the exact cost of the pair at the returned nominal
 (``ilqg.estimation.with_estimator``); both parts are timed (median wall time after compilation),
 the full-state solve and the added design, on the same problem.
@@ -40,12 +40,12 @@ def main():
     di.configure_cpu()
     delays = [float(v) for v in args.sensory_delays.split(",")]
 
-    print(f"# item 6: arm2_muscle6, motor delay {args.delay:g} s, {args.trials} trials, seed {args.seed}")
+    print(f"# study: arm2_muscle6, motor delay {args.delay:g} s, {args.trials} trials, seed {args.seed}")
     results = sensory_delay_study(delays, delay=args.delay, trials=args.trials, seed=args.seed,
                                   options=DEFAULT_OPTIONS)
     print(tables.markdown_table(tables.records_table(study_rows(results))))
 
-    print("\n# item 7: median wall time after compilation [s]")
+    print("\n# benchmark: median wall time after compilation [s]")
     rows = []
     for ls in delays:
         plant = arm2_muscle6(**{**LI_TODOROV, "sensory_delay": ls}, delay=args.delay)

@@ -1,4 +1,4 @@
-"""Swing-ups from rest with limits (issue 21): the acrobot rows of docs/derivation.md §15.
+"""Swing-ups from rest with limits: the acrobot rows of docs/derivation.md §15.
 
 For each elbow limit, ``models.acrobot(u_max=...)`` (trajax's acrobot, dt = 0.1 s, K = 50):
 

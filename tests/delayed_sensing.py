@@ -1,4 +1,4 @@
-"""Independent references for delayed sensing (issue 20), written densely in numpy on the augmented state
+"""Independent references for delayed sensing, written densely in numpy on the augmented state
 
     Z_k = [dx_k, dx_{k-1}, ..., dx_{k-l_s}, du_{k-l}, ..., du_{k-1}]        (N = n (l_s + 1) + l d)
 

@@ -1,4 +1,4 @@
-"""Todorov's alternation with motor and sensory delays (``lqg.alternation``; issue 20, item 4).
+"""Todorov's alternation with motor and sensory delays (``lqg.alternation``).
 
 The references are independent of the controller pass:
 

@@ -1,4 +1,4 @@
-"""Bad input found by the user-surface campaign (issue 22, items 5, 6, 7, 9, 11, 13): each is refused
+"""Bad input found by the user-surface campaign: each is refused
 with a message that names the argument, or works as documented."""
 import jax
 import jax.numpy as jnp
@@ -18,7 +18,7 @@ def problem(**changes):
     return di.Problem(**{**BASE, **changes})
 
 
-# item 5 ---------------------------------------------------------------------------------------
+# delay at or beyond the horizon ---------------------------------------------------------------
 @pytest.mark.parametrize("l", [10, 11, 20000])
 def test_a_delay_at_or_beyond_the_horizon_is_refused(l):
     with pytest.raises(ValueError, match=f"delay_steps must be below the horizon.*delay_steps={l}, horizon=10"):
@@ -31,7 +31,7 @@ def test_a_model_delay_beyond_its_horizon_is_refused():
         point_mass(delay=1.0)                    # 100 steps against K = 60
 
 
-# item 6 ---------------------------------------------------------------------------------------
+# dt's type ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("dt", ["0.01", True, np.bool_(True), [0.1]])
 def test_dt_must_be_a_number(dt):
     with pytest.raises(ValueError, match="dt must be a positive finite number"):
@@ -62,7 +62,7 @@ def test_integer_dynamics_are_refused_at_construction():
         problem(dynamics=lambda x, u, ud: jnp.zeros(2, jnp.int32))
 
 
-# item 7 ---------------------------------------------------------------------------------------
+# Options' values ------------------------------------------------------------------------------
 @pytest.mark.parametrize("kwargs, match", [
     (dict(tol_cost="1e-3"), "tol_cost must be a positive finite number"),
     (dict(z_min=float("nan")), "z_min must be a number in"),
@@ -77,7 +77,7 @@ def test_options_refuse(kwargs, match):
         di.Options(**kwargs)
 
 
-# item 9 ---------------------------------------------------------------------------------------
+# the LQG layer's arguments --------------------------------------------------------------------
 def _lqg():
     K, n, d = 4, 2, 1
     return lqg.DelayedLQG(A=np.tile(np.eye(n), (K, 1, 1)), B0=np.zeros((K, n, d)), B1=np.ones((K, n, d)), c=None,
@@ -105,7 +105,7 @@ def test_simulate_lqg_checks_the_seed_as_simulate_does(seed, error):
         lqg.simulate_lqg(model, gains, 4, seed=seed)
 
 
-# item 11 --------------------------------------------------------------------------------------
+# replace under jit and vmap -------------------------------------------------------------------
 def test_replace_under_jit_and_a_problem_built_inside_vmap():
     p = point_mass()
     x0s = np.stack([np.asarray(p.x0), np.asarray(p.x0) + 0.01])
@@ -119,7 +119,7 @@ def test_replace_under_jit_and_a_problem_built_inside_vmap():
         jax.vmap(lambda dt: p.replace(dt=dt).x0)(jnp.array([0.01, 0.02]))
 
 
-# item 13 --------------------------------------------------------------------------------------
+# the status's name and x0 ---------------------------------------------------------------------
 def test_status_prints_its_name_and_x0_is_named():
     sol = di.solve(point_mass())
     assert str(sol.status) == "CONVERGED_GRADIENT" and f"{sol.status}" == "CONVERGED_GRADIENT"
@@ -129,8 +129,8 @@ def test_status_prints_its_name_and_x0_is_named():
 
 
 def test_the_readme_batching_patterns_agree_and_replace_reuses_the_compilation():
-    """README "Batching and compilation": replace under vmap and jit, a stacked Problem (item 11);
-    replace reuses the compiled solver, a new lambda compiles again (item 12)."""
+    """README "Batching and compilation": replace under vmap and jit, a stacked Problem;
+    replace reuses the compiled solver, a new lambda compiles again."""
     from delayed_ilqr.ilqg import solver
     base = point_mass(delay=0.03)
     x0s = jnp.stack([base.x0, base.x0 + 0.01, base.x0 - 0.01])

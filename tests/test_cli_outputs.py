@@ -1,4 +1,4 @@
-"""The command line's outputs and exit codes (issue 22, items 1-4 and 10): atomic folders with a
+"""The command line's outputs and exit codes: atomic folders with a
 manifest, --out checked before computing, one-line errors with their own exit code."""
 import json
 import os

@@ -1,4 +1,4 @@
-"""Issue 21, the good minimum: the augmented-Lagrangian continuation on the limits as a start
+"""Control limits, the good minimum: the augmented-Lagrangian continuation on the limits as a start
 (``ilqg.continuation``), and several starts under one ``vmap``.
 
 The reference 50.282205 of the acrobot at 3 N m is independent of this code: google/trajax's

@@ -1,5 +1,5 @@
-"""A solve reported as converged satisfies the first-order conditions (issue 22, item 8), and a
-noisy solve that does not converge returns its best iterate (issue 19, item 3).
+"""A solve reported as converged satisfies the first-order conditions, and a
+noisy solve that does not converge returns its best iterate.
 
 The certificate (``ilqg.solver.first_order``): with lambda < 1e-5 the full step of the LQG model
 promises g' H^-1 g / 2 < tol_cost |J| (projected with the limits). On the point mass the plant is
@@ -102,7 +102,7 @@ def test_a_converged_status_satisfies_the_first_order_conditions(options, limite
                                      di.Options(z_min=0.999999, max_iterations=15), di.Options(max_iterations=2, reg_init=1.0)],
                          ids=_id)
 def test_the_false_stops_are_not_converged(options):
-    """Item 8's cases: every step rejected (or none possible) must not end as converged."""
+    """False stops: every step rejected (or none possible) must not end as converged."""
     problem = point_mass(delay=0.03)
     sol = di.solve(problem, options=options)
     if sol.converged:       # reg_init=1e20 is confirmed at lambda = 0 and then solves the problem

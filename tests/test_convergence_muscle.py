@@ -9,7 +9,7 @@ import delayed_ilqr as di
 
 @pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6), (0.005, 0.15, 7)])
 def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
-    """Three reaches of the issue-19 grid (docs/results/noise_aware_convergence.md): the first cycled
+    """Three reaches of the convergence grid (docs/results/noise_aware_convergence.md): the first cycled
     with period 9 at lambda = 0 (a command's feedback switching on and off: the latch), the
     second stopped "converged" under lambda = 1e5 (an excitation at its bound planned with half
     its derivative, then optima on the activation switch's kink), the third latched 89 commands

@@ -1,5 +1,5 @@
 """The delayed Kalman filter (``lqg.estimator``) against the Kalman filter on the augmented state
-[dx_k, ..., dx_{k-l_s}, du_{k-l}, ..., du_{k-1}] (issue 20, item 1), written independently in
+[dx_k, ..., dx_{k-l_s}, du_{k-l}, ..., du_{k-1}], written independently in
 tests/delayed_sensing.py: gains, covariances and the estimates of one record, to round-off."""
 from __future__ import annotations
 

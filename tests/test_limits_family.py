@@ -1,4 +1,4 @@
-"""Issue 21: control limits must converge about as fast as the unbounded solve, to the bounded optimum.
+"""Control limits must converge about as fast as the unbounded solve, to the bounded optimum.
 
 A family of random bounded problems, drawn from a fixed list of seeds: two-link arm reaches (the P2
 arm and cost) to random joint targets, point-mass reaches to random points, and cart-pole moves of

@@ -1,4 +1,4 @@
-"""Output feedback with delayed sensors (``lqg.output_feedback``; issue 20, items 2-3).
+"""Output feedback with delayed sensors (``lqg.output_feedback``).
 
 * separation: Theorem 1's law on the delayed filter's estimate costs exactly the optimum of the
   augmented-state LQG with output feedback (augmented LQR + augmented Kalman filter + exact second

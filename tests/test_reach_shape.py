@@ -1,4 +1,4 @@
-"""The shape of the six-muscle arm's reaches at no delay (issue 19; docs/results/reach_shape.md).
+"""The shape of the six-muscle arm's reaches at no delay (docs/results/reach_shape.md).
 
 The energy-optimal reach of Li & Todorov's arm under effort and final-state cost is not the human
 one (straight, bell-shaped): it pushes, coasts and brakes (flat-topped speed), and along the x

@@ -1,6 +1,6 @@
 """The demo's science at the human noise level (arm2, sigma_u = SIGMA_U_HUMAN): the delay-aware
 nominal arrives, its prediction of the expected cost holds, and the noise-aware design is at most
-as costly in the noise as the deterministic one (issue 19; measured numbers in the docstrings)."""
+as costly in the noise as the deterministic one (measured numbers in the docstrings)."""
 import jax.numpy as jnp
 import numpy as np
 import pytest

@@ -2,7 +2,7 @@
 compiled backward pass must be at least 10x faster than the augmented Riccati pass on the same
 problem (measured ~50x on a 2-core machine; per step O(l^2 d^3 + l n^2 d) against O((n + l d)^3)).
 A second problem of the same shapes reuses the compiled solver, and the solver's memory stays
-within a few times its gains (issue #5)."""
+within a few times its gains."""
 import math
 import time
 

@@ -1,4 +1,4 @@
-"""Delayed, noisy sensors in the nonlinear API (issue 20): ``Observation``, ``Problem(observation=)``,
+"""Delayed, noisy sensors in the nonlinear API: ``Observation``, ``Problem(observation=)``,
 ``solve`` (controller + delayed filter) and ``simulate`` (the filter on the nonlinear plant).
 
 References, all independent of the code under test:

@@ -157,7 +157,7 @@ def test_bad_input_is_refused_by_name():
 
 @pytest.mark.full
 def test_muscle_arm_sl_design_beats_both_designs_where_the_tail_dominates():
-    """Issue 19's ordering on its worst case: the six-muscle arm at 50 ms, target 8 of the
+    """The designs' ordering at its worst case: the six-muscle arm at 50 ms, target 8 of the
     center-out study (down and to the right), where the noise-aware design's Monte Carlo mean is
     above the deterministic design's at 2000 trials (2.1e-2 against 9.9e-3, noise_calibration.md
     §5.5). SL's re-design of the noise-aware gains (8 iterations, relax 0.5, fifth degree) lies

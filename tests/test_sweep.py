@@ -85,7 +85,7 @@ def test_every_cell_is_the_librarys_own_solve_and_monte_carlo(reference):
 
 
 def test_cells_are_grouped_by_structure_and_cut_into_padded_batches():
-    """Targets and noise levels are data (sigma_u is a leaf of the arm's noise since issue 24: one
+    """Targets and noise levels are data (sigma_u is a leaf of the arm's noise: one
     compiled solver for all), delays are static (one each); batches are padded to a power of two,
     never beyond batch_size."""
     from delayed_ilqr.models import arm2

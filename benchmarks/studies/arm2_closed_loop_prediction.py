@@ -1,4 +1,4 @@
-"""Issue 19 item 4: the prediction of the expected cost of the torque arm's nonlinear closed loop
+"""The prediction of the expected cost of the torque arm's nonlinear closed loop
 (``prediction.closed_loop_prediction``, each rule) against the linearised one
 (``Solution.expected_cost``) and Monte Carlo (mean +- standard error), for the noise-aware design of
 ``arm2(delay=d, noise=True, sigma_u=SIGMA_U_HUMAN)``; the seconds per call after compilation.

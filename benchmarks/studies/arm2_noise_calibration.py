@@ -1,5 +1,5 @@
 """The P2 reach (arm2) at a given signal-dependent noise level: noise-aware and deterministic
-designs, Monte Carlo on the noisy plant (issue 19, docs/results/noise_calibration.md §2).
+designs, Monte Carlo on the noisy plant (docs/results/noise_calibration.md §2).
 
     .venv/bin/python benchmarks/studies/arm2_noise_calibration.py SIGMAS DELAYS TRIALS [EXTRA_STEPS]
     e.g. ... 0.01 0,0.05,0.1,0.15 2000

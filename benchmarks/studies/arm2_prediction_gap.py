@@ -1,4 +1,4 @@
-"""Issue 19 item 4: why the torque arm's Monte Carlo mean leaves the prediction at 100 ms.
+"""Why the torque arm's Monte Carlo mean leaves the prediction at 100 ms.
 
 For the noise-aware design of ``arm2(delay=DELAY, noise=True, sigma_u=SIGMA_U_HUMAN)`` (the demo's
 plant at the human noise level) it compares, on the same returned policy and seed:

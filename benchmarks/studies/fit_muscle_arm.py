@@ -1,4 +1,4 @@
-"""Inverse optimal control on the six-muscle arm (docs/fitting.md, issue 24).
+"""Inverse optimal control on the six-muscle arm (docs/fitting.md).
 
 Reaches to three targets are generated with known cost weights (r, w_v; w_p = 1 fixed: only
 ratios of weights are identifiable), noise level sigma_u and delay (50 ms). Then:

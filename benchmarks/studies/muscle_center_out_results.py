@@ -1,5 +1,5 @@
-"""The six-muscle arm's center-out study with the calibrated noise (issue 19,
-docs/results/noise_calibration.md §3): 8 targets x delays, TRIALS per target; one row per delay
+"""The six-muscle arm's center-out study with the calibrated noise
+(docs/results/noise_calibration.md §3): 8 targets x delays, TRIALS per target; one row per delay
 and design, then per-target details.
 
     .venv/bin/python benchmarks/studies/muscle_center_out_results.py SIGMA DELAYS TRIALS

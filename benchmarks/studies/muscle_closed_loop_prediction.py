@@ -1,4 +1,4 @@
-"""Issue 19: the nonlinear closed-loop prediction (``prediction.closed_loop_prediction``, each rule)
+"""The nonlinear closed-loop prediction (``prediction.closed_loop_prediction``, each rule)
 of the six-muscle arm's center-out reaches, against the linearised one (``Solution.expected_cost``)
 and Monte Carlo, for the noise-aware design (the center-out study's, ``experiments.center_out``) at
 each delay and target: the ratio prediction / Monte Carlo mean, and the Monte Carlo mean / median

@@ -1,5 +1,5 @@
 """Endpoint spread of the six-muscle arm's center-out reaches against the noise level
-(issue 19, docs/results/noise_calibration.md §1).
+(docs/results/noise_calibration.md §1).
 
     .venv/bin/python benchmarks/studies/muscle_noise_calibration.py SIGMAS [DELAYS] [TRIALS]
     e.g. ... 0.01,0.02 0,0.1 200

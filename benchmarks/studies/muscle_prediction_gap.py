@@ -1,5 +1,5 @@
-"""Why the muscle arm's Monte Carlo mean leaves the predicted expected cost with delay (issue 19,
-docs/results/noise_calibration.md §5). Read-only diagnostics: for one reach (delay, target, design)
+"""Why the muscle arm's Monte Carlo mean leaves the predicted expected cost with delay
+(docs/results/noise_calibration.md §5). Read-only diagnostics: for one reach (delay, target, design)
 it compares, on the SAME returned policy,
 
   pred   Solution.expected_cost (J(0) of the solver's last LQG)

@@ -1,4 +1,4 @@
-"""Issue 19 item 3: does every noise-aware center-out reach converge?
+"""Does every noise-aware center-out reach converge?
 
 The grid: 8 hand targets on a 10 cm circle x delays 0, 50, 100, 150 ms x noise 0.5x, 1x, 2x the
 default x both arm models -- ``arm2_muscle6`` (default sigma_u = SIGMA_U = 0.01) and the torque arm

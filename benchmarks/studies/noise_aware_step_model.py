@@ -1,4 +1,4 @@
-"""Issue 19 item 3: why the slow noise-aware muscle reaches take small steps.
+"""Why the slow noise-aware muscle reaches take small steps.
 
 Runs one center-out reach of the convergence grid (``noise_aware_convergence.py``) iteration by
 iteration with the solver's own loop body, records whether the feedback pattern (which commands get

@@ -1,4 +1,4 @@
-"""Issue 19 item 4: how much of the gap between the linearised prediction and Monte Carlo the
+"""How much of the gap between the linearised prediction and Monte Carlo the
 second- and third-order perturbations of the closed loop carry, without the Gaussian closure of
 ``prediction.closed_loop_prediction``.
 

@@ -1,4 +1,4 @@
-"""Issue 19: why the six-muscle arm's reaches at no delay are flat-topped and (to targets 1 and 5) curved.
+"""Why the six-muscle arm's reaches at no delay are flat-topped and (to targets 1 and 5) curved.
 
 Solves the center-out study's own reaches (``center_out``'s plants, ``DEFAULT_OPTIONS``, the
 design's problem) to all 8 targets and prints, per target, the solver status, the cost (2) and the

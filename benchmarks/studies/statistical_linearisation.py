@@ -1,4 +1,4 @@
-"""Issue 19: feedback gains re-designed by statistical linearisation (SL) of the plant around the
+"""Feedback gains re-designed by statistical linearisation (SL) of the plant around the
 closed loop's predicted distribution, instead of around the nominal
 (``docs/results/noise_calibration.md`` §5.3 and §5.5).
 

@@ -1,4 +1,4 @@
-"""Issue 19 item 4 at no delay: is the noise-aware design's Monte Carlo advantage on the six-muscle
+"""The designs' ordering at no delay: is the noise-aware design's Monte Carlo advantage on the six-muscle
 arm the noise, or target 5's local minimum (docs/results/reach_shape.md §5)?
 
 Runs the center-out study at 0 ms with both designs (``center_out(delays=(0,), designs=("noise-aware",
