@@ -24,6 +24,7 @@ def pieces(phi):
     """(widths [d+1], ranks [d]) of the step's pieces for fractions phi [d] (each in [0, 1)):
     piece i runs from the i-th smallest fraction (0 for i = 0) to the next (1 after the last), and
     ``ranks[j]`` is channel j's place in that order (ties kept in channel order)."""
+    phi = jnp.asarray(phi)
     order = jnp.argsort(phi, stable=True)
     s = phi[order]
     starts = jnp.concatenate([jnp.zeros(1, phi.dtype), s])
