@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from delayed_ilqr._fractional import drift
+from delayed_ilqr._fractional import diffusion, drift
 
-from test_fractional import _coupled                 # tests/test_fractional.py: a nonlinear coupled drift
+from test_fractional import _coupled, _coupled_noise   # tests/test_fractional.py: nonlinear, coupled
 
 jax.config.update("jax_enable_x64", True)
 
@@ -46,17 +46,19 @@ def test_derivative_in_phi_at_a_zero_width_piece(phi):
         np.testing.assert_allclose(jac[:, j], reference, rtol=1e-13, atol=1e-13)
 
 
-def test_right_derivative_at_a_whole_step_of_a_nonlinear_drift():
-    """Coupled nonlinearly: at phi_j = 0 (the other fractions apart) the derivative in phi_j is the
-    right-hand one, against a forward difference of step h (error O(h), checked at two h)."""
+def test_right_derivative_at_a_whole_step_of_a_nonlinear_step():
+    """Coupled nonlinearly: at phi_0 = 0 (the other fractions apart) the derivatives in phi_0 of the
+    drift and of the step's covariance F F' are the right-hand ones. Both are linear in phi_0 until
+    it meets the next fraction, so a forward difference of step h < 0.35 is exact to round-off.
+    (Before, the covariance's derivative left out the new piece's noise there.)"""
     rng = np.random.default_rng(2)
     x, u = rng.standard_normal(3), rng.standard_normal(3)
     ud2 = jnp.asarray(rng.standard_normal(6))
     phi = jnp.array([0.0, 0.35, 0.8])
-    jac = jax.jacobian(lambda p: drift(_coupled, x, u, ud2, p))(phi)[:, 0]
-    f0 = drift(_coupled, x, u, ud2, phi)
-    errors = [float(jnp.max(jnp.abs((drift(_coupled, x, u, ud2, phi.at[0].set(h)) - f0) / h - jac)))
-              for h in (1e-3, 1e-4)]
-    # a forward difference of a piecewise-smooth function: the error falls with h, to zero
-    assert errors[1] < 1e-10 + 0.2 * errors[0] and errors[1] < 1e-8, errors
-    assert float(jnp.max(jnp.abs(jac))) > 0.1                          # not the zero of the old code
+    cov = lambda p: diffusion(_coupled_noise, x, u, ud2, p) @ diffusion(_coupled_noise, x, u, ud2, p).T  # noqa: E731
+    for step in (lambda p: drift(_coupled, x, u, ud2, p), cov):
+        jac = jax.jacobian(step)(phi)[..., 0]
+        h = 0.25
+        difference = (step(phi.at[0].set(h)) - step(phi)) / h
+        np.testing.assert_allclose(jac, difference, rtol=1e-12, atol=1e-12)
+        assert float(jnp.max(jnp.abs(jac))) > 0.1                       # not the zero of the old code

@@ -52,11 +52,22 @@ def drift(fn, x, u, ud2, phi, *t):
     return sum(widths[i] * fn(x, u, _held(ud2, ranks, i), *t) for i in range(phi.shape[0] + 1))
 
 
+#: added to each piece's width under the square root: far below round-off of any width that is not
+#: zero, and what gives a zero width a finite slope (safe_sqrt)
+_TINY_WIDTH = 1e-30
+
+
 def safe_sqrt(w):
-    """sqrt(w) for w >= 0 whose derivative at w = 0 is 0 rather than infinite: a piece of zero
-    width (equal fractions, or phi = 0) has no noise, and its column stays out of the derivative."""
-    positive = w > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, w, 1.0)), 0.0)
+    """sqrt(w + 1e-30) for widths w >= 0: sqrt(w) to round-off, with a derivative that is right
+    for the covariance at w = 0 too.
+
+    A piece's noise enters the step as the column sqrt(w) F, and the solve through products of
+    columns, w F F'. At w = 0 (a whole step, or equal fractions) d(w F F')/dw = F F', but the
+    column's own slope is infinite; with the offset it is 1 / (2 sqrt(1e-30)), and the product
+    rule gives 2 sqrt(1e-30) / (2 sqrt(1e-30)) F F' = F F' again. (A slope of 0 there left the
+    new piece's noise out of the derivative.) A sample of the column, sqrt(w) F xi, has no finite
+    derivative at w = 0, with or without the offset."""
+    return jnp.sqrt(w + _TINY_WIDTH)
 
 
 def diffusion(fn, x, u, ud2, phi, *t):
