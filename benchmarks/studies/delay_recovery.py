@@ -12,7 +12,8 @@ true delays:
 2. the fit (``experiments.delay_fitting.fit_delays``, one delay per channel) from 100 ms on both
    joints, sigma_u and r 50 % off: a coarse search of the delays over one point per step (the
    other parameters held at the start), then L-BFGS-B over all four on the implicit gradients
-   through the fractional delay (docs/derivation.md §20);
+   through the fractional delay (docs/derivation.md §20), ending when an iteration gains less
+   than FTOL = 1e-7 of the loss;
 3. 95 % intervals by a parametric bootstrap: REPLICATES new data sets of TRIALS reaches per target
    from the fitted model, each fitted again from the estimate.
 
@@ -39,6 +40,7 @@ W_P = 1e3
 TRUTH = dict(r=1e-4, sigma_u=0.01)
 START = dict(r=1.5e-4, sigma_u=0.015)
 DELAY0, MAX_DELAY = 0.1, 0.17
+FTOL = 1e-7          # L-BFGS-B ends when an iteration decreases the loss by less than this (relative)
 ROWS = [(0.054, 0.071), (0.1035, 0.0875), (0.148, 0.1265)]      # s, shoulder and elbow
 TARGETS = jnp.array([[np.pi / 2, np.pi / 3, 0.0, 0.0], [1.2, 1.4, 0.0, 0.0], [1.0, 2.0, 0.0, 0.0],
                      [1.6, 1.0, 0.0, 0.0]])
@@ -81,10 +83,10 @@ def main():
         truth = dict(TRUTH, delay_0=delays[0], delay_1=delays[1])
         data, scale = sampled_data(model, truth, args.trials, seed=1000 * row)
         result, fitted_model = delay_fitting.fit_delays(reach, TARGETS, data, START, DELAY0, MAX_DELAY,
-                                                        per_channel=True, mean_scale=scale)
+                                                        per_channel=True, mean_scale=scale, ftol=FTOL)
         assert fitted_model == model
         boot = delay_fitting.bootstrap(model, TARGETS, result, args.trials, args.replicates, seed=1000 * row + 100,
-                                       mean_scale=scale, bounds=bounds)
+                                       mean_scale=scale, bounds=bounds, ftol=FTOL)
         elapsed = time.perf_counter() - start
         fitted = [result.params[f"delay_{j}"] for j in range(2)]
         coarse = result.message.split(", loss")[0].removeprefix("coarse search: ")

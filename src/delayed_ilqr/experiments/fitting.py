@@ -188,7 +188,7 @@ class Evaluator:
 
 def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
         u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
-        max_iterations: int = 100, delay_steps: Optional[int] = None,
+        ftol: float = 0.0, max_iterations: int = 100, delay_steps: Optional[int] = None,
         on_evaluation: Optional[Callable[[int, float], None]] = None, bounds: Optional[dict] = None) -> Fit:
     """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
 
@@ -204,6 +204,10 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         mean_scale: s, the precision of the mean paths in task units (e.g. their standard error).
         options: the solver's [`Options`][delayed_ilqr.Options].
         gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
+        ftol: L-BFGS-B's tolerance on the relative decrease of the loss in one iteration (0:
+            none). A loss whose solves stop within a tolerance is rough at its smallest scales,
+            and near its minimum the line search can fail there for many evaluations before
+            L-BFGS-B gives up; a small ftol (1e-7, say) ends the fit when the steps stop paying.
         max_iterations: L-BFGS-B's iteration limit.
         delay_steps: None, or the delay in steps at which to fit when ``make_problem``'s problems
             have a ``delay_frame``: it replaces their delay and reaches the compiled loss as
@@ -245,7 +249,7 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
     limits = [tuple(None if b is None else float(np.log(b)) for b in (bounds or {}).get(k, (None, None)))
               for k in names]
     result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B", bounds=limits,
-                      options=dict(gtol=gtol, ftol=0.0, maxiter=max_iterations))
+                      options=dict(gtol=gtol, ftol=ftol, maxiter=max_iterations))
     value, _ = value_and_grad(result.x)
     unconverged = [Status(int(s)).name for s in last["status"] if not Status(int(s)).converged]
     message = str(result.message) + (f"; unconverged solves: {unconverged}" if unconverged else "")
