@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from delayed_ilqr import solve
+from delayed_ilqr import Status, solve
 from delayed_ilqr.experiments import delay_fitting, fitting
 from delayed_ilqr.models import point_mass
 
@@ -76,6 +76,23 @@ def test_coarse_search_finds_each_delays_step(exact_fit):
         assert abs(steps - DELAYS[j] / 0.01) < 1, found
         assert abs(steps - np.floor(steps) - c) < 1e-9, found
     assert loss == evaluate(found)[0] and evaluations < 2 * 12 + 4 * 2 * 3, evaluations
+
+
+def test_loss_gradient_where_the_fractions_are_equal(exact_fit):
+    """At 62.5 ms on both channels (equal fractions: the step has a piece of zero width) the loss's
+    gradient in each log delay equals its central difference (h = 1e-5, error O(h^2)). The point
+    mass's drift is linear in its delayed commands and each noise column follows one channel, so
+    the loss is differentiable there; before the held commands came from the fractions' order, the
+    derivative in one channel's delay carried the other's switch too."""
+    evaluate = fitting.Evaluator(exact_fit["truth_model"], TARGETS, exact_fit["data"], _truth())
+    point = dict(delay_0=START["delay"], delay_1=START["delay"])
+    _, grad, status = evaluate(point)
+    assert all(Status(int(s)).converged for s in status), status
+    h = 1e-5
+    for name in point:
+        up, down = (evaluate(dict(point, **{name: point[name] * np.exp(s)}))[0] for s in (h, -h))
+        central = (up - down) / (2 * h)
+        assert abs(grad[name] - central) <= 1e-6 * abs(central), (name, grad[name], central)
 
 
 def test_fit_delays_refuses_what_it_cannot_fit(exact_fit):

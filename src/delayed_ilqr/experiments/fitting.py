@@ -144,8 +144,11 @@ class Evaluator:
     """The loss of [`fit`][delayed_ilqr.experiments.fitting.fit] and its gradient at given parameters, through the compiled
     program that every fit of the same model shares (a coarse search before a fit reuses it).
 
-    Args: as for [`fit`][delayed_ilqr.experiments.fitting.fit]; ``params0`` (positive floats by name) fixes the names and
-    builds the first condition's problem, against which ``data`` are checked.
+    Args:
+        make_problem, conditions, data, u_init, mean_scale, options, delay_steps: as for
+            [`fit`][delayed_ilqr.experiments.fitting.fit].
+        params0: positive floats by name: the first condition's problem at these values is the
+            one ``data`` are checked against.
 
     Calling it with ``params`` (a dict of positive floats, the same names) returns (the loss, its
     gradient in log theta by name, the statuses [C] of the solves), all NumPy; the loss is inf
