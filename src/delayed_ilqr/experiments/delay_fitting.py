@@ -6,6 +6,8 @@ differentiable in the delay. So the delays become parameters of [`fit`][delayed_
 [`DelayedModel`][delayed_ilqr.experiments.delay_fitting.DelayedModel] builds the problem at a starting delay and
 replaces its delay by the traced parameters (in seconds, one for all channels or one per channel),
 in a frame of slots that holds every delay up to ``max_delay``; one compilation serves the whole fit.
+The fit runs coarse to fine: a search of the delays over one point per step
+([`coarse_delays`][delayed_ilqr.experiments.delay_fitting.coarse_delays]), then L-BFGS-B over every parameter from there.
 
 The confidence interval of a fitted parameter is the percentile interval of a parametric bootstrap:
 the fitted model's policy is simulated on its plant with the data's number of trials (new noise
