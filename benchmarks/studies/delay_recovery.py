@@ -69,8 +69,9 @@ def sampled_data(model, params, trials, seed):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=100)
-    parser.add_argument("--replicates", type=int, default=8)
+    parser.add_argument("--replicates", type=int, default=8, help="0: the fits alone, no intervals")
     parser.add_argument("--rows", type=str, default="0,1,2", help="which rows of ROWS, e.g. 1,2")
+    parser.add_argument("--no-coarse", action="store_true", help="the gradient fit alone, from DELAY0")
     args = parser.parse_args()
     model = delay_fitting.DelayedModel(reach, DELAY0, delay_fitting._frame_for(MAX_DELAY, 0.01, 60), per_channel=True)
     bounds = {"delay_0": (None, MAX_DELAY), "delay_1": (None, MAX_DELAY)}
@@ -83,8 +84,15 @@ def main():
         truth = dict(TRUTH, delay_0=delays[0], delay_1=delays[1])
         data, scale = sampled_data(model, truth, args.trials, seed=1000 * row)
         result, fitted_model = delay_fitting.fit_delays(reach, TARGETS, data, START, DELAY0, MAX_DELAY,
-                                                        per_channel=True, mean_scale=scale, ftol=FTOL)
+                                                        per_channel=True, mean_scale=scale, ftol=FTOL,
+                                                        coarse=not args.no_coarse)
         assert fitted_model == model
+        if args.replicates == 0:
+            fitted = [result.params[f"delay_{j}"] for j in range(2)]
+            print(f"| {1e3 * delays[0]:.1f}, {1e3 * delays[1]:.1f} | {1e3 * fitted[0]:.2f}, {1e3 * fitted[1]:.2f} | "
+                  f"{result.evaluations} ({'converged' if result.converged else 'not converged'}) | "
+                  f"{time.perf_counter() - start:.0f} | {result.message}", flush=True)
+            continue
         boot = delay_fitting.bootstrap(model, TARGETS, result, args.trials, args.replicates, seed=1000 * row + 100,
                                        mean_scale=scale, bounds=bounds, ftol=FTOL)
         elapsed = time.perf_counter() - start
