@@ -63,21 +63,6 @@ def test_per_channel_delays_are_recovered(exact_fit):
     assert min(abs(DELAYS[0] - 0.01 * l) for l in range(12)) > 3e-3
 
 
-def test_coarse_search_finds_each_delays_step(exact_fit):
-    """The coarse stage alone, from 110 ms on both channels (5.6 and 2.3 steps away), lands
-    within one step of each true delay (54 and 87 ms), on its grid of (l + 1/3) and (l + 2/3) steps,
-    where no piece of the step has zero width; through the fit's compiled loss."""
-    model = exact_fit["truth_model"]
-    evaluate = fitting.Evaluator(model, TARGETS, exact_fit["data"], _truth())
-    found, loss, evaluations = delay_fitting.coarse_delays(evaluate, dict(delay_0=0.11, delay_1=0.11),
-                                                           ("delay_0", "delay_1"), 0.01, MAX_DELAY)
-    for j, c in enumerate((1 / 3, 2 / 3)):
-        steps = found[f"delay_{j}"] / 0.01
-        assert abs(steps - DELAYS[j] / 0.01) < 1, found
-        assert abs(steps - np.floor(steps) - c) < 1e-9, found
-    assert loss == evaluate(found)[0] and evaluations < 2 * 12 + 4 * 2 * 3, evaluations
-
-
 def test_loss_gradient_where_the_fractions_are_equal(exact_fit):
     """At 62.5 ms on both channels (equal fractions: the step has a piece of zero width) the loss's
     gradient in each log delay equals its central difference (h = 1e-5, error O(h^2)). The point

@@ -10,10 +10,9 @@ true delays:
    at the truth; their mean hand paths and endpoint covariances; the mean's precision s is the
    standard error of a mean endpoint coordinate;
 2. the fit (``experiments.delay_fitting.fit_delays``, one delay per channel) from 100 ms on both
-   joints, sigma_u and r 50 % off: a coarse search of the delays over one point per step (the
-   other parameters held at the start), then L-BFGS-B over all four on the implicit gradients
-   through the fractional delay (docs/derivation.md §20), ending when an iteration gains less
-   than FTOL = 1e-7 of the loss;
+   joints, sigma_u and r 50 % off, by L-BFGS-B on the implicit gradients through the fractional
+   delay (docs/derivation.md §20), ending when an iteration gains less than FTOL = 1e-7 of the
+   loss;
 3. 95 % intervals by a parametric bootstrap: REPLICATES new data sets of TRIALS reaches per target
    from the fitted model, each fitted again from the estimate.
 
@@ -71,21 +70,19 @@ def main():
     parser.add_argument("--trials", type=int, default=100)
     parser.add_argument("--replicates", type=int, default=8, help="0: the fits alone, no intervals")
     parser.add_argument("--rows", type=str, default="0,1,2", help="which rows of ROWS, e.g. 1,2")
-    parser.add_argument("--no-coarse", action="store_true", help="the gradient fit alone, from DELAY0")
     args = parser.parse_args()
     model = delay_fitting.DelayedModel(reach, DELAY0, delay_fitting._frame_for(MAX_DELAY, 0.01, 60), per_channel=True)
     bounds = {"delay_0": (None, MAX_DELAY), "delay_1": (None, MAX_DELAY)}
-    print("| true delays [ms] | coarse search [ms] | fitted [ms] | error [ms] | 95 % bootstrap interval [ms] | "
-          "sigma_u | r | evaluations | time [s] |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| true delays [ms] | fitted [ms] | error [ms] | 95 % bootstrap interval [ms] | sigma_u | r | "
+          "evaluations | time [s] |")
+    print("|---|---|---|---|---|---|---|---|")
     for row in (int(r) for r in args.rows.split(",")):
         delays = ROWS[row]
         start = time.perf_counter()
         truth = dict(TRUTH, delay_0=delays[0], delay_1=delays[1])
         data, scale = sampled_data(model, truth, args.trials, seed=1000 * row)
         result, fitted_model = delay_fitting.fit_delays(reach, TARGETS, data, START, DELAY0, MAX_DELAY,
-                                                        per_channel=True, mean_scale=scale, ftol=FTOL,
-                                                        coarse=not args.no_coarse)
+                                                        per_channel=True, mean_scale=scale, ftol=FTOL)
         assert fitted_model == model
         if args.replicates == 0:
             fitted = [result.params[f"delay_{j}"] for j in range(2)]
@@ -97,8 +94,7 @@ def main():
                                        mean_scale=scale, bounds=bounds, ftol=FTOL)
         elapsed = time.perf_counter() - start
         fitted = [result.params[f"delay_{j}"] for j in range(2)]
-        coarse = result.message.split(", loss")[0].removeprefix("coarse search: ")
-        print(f"| {1e3 * delays[0]:.1f}, {1e3 * delays[1]:.1f} | {coarse} | {1e3 * fitted[0]:.2f}, {1e3 * fitted[1]:.2f} | "
+        print(f"| {1e3 * delays[0]:.1f}, {1e3 * delays[1]:.1f} | {1e3 * fitted[0]:.2f}, {1e3 * fitted[1]:.2f} | "
               f"{1e3 * (fitted[0] - delays[0]):+.2f}, {1e3 * (fitted[1] - delays[1]):+.2f} | "
               + ", ".join(f"[{1e3 * boot.low[f'delay_{j}']:.1f}, {1e3 * boot.high[f'delay_{j}']:.1f}]" for j in range(2))
               + f" | {result.params['sigma_u']:.4f} [{boot.low['sigma_u']:.4f}, {boot.high['sigma_u']:.4f}] | "

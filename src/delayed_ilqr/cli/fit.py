@@ -33,14 +33,12 @@ from .output import Output, out_option
               help="Fit the motor delay by gradient with the other parameters (a fractional delay, "
                    "docs/derivation.md §20), from the one delay given by --delays, instead of a profile.")
 @click.option("--per-channel", is_flag=True, help="With --fit-delay: one delay per command channel.")
-@click.option("--coarse/--no-coarse", default=True, show_default=True,
-              help="With --fit-delay: search the delays over one point per step before the gradient fit.")
 @click.option("--max-delay", type=click.FloatRange(min=0.0, min_open=True), default=None,
               help="With --fit-delay: the longest delay the fit may reach, in seconds (default twice the start).")
 @progress_option
 @out_option(default=None, help="Folder for fit.json.")
-def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, fit_delay, per_channel, coarse,
-                max_delay, progress, out, overwrite):
+def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, fit_delay, per_channel, max_delay,
+                progress, out, overwrite):
     """Fit cost weights and noise scales to reach data, and the delay by a profile (docs/fitting.md).
 
     FUNCTION is package.module:name, called as name(params, condition, delay) with params a dict
@@ -51,10 +49,8 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
     fitted at each delay and the delay of the smallest loss; exits 1 when that fit did not
     converge (results are still written). The profile's delays must be whole steps of the
     model's dt. With --fit-delay the delay (one, or one per channel with --per-channel) is a
-    fitted parameter ("delay", or "delay_0", ...), started at the one value of --delays (a coarse
-    search over one point per step, then the gradient fit; --no-coarse: the gradient fit alone);
-    FUNCTION is then called at that delay and may depend on it only through the problem's
-    delay_steps.
+    fitted parameter ("delay", or "delay_0", ...), started at the one value of --delays; FUNCTION
+    is then called at that delay and may depend on it only through the problem's delay_steps.
     """
     from ..experiments import fitting
 
@@ -77,9 +73,8 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
     if fit_delay and len(delays) != 1:
         raise click.BadParameter(f"with --fit-delay, give one starting delay; got {len(delays)}: {list(delays)}",
                                  param_hint="'--delays'")
-    if (per_channel or max_delay is not None or not coarse) and not fit_delay:
-        raise click.BadParameter("--per-channel, --max-delay and --no-coarse need --fit-delay",
-                                 param_hint="'--fit-delay'")
+    if (per_channel or max_delay is not None) and not fit_delay:
+        raise click.BadParameter("--per-channel and --max-delay need --fit-delay", param_hint="'--fit-delay'")
     if fit_delay and (delays[0] <= 0 or (max_delay is not None and max_delay < delays[0])):
         raise click.BadParameter(f"the starting delay must be positive and at most --max-delay; got {delays[0]!r} "
                                  f"(--max-delay {max_delay!r})", param_hint="'--delays'")
@@ -99,8 +94,8 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
                                      param_hint="'DATA'") from None
     if fit_delay:
         _fit_delay(function, make_problem, data, conditions, reach_data, params0, delays[0],
-                   2 * delays[0] if max_delay is None else max_delay, per_channel, coarse, mean_scale, max_iterations,
-                   gtol, progress, out, overwrite)
+                   2 * delays[0] if max_delay is None else max_delay, per_channel, mean_scale, max_iterations, gtol,
+                   progress, out, overwrite)
         return
     with Output(out, overwrite) as output:
         start = time.perf_counter()
@@ -134,7 +129,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
         sys.exit(1)
 
 
-def _fit_delay(function, make_problem, data, conditions, reach_data, params0, delay0, max_delay, per_channel, coarse,
+def _fit_delay(function, make_problem, data, conditions, reach_data, params0, delay0, max_delay, per_channel,
                mean_scale, max_iterations, gtol, progress, out, overwrite):
     """``fit --fit-delay``: one fit of the delays with the other parameters (experiments/delay_fitting)."""
     from ..experiments import delay_fitting
@@ -146,8 +141,8 @@ def _fit_delay(function, make_problem, data, conditions, reach_data, params0, de
         try:
             result, model = delay_fitting.fit_delays(
                 make_problem, conditions, reach_data, {k: float(v) for k, v in params0.items()}, delay0, max_delay,
-                per_channel=per_channel, coarse=coarse, mean_scale=mean_scale, max_iterations=max_iterations,
-                gtol=gtol, on_evaluation=shown)
+                per_channel=per_channel, mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
+                on_evaluation=shown)
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="'--max-delay'") from None
     elapsed = time.perf_counter() - start
@@ -160,8 +155,8 @@ def _fit_delay(function, make_problem, data, conditions, reach_data, params0, de
         with Output(out, overwrite) as output:
             fitted = model(result.params, conditions[0])
             settings = dict(function=function, data=str(data), start=params0, delay0=delay0, max_delay=max_delay,
-                            per_channel=per_channel, coarse=coarse, mean_scale=mean_scale,
-                            max_iterations=max_iterations, gtol=gtol, elapsed_seconds=elapsed, frame=model.frame,
+                            per_channel=per_channel, mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
+                            elapsed_seconds=elapsed, frame=model.frame,
                             problem=problem_record(make_problem({k: float(v) for k, v in params0.items()},
                                                                 conditions[0], delay0)),
                             fitted_delay_steps=[float(v) for v in (fitted.delay_in_steps if fitted.is_fractional

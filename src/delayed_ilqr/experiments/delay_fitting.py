@@ -6,8 +6,6 @@ differentiable in the delay. So the delays become parameters of [`fit`][delayed_
 [`DelayedModel`][delayed_ilqr.experiments.delay_fitting.DelayedModel] builds the problem at a starting delay and
 replaces its delay by the traced parameters (in seconds, one for all channels or one per channel),
 in a frame of slots that holds every delay up to ``max_delay``; one compilation serves the whole fit.
-The fit runs coarse to fine: a search of the delays over one point per step
-([`coarse_delays`][delayed_ilqr.experiments.delay_fitting.coarse_delays]), then L-BFGS-B over every parameter from there.
 
 The confidence interval of a fitted parameter is the percentile interval of a parametric bootstrap:
 the fitted model's policy is simulated on its plant with the data's number of trials (new noise
@@ -25,10 +23,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import Problem, simulate, solve
-from . import fitting
 from .fitting import Fit, ReachData, fit, observed_reach
 
-__all__ = ["DelayedModel", "delay_names", "coarse_delays", "fit_delays", "Bootstrap", "bootstrap"]
+__all__ = ["DelayedModel", "delay_names", "fit_delays", "Bootstrap", "bootstrap"]
 
 
 def delay_names(n: int) -> tuple:
@@ -73,69 +70,9 @@ def _frame_for(max_delay: float, dt: float, horizon: int) -> int:
     return frame
 
 
-def coarse_delays(evaluate: Callable, params: dict, names: tuple, dt: float, max_delay: float,
-                  sweeps: int = 4) -> tuple:
-    """The delays ``names`` on a grid of one point per step, by coordinate search: the coarse
-    stage of [`fit_delays`][delayed_ilqr.experiments.delay_fitting.fit_delays].
-
-    Delay j's candidates are (l + c_j) dt, l = 0, 1, ..., up to ``max_delay``, with c_j = (j + 1) /
-    (n + 1) for n delays: between whole steps and apart from each other, so that the gradient fit
-    that follows starts where every piece of the step has a width (``docs/derivation.md`` §20).
-    The first sweep profiles each delay over all its candidates in turn (the others held); the
-    next ones try the neighbouring steps only, until a sweep moves nothing (at most ``sweeps``).
-    The other parameters stay at ``params``.
-
-    Args:
-        evaluate: a [`fitting.Evaluator`][delayed_ilqr.experiments.fitting.Evaluator] of the model.
-        params: every parameter by name (the delays' values are replaced).
-        names: the delays' names.
-        dt: the step (s).
-        max_delay: the longest candidate (s).
-        sweeps: the most sweeps.
-
-    Returns:
-        (the parameters with the delays of the smallest loss found, that loss, evaluations).
-    """
-    offsets = [(j + 1) / (len(names) + 1) for j in range(len(names))]
-    grids = [np.array([(l + c) * dt for l in range(int(np.floor(max_delay / dt - c + 1e-9)) + 1)]) for c in offsets]
-    if any(len(g) == 0 for g in grids):
-        raise ValueError(f"max_delay must hold at least one candidate of each delay, {offsets[-1] * dt:g} s; "
-                         f"got max_delay={max_delay!r}")
-    index = [int(np.argmin(np.abs(g - params[k]))) for g, k in zip(grids, names)]
-    point = lambda idx: dict(params, **{k: float(g[i]) for k, g, i in zip(names, grids, idx)})  # noqa: E731
-    known = {}
-
-    def loss(idx):
-        idx = tuple(idx)
-        if idx not in known:
-            known[idx] = evaluate(point(idx))[0]
-        return known[idx]
-
-    best = loss(index)
-    for sweep in range(sweeps):
-        moved = False
-        for j, grid in enumerate(grids):
-            near = range(len(grid)) if sweep == 0 else range(max(index[j] - 1, 0), min(index[j] + 2, len(grid)))
-            for i in near:
-                trial = index[:j] + [i] + index[j + 1:]
-                value = loss(trial)
-                if value < best:
-                    best, index, moved = value, trial, True
-        if not moved:
-            break
-    return point(index), best, len(known)
-
-
 def fit_delays(make_problem: Callable[[dict, object, float], Problem], conditions, data: ReachData, params0: dict,
-               delay0, max_delay: float, per_channel: bool = False, coarse: bool = True, **kwargs) -> tuple:
+               delay0, max_delay: float, per_channel: bool = False, **kwargs) -> tuple:
     """Fits the motor delay (seconds; one, or one per channel) with the parameters of ``params0``.
-
-    Coarse to fine: a coordinate search of the delays over one point per step
-    ([`coarse_delays`][delayed_ilqr.experiments.delay_fitting.coarse_delays]: loss evaluations only, the other parameters at
-    ``params0``) finds the step; L-BFGS-B then fits every parameter from there by gradient. The
-    loss is smooth in each delay over tens of milliseconds, but a start far from the truth costs
-    the gradient fit many evaluations, and the search lands between whole steps with the delays'
-    fractions apart.
 
     Args:
         make_problem: ``make_problem(params, condition, delay)`` as for
@@ -143,18 +80,17 @@ def fit_delays(make_problem: Callable[[dict, object, float], Problem], condition
         conditions: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
         data: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
         params0: as for [`fit`][delayed_ilqr.experiments.fitting.fit], without the delays.
-        delay0: the starting delay in seconds (positive): the problem is built there, and the
-            coarse search starts from it (without the search, the gradient fit does).
+        delay0: the starting delay in seconds (positive), of every channel. A whole number of
+            steps is a fine start: the derivative there is the one-sided one
+            (``docs/derivation.md`` §20).
         max_delay: the longest delay the fit may reach (s): it sets the frame, and L-BFGS-B keeps
             every delay in (0, max_delay].
         per_channel: one delay per command channel, each from ``delay0``.
-        coarse: run the coarse search first.
         kwargs: more arguments of [`fit`][delayed_ilqr.experiments.fitting.fit] (``u_init``, ``mean_scale``, ``options``, ...).
 
     Returns:
         (the [`Fit`][delayed_ilqr.experiments.fitting.Fit], whose ``params`` include the delays by the names of
-        [`delay_names`][delayed_ilqr.experiments.delay_fitting.delay_names], whose ``evaluations`` include the search's and whose
-        ``message`` begins with the search's delays; the [`DelayedModel`][delayed_ilqr.experiments.delay_fitting.DelayedModel] it used).
+        [`delay_names`][delayed_ilqr.experiments.delay_fitting.delay_names]; the [`DelayedModel`][delayed_ilqr.experiments.delay_fitting.DelayedModel] it used).
     """
     delay0, max_delay = float(delay0), float(max_delay)
     if not (np.isfinite(delay0) and 0 < delay0 <= max_delay):
@@ -167,16 +103,8 @@ def fit_delays(make_problem: Callable[[dict, object, float], Problem], condition
     if clash:
         raise ValueError(f"params0 must not name the delays (fit_delays adds {list(names)}); got {clash}")
     bounds = dict(kwargs.pop("bounds", None) or {}, **{k: (None, max_delay) for k in names})
-    start = dict(params0, **{k: delay0 for k in names})
-    searched, note = 0, ""
-    if coarse:
-        evaluate = fitting.Evaluator(model, conditions, data, start,
-                                     **{k: kwargs[k] for k in ("u_init", "mean_scale", "options") if k in kwargs})
-        start, value, searched = coarse_delays(evaluate, start, names, first.dt, max_delay)
-        note = ("coarse search: " + ", ".join(f"{k} = {1e3 * start[k]:.2f} ms" for k in names)
-                + f", loss {value:.4g} ({searched} evaluations); ")
-    result = fitting.fit(model, conditions, data, start, bounds=bounds, **kwargs)
-    return result._replace(message=note + result.message, evaluations=result.evaluations + searched), model
+    result = fit(model, conditions, data, dict(params0, **{k: delay0 for k in names}), bounds=bounds, **kwargs)
+    return result, model
 
 
 class Bootstrap(NamedTuple):
