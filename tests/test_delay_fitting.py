@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from delayed_ilqr import solve
+from delayed_ilqr import Status, solve
 from delayed_ilqr.experiments import delay_fitting, fitting
 from delayed_ilqr.models import point_mass
 
@@ -23,6 +23,9 @@ DELAYS = (0.054, 0.087)              # s per channel: 5.4 and 8.7 steps of 10 ms
 START = dict(delay=0.0625)
 MAX_DELAY = 0.12
 TARGETS = jnp.array([[0.2, 0.1, 0.0, 0.0]])
+# exact statistics: the loss is 0 at the truth, where the line search meets round-off and would
+# end abnormally; an iteration that gains less than 1e-12 ends the fit instead
+FTOL = 1e-12
 
 
 def reach(params, target, delay):
@@ -45,7 +48,8 @@ def exact_fit():
     one = lambda target: fitting.predicted_reach(model(_truth(), target), solve(model(_truth(), target)))
     data = fitting.ReachData(*jax.jit(jax.vmap(one))(TARGETS))
     result, fitted_model = delay_fitting.fit_delays(reach, TARGETS, data, {},
-                                                    START["delay"], MAX_DELAY, per_channel=True, gtol=1e-9)
+                                                    START["delay"], MAX_DELAY, per_channel=True, gtol=1e-9,
+                                                    ftol=FTOL)
     return dict(data=data, fit=result, model=fitted_model, truth_model=model)
 
 
@@ -61,6 +65,23 @@ def test_per_channel_delays_are_recovered(exact_fit):
     assert max(errors.values()) < 1e-5, (result.params, errors)
     # and the check can fail: a profile over whole steps cannot reach 5.4 steps
     assert min(abs(DELAYS[0] - 0.01 * l) for l in range(12)) > 3e-3
+
+
+def test_loss_gradient_where_the_fractions_are_equal(exact_fit):
+    """At 62.5 ms on both channels (equal fractions: the step has a piece of zero width) the loss's
+    gradient in each log delay equals its central difference (h = 1e-5, error O(h^2)). The point
+    mass's drift is linear in its delayed commands and each noise column follows one channel, so
+    the loss is differentiable there; before the held commands came from the fractions' order, the
+    derivative in one channel's delay carried the other's switch too."""
+    evaluate = fitting.Evaluator(exact_fit["truth_model"], TARGETS, exact_fit["data"], _truth())
+    point = dict(delay_0=START["delay"], delay_1=START["delay"])
+    _, grad, status = evaluate(point)
+    assert all(Status(int(s)).converged for s in status), status
+    h = 1e-5
+    for name in point:
+        up, down = (evaluate(dict(point, **{name: point[name] * np.exp(s)}))[0] for s in (h, -h))
+        central = (up - down) / (2 * h)
+        assert abs(grad[name] - central) <= 1e-6 * abs(central), (name, grad[name], central)
 
 
 def test_fit_delays_refuses_what_it_cannot_fit(exact_fit):
@@ -84,7 +105,7 @@ def test_fit_command_fits_the_delays(exact_fit, tmp_path):
     fitting.save_reach_data(path, TARGETS, exact_fit["data"])
     args = ["--no-cache", "fit", "test_delay_fitting:reach", str(path), 
             "--delays", str(START["delay"]), "--fit-delay", "--per-channel", "--max-delay", str(MAX_DELAY),
-            "--gtol", "1e-9", "--out", str(tmp_path / "fit")]
+            "--gtol", "1e-9", "--ftol", str(FTOL), "--out", str(tmp_path / "fit")]
     result = CliRunner().invoke(cli.main, args, catch_exceptions=False)
     assert result.exit_code == 0, result.output
     record = json.loads((tmp_path / "fit" / "fit.json").read_text())

@@ -11,7 +11,8 @@ true delays:
    standard error of a mean endpoint coordinate;
 2. the fit (``experiments.delay_fitting.fit_delays``, one delay per channel) from 100 ms on both
    joints, sigma_u and r 50 % off, by L-BFGS-B on the implicit gradients through the fractional
-   delay (docs/derivation.md §20);
+   delay (docs/derivation.md §20), ending when an iteration gains less than FTOL = 1e-7 of the
+   loss;
 3. 95 % intervals by a parametric bootstrap: REPLICATES new data sets of TRIALS reaches per target
    from the fitted model, each fitted again from the estimate.
 
@@ -38,6 +39,7 @@ W_P = 1e3
 TRUTH = dict(r=1e-4, sigma_u=0.01)
 START = dict(r=1.5e-4, sigma_u=0.015)
 DELAY0, MAX_DELAY = 0.1, 0.17
+FTOL = 1e-7          # L-BFGS-B ends when an iteration decreases the loss by less than this (relative)
 ROWS = [(0.054, 0.071), (0.1035, 0.0875), (0.148, 0.1265)]      # s, shoulder and elbow
 TARGETS = jnp.array([[np.pi / 2, np.pi / 3, 0.0, 0.0], [1.2, 1.4, 0.0, 0.0], [1.0, 2.0, 0.0, 0.0],
                      [1.6, 1.0, 0.0, 0.0]])
@@ -66,7 +68,7 @@ def sampled_data(model, params, trials, seed):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=100)
-    parser.add_argument("--replicates", type=int, default=8)
+    parser.add_argument("--replicates", type=int, default=8, help="0: the fits alone, no intervals")
     parser.add_argument("--rows", type=str, default="0,1,2", help="which rows of ROWS, e.g. 1,2")
     args = parser.parse_args()
     model = delay_fitting.DelayedModel(reach, DELAY0, delay_fitting._frame_for(MAX_DELAY, 0.01, 60), per_channel=True)
@@ -80,10 +82,16 @@ def main():
         truth = dict(TRUTH, delay_0=delays[0], delay_1=delays[1])
         data, scale = sampled_data(model, truth, args.trials, seed=1000 * row)
         result, fitted_model = delay_fitting.fit_delays(reach, TARGETS, data, START, DELAY0, MAX_DELAY,
-                                                        per_channel=True, mean_scale=scale)
+                                                        per_channel=True, mean_scale=scale, ftol=FTOL)
         assert fitted_model == model
+        if args.replicates == 0:
+            fitted = [result.params[f"delay_{j}"] for j in range(2)]
+            print(f"| {1e3 * delays[0]:.1f}, {1e3 * delays[1]:.1f} | {1e3 * fitted[0]:.2f}, {1e3 * fitted[1]:.2f} | "
+                  f"{result.evaluations} ({'converged' if result.converged else 'not converged'}) | "
+                  f"{time.perf_counter() - start:.0f} | {result.message}", flush=True)
+            continue
         boot = delay_fitting.bootstrap(model, TARGETS, result, args.trials, args.replicates, seed=1000 * row + 100,
-                                       mean_scale=scale, bounds=bounds)
+                                       mean_scale=scale, bounds=bounds, ftol=FTOL)
         elapsed = time.perf_counter() - start
         fitted = [result.params[f"delay_{j}"] for j in range(2)]
         print(f"| {1e3 * delays[0]:.1f}, {1e3 * delays[1]:.1f} | {1e3 * fitted[0]:.2f}, {1e3 * fitted[1]:.2f} | "

@@ -30,6 +30,8 @@ from .output import Output, out_option
               help="L-BFGS-B iterations per delay.")
 @click.option("--gtol", type=click.FloatRange(min=0.0, min_open=True), default=1e-8, show_default=True,
               help="L-BFGS-B's tolerance on the projected gradient of the loss in log parameters.")
+@click.option("--ftol", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
+              help="L-BFGS-B's tolerance on the relative decrease of the loss in one iteration (0: none).")
 @click.option("--fit-delay", is_flag=True,
               help="Fit the motor delay by gradient with the other parameters (a fractional delay, "
                    "docs/derivation.md §20), from the one delay given by --delays, instead of a profile.")
@@ -38,7 +40,7 @@ from .output import Output, out_option
               help="With --fit-delay: the longest delay the fit may reach, in seconds (default twice the start).")
 @progress_option
 @out_option(default=None, help="Folder for fit.json.")
-def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, fit_delay, per_channel, max_delay,
+def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol, ftol, fit_delay, per_channel, max_delay,
                 progress, out, overwrite):
     """Fit cost weights and noise scales to reach data, and the delay by a profile (docs/fitting.md).
 
@@ -96,13 +98,14 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
     if fit_delay:
         _fit_delay(function, make_problem, data, conditions, reach_data, params0, delays[0],
                    2 * delays[0] if max_delay is None else max_delay, per_channel, mean_scale, max_iterations, gtol,
-                   progress, out, overwrite)
+                   ftol, progress, out, overwrite)
         return
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         best, fits = fitting.profile_delay(make_problem, delays, conditions, reach_data,
                                            {k: float(v) for k, v in params0.items()}, mean_scale=mean_scale,
-                                           max_iterations=max_iterations, gtol=gtol, progress=progress)
+                                           max_iterations=max_iterations, gtol=gtol, ftol=ftol,
+                                           progress=progress)
         elapsed = time.perf_counter() - start
         names = sorted(params0)
         header = ["delay [s]", "loss", *names, "converged", "L-BFGS-B iterations", "evaluations"]
@@ -116,7 +119,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
             # the problem of the first condition at the first delay and the starting values, and
             # the one fitted (the chosen delay and parameters)
             settings = dict(function=function, data=str(data), start=params0, delays=list(delays),
-                            mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
+                            mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol, ftol=ftol,
                             elapsed_seconds=elapsed,
                             problem=problem_record(make_problem({k: float(v) for k, v in params0.items()},
                                                                 conditions[0], delays[0])),
@@ -132,7 +135,7 @@ def fit_command(function, data, starts, delays, mean_scale, max_iterations, gtol
 
 
 def _fit_delay(function, make_problem, data, conditions, reach_data, params0, delay0, max_delay, per_channel,
-               mean_scale, max_iterations, gtol, progress, out, overwrite):
+               mean_scale, max_iterations, gtol, ftol, progress, out, overwrite):
     """``fit --fit-delay``: one fit of the delays with the other parameters (experiments/delay_fitting)."""
     from ..experiments import delay_fitting
     from ..experiments.progress import progress_bar
@@ -144,7 +147,7 @@ def _fit_delay(function, make_problem, data, conditions, reach_data, params0, de
             result, model = delay_fitting.fit_delays(
                 make_problem, conditions, reach_data, {k: float(v) for k, v in params0.items()}, delay0, max_delay,
                 per_channel=per_channel, mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
-                on_evaluation=shown)
+                ftol=ftol, on_evaluation=shown)
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="'--max-delay'") from None
     elapsed = time.perf_counter() - start
@@ -158,7 +161,7 @@ def _fit_delay(function, make_problem, data, conditions, reach_data, params0, de
             fitted = model(result.params, conditions[0])
             settings = dict(function=function, data=str(data), start=params0, delay0=delay0, max_delay=max_delay,
                             per_channel=per_channel, mean_scale=mean_scale, max_iterations=max_iterations, gtol=gtol,
-                            elapsed_seconds=elapsed, frame=model.frame,
+                            ftol=ftol, elapsed_seconds=elapsed, frame=model.frame,
                             problem=problem_record(make_problem({k: float(v) for k, v in params0.items()},
                                                                 conditions[0], delay0)),
                             fitted_delay_steps=[float(v) for v in (fitted.delay_in_steps if fitted.is_fractional

@@ -80,8 +80,9 @@ def fit_delays(make_problem: Callable[[dict, object, float], Problem], condition
         conditions: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
         data: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
         params0: as for [`fit`][delayed_ilqr.experiments.fitting.fit], without the delays.
-        delay0: the starting delay in seconds (positive; best not a whole number of steps, where
-            the loss has a kink: ``docs/derivation.md`` §20).
+        delay0: the starting delay in seconds (positive), of every channel. A whole number of
+            steps is a fine start: the derivative there is the one-sided one
+            (``docs/derivation.md`` §20).
         max_delay: the longest delay the fit may reach (s): it sets the frame, and L-BFGS-B keeps
             every delay in (0, max_delay].
         per_channel: one delay per command channel, each from ``delay0``.

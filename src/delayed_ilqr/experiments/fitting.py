@@ -37,8 +37,8 @@ from ..models.metadata import default_u_init, task_space
 from ..prediction import predict, task_prediction
 from .progress import progress_bar
 
-__all__ = ["ReachData", "Fit", "AtDelay", "predicted_reach", "observed_reach", "reach_loss", "fit", "profile_delay",
-           "check_reach_data", "save_reach_data", "load_reach_data"]
+__all__ = ["ReachData", "Fit", "AtDelay", "Evaluator", "predicted_reach", "observed_reach", "reach_loss", "fit",
+           "profile_delay", "check_reach_data", "save_reach_data", "load_reach_data"]
 
 
 class ReachData(NamedTuple):
@@ -140,9 +140,58 @@ class AtDelay:
         return problem if self.delay_frame is None else problem.replace(delay_frame=self.delay_frame)
 
 
+class Evaluator:
+    """The loss of [`fit`][delayed_ilqr.experiments.fitting.fit] and its gradient at given parameters, through the compiled
+    program that every fit of the same model shares (a coarse search before a fit reuses it).
+
+    Args:
+        make_problem, conditions, data, u_init, mean_scale, options, delay_steps: as for
+            [`fit`][delayed_ilqr.experiments.fitting.fit].
+        params0: positive floats by name: the first condition's problem at these values is the
+            one ``data`` are checked against.
+
+    Calling it with ``params`` (a dict of positive floats, the same names) returns (the loss, its
+    gradient in log theta by name, the statuses [C] of the solves), all NumPy; the loss is inf
+    where a solve did not converge or a predicted covariance is not positive definite.
+
+    Raises:
+        ValueError: naming the argument, for a non-positive ``mean_scale`` and for data that do
+            not fit the model ([`check_reach_data`][delayed_ilqr.experiments.fitting.check_reach_data]).
+    """
+
+    def __init__(self, make_problem, conditions, data: ReachData, params0: dict, u_init=None,
+                 mean_scale: float = 1e-3, options: Optional[Options] = None, delay_steps: Optional[int] = None):
+        if not (np.isfinite(mean_scale) and mean_scale > 0):
+            raise ValueError(f"mean_scale must be a positive float; got {mean_scale!r}")
+        count = len(jax.tree_util.tree_leaves(conditions)[0])
+        first = make_problem({k: float(v) for k, v in params0.items()},
+                             jax.tree_util.tree_map(lambda a: a[0], conditions))
+        self.data = check_reach_data(first, count, data)
+        if u_init is None:
+            u_init = default_u_init(first)
+            u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
+        # every evaluation solves from the same u_init: a warm start from the previous evaluation's
+        # solution made the loss depend on the path of the fit (a solve stops anywhere within its
+        # tolerance, and the muscle arm's solves from different starts stop at different commands)
+        self.u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
+        self.make_problem, self.conditions, self.mean_scale = make_problem, conditions, mean_scale
+        self.options = Options() if options is None else options
+        self.delay = None if delay_steps is None else jnp.asarray(_validate.delay_steps(delay_steps), jnp.int32)
+
+    def __call__(self, params: dict) -> tuple:
+        return self.at_log({k: np.log(float(v)) for k, v in params.items()})
+
+    def at_log(self, log_params: dict) -> tuple:
+        """As a call, at theta = exp(log_params) (log theta by name, the variables of the fit)."""
+        log_params = {k: jnp.asarray(v) for k, v in log_params.items()}
+        (value, status), grad = _value_and_grad(log_params, self.u_init, self.conditions, self.data, self.mean_scale,
+                                                self.delay, make_problem=self.make_problem, options=self.options)
+        return float(value), {k: float(g) for k, g in grad.items()}, np.asarray(status)
+
+
 def fit(make_problem: Callable[[dict, object], Problem], conditions, data: ReachData, params0: dict,
         u_init=None, mean_scale: float = 1e-3, options: Optional[Options] = None, gtol: float = 1e-8,
-        max_iterations: int = 100, delay_steps: Optional[int] = None,
+        ftol: float = 0.0, max_iterations: int = 100, delay_steps: Optional[int] = None,
         on_evaluation: Optional[Callable[[int, float], None]] = None, bounds: Optional[dict] = None) -> Fit:
     """Fits positive parameters theta to reach data by L-BFGS-B on log theta (module docstring).
 
@@ -158,6 +207,10 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
         mean_scale: s, the precision of the mean paths in task units (e.g. their standard error).
         options: the solver's [`Options`][delayed_ilqr.Options].
         gtol: L-BFGS-B's tolerance on the projected gradient of the loss in log theta.
+        ftol: L-BFGS-B's tolerance on the relative decrease of the loss in one iteration (0:
+            none). A loss whose solves stop within a tolerance is rough at its smallest scales,
+            and near its minimum the line search can fail there for many evaluations before
+            L-BFGS-B gives up; a small ftol (1e-7, say) ends the fit when the steps stop paying.
         max_iterations: L-BFGS-B's iteration limit.
         delay_steps: None, or the delay in steps at which to fit when ``make_problem``'s problems
             have a ``delay_frame``: it replaces their delay and reaches the compiled loss as
@@ -182,38 +235,24 @@ def fit(make_problem: Callable[[dict, object], Problem], conditions, data: Reach
     values = np.array([float(params0[k]) for k in names])
     if not np.all(np.isfinite(values) & (values > 0)):
         raise ValueError(f"params0 must map names to positive finite floats; got {params0!r}")
-    if not (np.isfinite(mean_scale) and mean_scale > 0):
-        raise ValueError(f"mean_scale must be a positive float; got {mean_scale!r}")
-    count = len(jax.tree_util.tree_leaves(conditions)[0])
-    first = make_problem(dict(zip(names, values)), jax.tree_util.tree_map(lambda a: a[0], conditions))
-    data = check_reach_data(first, count, data)
-    if u_init is None:
-        u_init = default_u_init(first)
-        u_init = jnp.zeros((first.horizon, first.n_controls)) if u_init is None else u_init
-    # every evaluation solves from the same u_init: a warm start from the previous evaluation's
-    # solution made the loss depend on the path of the fit (a solve stops anywhere within its
-    # tolerance, and the muscle arm's solves from different starts stop at different commands)
-    u_init = jnp.broadcast_to(jnp.asarray(u_init), (count,) + np.shape(u_init))
-    options = Options() if options is None else options
-    delay = None if delay_steps is None else jnp.asarray(_validate.delay_steps(delay_steps), jnp.int32)
+    evaluate = Evaluator(make_problem, conditions, data, dict(zip(names, values)), u_init, mean_scale, options,
+                         delay_steps)
     last = {}
 
     def value_and_grad(log_values):
-        log_params = {k: jnp.asarray(v) for k, v in zip(names, log_values)}
-        (value, status), grad = _value_and_grad(log_params, u_init, conditions, data, mean_scale, delay,
-                                                make_problem=make_problem, options=options)
-        grad = np.array([float(grad[k]) for k in names])
-        last.update(status=np.asarray(status), count=last.get("count", 0) + 1)
+        value, grad, status = evaluate.at_log(dict(zip(names, log_values)))
+        grad = np.array([grad[k] for k in names])
+        last.update(status=status, count=last.get("count", 0) + 1)
         if on_evaluation is not None:
-            on_evaluation(last["count"], float(value))
-        if not (np.isfinite(float(value)) and np.all(np.isfinite(grad))):
+            on_evaluation(last["count"], value)
+        if not (np.isfinite(value) and np.all(np.isfinite(grad))):
             return np.inf, np.zeros_like(grad)
-        return float(value), grad
+        return value, grad
 
     limits = [tuple(None if b is None else float(np.log(b)) for b in (bounds or {}).get(k, (None, None)))
               for k in names]
     result = minimize(value_and_grad, np.log(values), jac=True, method="L-BFGS-B", bounds=limits,
-                      options=dict(gtol=gtol, ftol=0.0, maxiter=max_iterations))
+                      options=dict(gtol=gtol, ftol=ftol, maxiter=max_iterations))
     value, _ = value_and_grad(result.x)
     unconverged = [Status(int(s)).name for s in last["status"] if not Status(int(s)).converged]
     message = str(result.message) + (f"; unconverged solves: {unconverged}" if unconverged else "")
