@@ -149,6 +149,9 @@ def test_alternated_pair_agrees_with_monte_carlo():
     assert np.max(np.abs(exact - np.asarray(design.covariances.current))) > 0.05 * np.max(np.abs(exact))
 
 
+# under make bench: two compiled solves of the arm with its estimator and 4000 paired trials; the suite
+# holds the alternation's exact cost and its descent on random problems above
+@pytest.mark.full
 def test_solve_alternates_on_the_noisy_arm_with_both_delays():
     """P2-noisy's torque noise (proportional to the delayed command) with 30 ms motor and 50 ms
     sensory delay: ``solve`` returns the alternation of the LQG layer at its nominal, at least a

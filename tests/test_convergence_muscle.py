@@ -7,7 +7,9 @@ import pytest
 import delayed_ilqr as di
 
 
-@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), (0.01, 0.1, 6), (0.005, 0.15, 7)])
+# the latch case in the suite; the other two (one compiled solve per delay) under make bench
+@pytest.mark.parametrize("sigma_u, delay, k", [(0.005, 0.05, 3), pytest.param(0.01, 0.1, 6, marks=pytest.mark.full),
+                                              pytest.param(0.005, 0.15, 7, marks=pytest.mark.full)])
 def test_noisy_muscle_reaches_that_did_not_converge_now_do(sigma_u, delay, k):
     """Three reaches of the convergence grid (docs/results/noise_aware_convergence.md): the first cycled
     with period 9 at lambda = 0 (a command's feedback switching on and off: the latch), the
