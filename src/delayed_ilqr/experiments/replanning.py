@@ -20,17 +20,26 @@ controller starts from its solution.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Optional
+from typing import Any, NamedTuple, Optional
 
-import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.stats import chi2
 
-from .. import Options, Problem, solve
-from ..models.metadata import default_u_init
+from .. import Problem, Runs, mpc
+from ..models.arm2 import hand_velocity
+from ..models.metadata import task_position
+from ..models.arm2_muscle6 import with_disturbance_model
 from ..problem import GeneralCost
+from .engine import Trials, endpoint_error
+from .responses import ellipse
 
-__all__ = ["Stopping", "StoppingCost", "shrinking", "controller", "run"]
+__all__ = ["CONTROLLERS", "Stopping", "StoppingCost", "shrinking", "GATE_FALSE_ALARM", "GATE_VELOCITY_SD",
+           "gate_covariance", "innovation_gate", "controller", "monte_carlo", "ReachProfile", "reach_profile"]
+
+#: The controllers of the perturbation experiments: the model's, which re-plans at every tick
+#: (the default), and the fixed time-varying feedback law of one solve.
+CONTROLLERS = ("replanning", "fixed")
 
 
 @dataclass(frozen=True)
@@ -76,3 +85,90 @@ def shrinking(problem: Problem) -> Problem:
                            noise=None if problem.noise is None else Stopping(problem.noise, end),
                            cost=GeneralCost(cost.running, cost.final, problem.cost.params, time_dependent=True),
                            time_dependent=True, name=problem.name + " (re-planned)")
+
+
+#: The innovation gate's false-alarm probability per sample while the model holds [D].
+GATE_FALSE_ALARM = 1e-3
+#: The SD of the unexpected joint-velocity change (rad/s) the filter admits when its gate opens
+#: (about 0.3 m/s of the hand), and the same change's effect on the joint angles over the sensory
+#: delay [D].
+GATE_VELOCITY_SD = 1.0
+
+
+def gate_covariance(model: Problem) -> np.ndarray:
+    """[n, n] what the filter of ``model`` (an arm whose states begin [q1, q2, dq1, dq2], sensed
+    l_s steps late) adds to its covariance when its innovation gate opens: a joint-velocity change
+    of SD `GATE_VELOCITY_SD` that came up to l_s dt before the sensed state, so the angles moved by
+    it times l_s dt (perfectly correlated with it)."""
+    tau = model.observation.delay_steps * model.dt
+    block = GATE_VELOCITY_SD ** 2 * np.array([[tau * tau, tau], [tau, 1.0]])
+    cov = np.zeros((model.n_states, model.n_states))
+    for j in range(2):
+        idx = np.array([j, 2 + j])
+        cov[np.ix_(idx, idx)] = block
+    return cov
+
+
+def innovation_gate(model: Problem) -> float:
+    """The chi-square quantile of the model's m sensor outputs at 1 - `GATE_FALSE_ALARM`."""
+    m = int(np.asarray(model.observation.H).shape[0])
+    return float(chi2.ppf(1.0 - GATE_FALSE_ALARM, m))
+
+
+def controller(model: Problem, disturbance_model: Optional[float] = None, gate: bool = True) -> "mpc.MPC":
+    """The re-planning controller of ``model`` (a reach with sensors, `reach_tasks.reach`): the
+    receding-horizon controller on `shrinking` (``model``), one solver iteration per tick, its
+    filter expecting external joint torques of density ``disturbance_model`` (N m s^1/2,
+    `models.arm2_muscle6.with_disturbance_model`; None: the motor noise alone), and with ``gate``
+    its innovation gate (`innovation_gate`, `gate_covariance`)."""
+    design = model if disturbance_model is None else with_disturbance_model(model, disturbance_model)
+    extra = dict(innovation_gate=innovation_gate(model), gate_cov=gate_covariance(model)) if gate else {}
+    return mpc.MPC(shrinking(design), iterations=1, **extra)
+
+
+def monte_carlo(ctrl: "mpc.MPC", plant: Problem, first_plan, n_trials: int, seed: int,
+                disturbance=None) -> tuple[Trials, int]:
+    """``n_trials`` reaches of ``plant`` under ``ctrl`` (`controller`), starting from the plan
+    ``first_plan`` [K, d] (the reach's solution, the first tick's problem), with the disturbance
+    W [K, n] added to every trial's state update (unknown to the controller). One compiled loop
+    ([`mpc.simulate`][delayed_ilqr.mpc.simulate]); trials with the same seed share their noise.
+
+    Returns:
+        The `engine.Trials` (its runs: x [N, K+1, n], the commands issued u [N, K, d], the plant's
+        cost [N] and with sensors x_hat [N, K, n], the estimates the ticks acted on) and the
+        number of ticks whose solve failed (no descent, non-finite rollout), over all trials.
+    """
+    loop = mpc.simulate(ctrl, plant, ticks=plant.horizon, n_trials=n_trials, seed=seed, disturbance=disturbance,
+                        u_init=np.asarray(first_plan))
+    runs = Runs(loop.x, loop.u, loop.cost, loop.estimate if ctrl.sensors else None)
+    final = np.asarray(loop.x[:, -1], dtype=np.float64)
+    return (Trials(runs, task_position(plant, final), endpoint_error(plant, final)),
+            int(np.asarray(loop.solver_failures).sum()))
+
+
+class ReachProfile(NamedTuple):
+    """The unperturbed reach of one controller (lengths in metres, times as fractions of the movement).
+
+    Attributes:
+        error_median: median final distance to the target.
+        sd_major, sd_minor: endpoint SDs along the principal axes (`responses.ellipse`).
+        peak_over_mean: peak over mean of the mean hand speed profile.
+        time_to_peak: the time of its peak over the movement time.
+    """
+
+    error_median: float
+    sd_major: float
+    sd_minor: float
+    peak_over_mean: float
+    time_to_peak: float
+
+
+def reach_profile(trials: Trials, dt: float) -> ReachProfile:
+    """The `ReachProfile` of a reach's `engine.Trials` on an arm (states begin [q, dq])."""
+    x = np.asarray(trials.runs.x, dtype=np.float64)
+    speed = np.linalg.norm(np.asarray(hand_velocity(x[..., :2], x[..., 2:4])), axis=-1).mean(axis=0)
+    e = ellipse(np.cov(np.asarray(trials.endpoints).T))
+    K = speed.shape[0] - 1
+    return ReachProfile(float(np.median(trials.errors)), e.major, e.minor, float(speed.max() / speed.mean()),
+                        float(np.argmax(speed) / K))
+
