@@ -120,9 +120,10 @@ def controller(model: Problem, disturbance_model: Optional[float] = None, gate: 
     receding-horizon controller on `shrinking` (``model``), one solver iteration per tick, its
     filter expecting external joint torques of density ``disturbance_model`` (N m s^1/2,
     `models.arm2_muscle6.with_disturbance_model`; None: the motor noise alone), and with ``gate``
-    its innovation gate (`innovation_gate`, `gate_covariance`)."""
+    (and sensors) its innovation gate (`innovation_gate`, `gate_covariance`)."""
     design = model if disturbance_model is None else with_disturbance_model(model, disturbance_model)
-    extra = dict(innovation_gate=innovation_gate(model), gate_cov=gate_covariance(model)) if gate else {}
+    extra = ({} if not gate or model.observation is None
+             else dict(innovation_gate=innovation_gate(model), gate_cov=gate_covariance(model)))
     return mpc.MPC(shrinking(design), iterations=1, **extra)
 
 
