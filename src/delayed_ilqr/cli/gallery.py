@@ -124,8 +124,11 @@ def _cost_warnings(label, cost, predicted, problem) -> list:
 @SEED_OPTION
 @DISTURBANCE_MODEL
 @CONTROLLER
+@click.option("--innovation-gate", "gate", type=click.FloatRange(min=0.0, max=1.0, min_open=True, max_open=True),
+              default=None, help="The re-planning controller's filter believes a push when a measurement is this "
+                                 "improbable (false-alarm probability per sample, e.g. 0.05).  [default: none]")
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (kick.*).")
-def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, disturbance_model, controller, out,
+def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, disturbance_model, controller, gate, out,
                  overwrite):
     """A mid-reach kick of the hand: latency of the first command change and final error.
 
@@ -136,7 +139,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, dist
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         r = kick.kick_experiment(arm, delay, sensory_delay, size, pulse_time, trials, seed,
-                                 disturbance_model=disturbance_model, controller=controller)
+                                 disturbance_model=disturbance_model, controller=controller, gate=gate)
         elapsed = time.perf_counter() - start
         warned = _cost_warnings("kick, unperturbed trials", r.base.runs.cost, r.solution.expected_cost, r.problem)
         a = r.analysis
@@ -149,7 +152,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, dist
         from ..plot.gallery import plot_kick
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
                         trials=trials, seed=seed, disturbance_model=disturbance_model, controller=controller,
-                        problem=problem_record(r.problem))
+                        innovation_gate=gate, problem=problem_record(r.problem))
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
                 elapsed, [r.solution.status])
 

@@ -30,6 +30,10 @@ innovation gate believes an unexpected push) or the fixed time-varying feedback 
 ("fixed"). With the re-planning controller the fixed law's unperturbed trials run too, so that
 the two unperturbed reaches can be compared (`replanning.reach_profile`).
 
+``gate`` (a false-alarm probability per sample, default none) gives the re-planning controller's
+filter an innovation gate: when a measurement surprises it, it believes a sudden push
+(`replanning.controller`).
+
 ``disturbance_model`` (N m s^1/2, default none) designs the controller and its filter for external joint
 torques of that density (`models.arm2_muscle6.with_disturbance_model`); the plant is unchanged.
 """
@@ -149,7 +153,8 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
 def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                     kick: float = 0.15, pulse_time: Optional[float] = None, trials: int = 200, seed: int = 0,
                     target=None, final_time: float = 0.5, options: Optional[Options] = None,
-                    disturbance_model: Optional[float] = None, controller: str = "replanning") -> KickResult:
+                    disturbance_model: Optional[float] = None, controller: str = "replanning",
+                    gate: Optional[float] = None) -> KickResult:
     """Runs the experiment of the module docstring.
 
     Args:
@@ -168,6 +173,8 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
             None: the plant's noise alone).
         controller: "replanning" (the model's, `replanning.controller`) or "fixed" (the feedback
             law of one solve).
+        gate: the re-planning controller's innovation gate, its false-alarm probability per sample
+            (`replanning.controller`); None: no gate.
     """
     if controller not in replanning.CONTROLLERS:
         raise ValueError(f"controller must be one of {replanning.CONTROLLERS}; got {controller!r}")
@@ -183,7 +190,7 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
     if controller == "fixed":
         base, kicked = fixed_base, monte_carlo(problem, sol.policy, trials, seed, disturbance=W)
     else:
-        ctrl = replanning.controller(problem, disturbance_model)
+        ctrl = replanning.controller(problem, disturbance_model, gate)
         (base, f_base), (kicked, f_kicked) = (replanning.monte_carlo(ctrl, problem, sol.u, trials, seed, disturbance=w)
                                               for w in (None, W))
         failures = f_base + f_kicked

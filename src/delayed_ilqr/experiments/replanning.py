@@ -34,7 +34,7 @@ from ..problem import GeneralCost
 from .engine import Trials, endpoint_error
 from .responses import ellipse
 
-__all__ = ["CONTROLLERS", "Stopping", "StoppingCost", "shrinking", "GATE_FALSE_ALARM", "GATE_VELOCITY_SD",
+__all__ = ["CONTROLLERS", "Stopping", "StoppingCost", "shrinking", "GATE_VELOCITY_SD",
            "gate_covariance", "innovation_gate", "controller", "monte_carlo", "ReachProfile", "reach_profile"]
 
 #: The controllers of the perturbation experiments: the model's, which re-plans at every tick
@@ -87,11 +87,9 @@ def shrinking(problem: Problem) -> Problem:
                            time_dependent=True, name=problem.name + " (re-planned)")
 
 
-#: The innovation gate's false-alarm probability per sample while the model holds [D].
-GATE_FALSE_ALARM = 1e-3
-#: The SD of the unexpected joint-velocity change (rad/s) the filter admits when its gate opens
-#: (about 0.3 m/s of the hand), and the same change's effect on the joint angles over the sensory
-#: delay [D].
+#: The SD of the unexpected joint-velocity change (rad/s) the filter admits when its innovation
+#: gate opens (about 0.3 m/s of the hand), and the same change's effect on the joint angles over
+#: the sensory delay [D].
 GATE_VELOCITY_SD = 1.0
 
 
@@ -109,21 +107,29 @@ def gate_covariance(model: Problem) -> np.ndarray:
     return cov
 
 
-def innovation_gate(model: Problem) -> float:
-    """The chi-square quantile of the model's m sensor outputs at 1 - `GATE_FALSE_ALARM`."""
+def innovation_gate(model: Problem, false_alarm: float) -> float:
+    """The chi-square quantile of the model's m sensor outputs at 1 - ``false_alarm`` (the
+    probability per sample that the gate opens while the model holds)."""
+    if not 0 < false_alarm < 1:
+        raise ValueError(f"false_alarm must be a probability in (0, 1); got {false_alarm!r}")
     m = int(np.asarray(model.observation.H).shape[0])
-    return float(chi2.ppf(1.0 - GATE_FALSE_ALARM, m))
+    return float(chi2.ppf(1.0 - false_alarm, m))
 
 
-def controller(model: Problem, disturbance_model: Optional[float] = None, gate: bool = True) -> "mpc.MPC":
-    """The re-planning controller of ``model`` (a reach with sensors, `reach_tasks.reach`): the
-    receding-horizon controller on `shrinking` (``model``), one solver iteration per tick, its
-    filter expecting external joint torques of density ``disturbance_model`` (N m s^1/2,
-    `models.arm2_muscle6.with_disturbance_model`; None: the motor noise alone), and with ``gate``
-    (and sensors) its innovation gate (`innovation_gate`, `gate_covariance`)."""
+def controller(model: Problem, disturbance_model: Optional[float] = None, gate: Optional[float] = None) -> "mpc.MPC":
+    """The re-planning controller of ``model`` (a reach, `reach_tasks.reach`): the receding-horizon
+    controller on `shrinking` (``model``), one solver iteration per tick.
+
+    Args:
+        model: the reach (with its sensors, or the state seen).
+        disturbance_model: its filter expects external joint torques of this density (N m s^1/2,
+            `models.arm2_muscle6.with_disturbance_model`); None: the motor noise alone.
+        gate: with sensors, the false-alarm probability per sample of its filter's innovation gate
+            (`innovation_gate`, `gate_covariance`); None: no gate.
+    """
     design = model if disturbance_model is None else with_disturbance_model(model, disturbance_model)
-    extra = ({} if not gate or model.observation is None
-             else dict(innovation_gate=innovation_gate(model), gate_cov=gate_covariance(model)))
+    extra = ({} if gate is None or model.observation is None
+             else dict(innovation_gate=innovation_gate(model, gate), gate_cov=gate_covariance(model)))
     return mpc.MPC(shrinking(design), iterations=1, **extra)
 
 
