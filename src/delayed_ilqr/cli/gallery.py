@@ -62,6 +62,11 @@ DISTURBANCE_MODEL = click.option("--disturbance-model", type=click.FloatRange(mi
                                  help="The filter expects external joint torques of this density (N m s^1/2, "
                                       "e.g. 0.05); the plant is unchanged.  [default: none]")
 
+CONTROLLER = click.option("--controller", type=click.Choice(["replanning", "fixed"]), default="replanning",
+                          show_default=True,
+                          help="The model's controller, which re-plans from its filter's estimate at every tick "
+                               "(replanning), or the fixed feedback law of one solve (fixed).")
+
 
 def _check(arm, **kwargs):
     """Builds the reach once, so that a delay off the grid is a usage error naming the option."""
@@ -119,8 +124,13 @@ def _cost_warnings(label, cost, predicted, problem) -> list:
 @TRIALS
 @SEED_OPTION
 @DISTURBANCE_MODEL
+@CONTROLLER
+@click.option("--innovation-gate", "gate", type=click.FloatRange(min=0.0, max=1.0, min_open=True, max_open=True),
+              default=None, help="The re-planning controller's filter believes a push when a measurement is this "
+                                 "improbable (false-alarm probability per sample, e.g. 0.05).  [default: none]")
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (kick.*).")
-def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, disturbance_model, out, overwrite):
+def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, disturbance_model, controller, gate, out,
+                 overwrite):
     """A mid-reach kick of the hand: latency of the first command change and final error.
 
     The same trials run without and with the kick on the same noise; the first change of the
@@ -130,7 +140,7 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, dist
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         r = kick.kick_experiment(arm, delay, sensory_delay, size, pulse_time, trials, seed,
-                                 disturbance_model=disturbance_model)
+                                 disturbance_model=disturbance_model, controller=controller, gate=gate)
         elapsed = time.perf_counter() - start
         warned = _cost_warnings("kick, unperturbed trials", r.base.runs.cost, r.solution.expected_cost, r.problem)
         a = r.analysis
@@ -138,12 +148,23 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, dist
                        analysis=dict(first_change=a.first_change, onset=a.onset, loop_latency=a.loop_latency,
                                      peak_displacement=a.peak_displacement, error_base=a.error_base,
                                      error_kicked=a.error_kicked, error_ratio=a.error_ratio, believed=a.believed),
-                       predicted_cost=float(r.solution.expected_cost))
+                       predicted_cost=float(r.solution.expected_cost), controller=controller,
+                       solver_failures=r.solver_failures, unperturbed=_profiles(r))
         from ..plot.gallery import plot_kick
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, kick=size, pulse_time=pulse_time,
-                        trials=trials, seed=seed, disturbance_model=disturbance_model, problem=problem_record(r.problem))
+                        trials=trials, seed=seed, disturbance_model=disturbance_model, controller=controller,
+                        innovation_gate=gate, problem=problem_record(r.problem))
         _finish("kick", "A mid-reach kick", kick.comparison(r), warned, records, plot_kick(r), out, output, settings,
                 elapsed, [r.solution.status])
+
+
+def _profiles(r) -> dict:
+    """The unperturbed reach of each controller the kick ran (`replanning.reach_profile`)."""
+    from ..experiments.replanning import reach_profile
+    out = {r.controller: reach_profile(r.base, r.problem.dt)._asdict()}
+    if r.fixed_base is not None:
+        out["fixed"] = reach_profile(r.fixed_base, r.problem.dt)._asdict()
+    return out
 
 
 @click.command("target-jump")
@@ -159,9 +180,10 @@ def kick_command(arm, delay, sensory_delay, size, pulse_time, trials, seed, dist
 @TRIALS
 @SEED_OPTION
 @DISTURBANCE_MODEL
+@CONTROLLER
 @out_option(default=None, help="Folder for the JSON record, the Markdown report and the figure (target_jump.*).")
-def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, trials, seed, disturbance_model, out,
-                        overwrite):
+def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, trials, seed, disturbance_model,
+                        controller, out, overwrite):
     """Target jumps (Liu & Todorov 2007) at several times before the end of the reach.
 
     The target is seen through the arm's sensors (same delay), so the correction can start one
@@ -173,14 +195,16 @@ def target_jump_command(arm, delay, sensory_delay, jump, times, final_time, tria
     with Output(out, overwrite) as output:
         start = time.perf_counter()
         r = target_jump.target_jump_experiment(arm, delay, sensory_delay, jump, times, trials, seed,
-                                               final_time=final_time, disturbance_model=disturbance_model)
+                                               final_time=final_time, disturbance_model=disturbance_model,
+                                               controller=controller)
         elapsed = time.perf_counter() - start
         records = dict(comparison=target_jump.comparison(r), status=str(r.solution.status),
-                       analyses=[a._asdict() for a in r.analyses], predicted_cost=float(r.solution.expected_cost))
+                       analyses=[a._asdict() for a in r.analyses], predicted_cost=float(r.solution.expected_cost),
+                       controller=controller, solver_failures=r.solver_failures)
         from ..plot.gallery import plot_target_jump
         settings = dict(arm=arm, delay=delay, sensory_delay=sensory_delay, jump=jump, times=list(times),
                         final_time=final_time, trials=trials, seed=seed, disturbance_model=disturbance_model,
-                        problem=problem_record(r.problem))
+                        controller=controller, problem=problem_record(r.problem))
         warned = _cost_warnings("target jump, trials without a jump", r.base_cost, r.solution.expected_cost, r.problem)
         _finish("target_jump", "Target jumps", target_jump.comparison(r), warned, records, plot_target_jump(r), out,
                 output, settings, elapsed, [r.solution.status])

@@ -24,6 +24,16 @@ unperturbed, and, with sensors, how much of the kick the delayed filter believes
 of the mean hand displacement that the estimate holds one and two loop latencies after the kick
 (`responses.believed_fraction`).
 
+The controller (``controller``) is the model's re-planning controller (`replanning`, the default:
+it re-solves the reach from its delayed filter's estimate at every tick, and its filter's
+innovation gate believes an unexpected push) or the fixed time-varying feedback law of one solve
+("fixed"). With the re-planning controller the fixed law's unperturbed trials run too, so that
+the two unperturbed reaches can be compared (`replanning.reach_profile`).
+
+``gate`` (a false-alarm probability per sample, default none) gives the re-planning controller's
+filter an innovation gate: when a measurement surprises it, it believes a sudden push
+(`replanning.controller`).
+
 ``disturbance_model`` (N m s^1/2, default none) designs the controller and its filter for external joint
 torques of that density (`models.arm2_muscle6.with_disturbance_model`); the plant is unchanged.
 """
@@ -40,6 +50,7 @@ from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import Trials, monte_carlo
 from .perturbation import lateral_kick
+from . import replanning
 from .reach_tasks import MODEL_DEFAULT, reach, solver_options
 from .responses import believed_fraction, first_change, onset
 
@@ -81,9 +92,12 @@ class KickAnalysis(NamedTuple):
 
 
 class KickResult(NamedTuple):
-    """The experiment: ``problem`` (the plant), ``solution``, ``disturbance`` W [K, n], ``pulse_step`` kp
-    (W_kp enters x_{kp+1}), ``base`` and ``kicked`` `engine.Trials`, the `KickAnalysis` and the
-    ``kick_speed`` (m/s)."""
+    """The experiment: ``problem`` (the plant), ``solution`` (the reach's solve: the fixed law, the
+    re-planning controller's first plan), ``disturbance`` W [K, n], ``pulse_step`` kp (W_kp enters
+    x_{kp+1}), ``base`` and ``kicked`` `engine.Trials`, the `KickAnalysis`, the ``kick_speed`` (m/s),
+    the ``controller`` (`replanning.CONTROLLERS`), the re-planning ticks whose solve failed
+    (``solver_failures``, over both runs) and, with the re-planning controller, the fixed law's
+    unperturbed trials on the same seed (``fixed_base``)."""
 
     problem: Problem
     solution: Solution
@@ -93,6 +107,9 @@ class KickResult(NamedTuple):
     kicked: Trials
     analysis: KickAnalysis
     kick_speed: float = float("nan")
+    controller: str = "fixed"
+    solver_failures: int = 0
+    fixed_base: Optional[Trials] = None
 
 
 def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: int, sensory_steps: int,
@@ -136,7 +153,8 @@ def analyse(base: Runs, kicked: Runs, pulse_step: int, dt: float, motor_steps: i
 def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                     kick: float = 0.15, pulse_time: Optional[float] = None, trials: int = 200, seed: int = 0,
                     target=None, final_time: float = 0.5, options: Optional[Options] = None,
-                    disturbance_model: Optional[float] = None) -> KickResult:
+                    disturbance_model: Optional[float] = None, controller: str = "replanning",
+                    gate: Optional[float] = None) -> KickResult:
     """Runs the experiment of the module docstring.
 
     Args:
@@ -153,7 +171,13 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
         options: solver options.
         disturbance_model: the filter's expected external torques (N m s^1/2, `with_disturbance_model`;
             None: the plant's noise alone).
+        controller: "replanning" (the model's, `replanning.controller`) or "fixed" (the feedback
+            law of one solve).
+        gate: the re-planning controller's innovation gate, its false-alarm probability per sample
+            (`replanning.controller`); None: no gate.
     """
+    if controller not in replanning.CONTROLLERS:
+        raise ValueError(f"controller must be one of {replanning.CONTROLLERS}; got {controller!r}")
     problem = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
     design = problem if disturbance_model is None else with_disturbance_model(problem, disturbance_model)
     sol = solve(design, u_init=default_u_init(design), options=solver_options(arm, options))
@@ -162,13 +186,20 @@ def kick_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_dela
         raise ValueError(f"pulse_time must lie within the movement, 0 <= t < {final_time - problem.dt:g} s; "
                          f"got {pulse_time!r}")
     W = lateral_kick(problem, np.asarray(sol.x), kp, kick)
-    base = monte_carlo(problem, sol.policy, trials, seed)
-    kicked = monte_carlo(problem, sol.policy, trials, seed, disturbance=W)
+    fixed_base, failures = monte_carlo(problem, sol.policy, trials, seed), 0
+    if controller == "fixed":
+        base, kicked = fixed_base, monte_carlo(problem, sol.policy, trials, seed, disturbance=W)
+    else:
+        ctrl = replanning.controller(problem, disturbance_model, gate)
+        (base, f_base), (kicked, f_kicked) = (replanning.monte_carlo(ctrl, problem, sol.u, trials, seed, disturbance=w)
+                                              for w in (None, W))
+        failures = f_base + f_kicked
     ls = 0 if problem.observation is None else problem.observation.delay_steps
     hand = lambda x: None if x is None else np.asarray(hand_position(np.asarray(x)[..., :2]))    # noqa: E731
     analysis = analyse(base.runs, kicked.runs, kp, problem.dt, problem.delay_steps, ls, base.errors, kicked.errors,
                        hand(base.runs.x), hand(kicked.runs.x), hand(base.runs.x_hat), hand(kicked.runs.x_hat))
-    return KickResult(problem, sol, W, kp, base, kicked, analysis, float(kick))
+    return KickResult(problem, sol, W, kp, base, kicked, analysis, float(kick), controller, failures,
+                      None if controller == "fixed" else fixed_base)
 
 
 def _ms(v) -> str:

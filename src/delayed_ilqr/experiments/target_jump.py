@@ -23,6 +23,10 @@ hand made up, the peak speed of the mean correction (its vigour: Liu & Todorov f
 jumps corrected more vigorously) and, with sensors, how much of the hand's correction the delayed
 filter believes at the last step (`responses.believed_fraction`).
 
+The controller (``controller``) is the model's re-planning controller (`replanning`, the default:
+it re-solves the reach from its delayed filter's estimate, the target's included, at every tick)
+or the fixed time-varying feedback law of one solve ("fixed").
+
 ``disturbance_model`` (N m s^1/2, default none) designs the controller and its filter for external
 joint torques of that density (`models.arm2_muscle6.with_disturbance_model`); the plant is unchanged.
 """
@@ -38,6 +42,7 @@ from ..models.arm2_muscle6 import with_disturbance_model
 from ..models.metadata import default_u_init
 from ..statistics import SampleStats, sample_stats
 from .engine import monte_carlo
+from . import replanning
 from .reach_tasks import (MODEL_DEFAULT, TARGET_MOTION_DENSITY, movement_direction, reach, solver_options,
                           with_target_state)
 from .responses import believed_fraction, first_change, onset
@@ -78,9 +83,11 @@ class JumpAnalysis(NamedTuple):
 
 
 class JumpResult(NamedTuple):
-    """The experiment: the plant with its target states, its solution, the jump vector [2], the
-    unjumped trials (x [N, K+1, n]) and per jump time the jumped trials' states and the analysis;
-    ``base_cost`` [N] the unjumped trials' costs."""
+    """The experiment: the plant with its target states, its solution (the fixed law, the
+    re-planning controller's first plan), the jump vector [2], the unjumped trials (x [N, K+1, n])
+    and per jump time the jumped trials' states and the analysis; ``base_cost`` [N] the unjumped
+    trials' costs, the ``controller`` (`replanning.CONTROLLERS`) and the re-planning ticks whose
+    solve failed (``solver_failures``, over every run)."""
 
     problem: Problem
     solution: Solution
@@ -89,6 +96,8 @@ class JumpResult(NamedTuple):
     jumped_x: list
     analyses: list
     base_cost: Optional[np.ndarray] = None
+    controller: str = "fixed"
+    solver_failures: int = 0
 
 
 def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_step: int, dt: float,
@@ -119,7 +128,8 @@ def analyse(base_u, jumped_u, hand_base, hand_jumped, jump, new_target, jump_ste
 def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, sensory_delay=MODEL_DEFAULT,
                            jump: float = 0.02, times_before_end: Sequence[float] = (0.1, 0.2, 0.3, 0.4),
                            trials: int = 100, seed: int = 0, target=None, final_time: float = 0.6,
-                           options: Optional[Options] = None, disturbance_model: Optional[float] = None) -> JumpResult:
+                           options: Optional[Options] = None, disturbance_model: Optional[float] = None,
+                           controller: str = "replanning") -> JumpResult:
     """Runs the experiment of the module docstring.
 
     Args:
@@ -136,7 +146,11 @@ def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, senso
         options: solver options (default `reach_tasks.solver_options`).
         disturbance_model: the filter's expected external torques (N m s^1/2, `with_disturbance_model`;
             None: the plant's noise alone).
+        controller: "replanning" (the model's, `replanning.controller`) or "fixed" (the feedback
+            law of one solve).
     """
+    if controller not in replanning.CONTROLLERS:
+        raise ValueError(f"controller must be one of {replanning.CONTROLLERS}; got {controller!r}")
     base = reach(arm, target, delay=delay, final_time=final_time, sensory_delay=sensory_delay)
     design = with_target_state(base if disturbance_model is None else with_disturbance_model(base, disturbance_model),
                                TARGET_MOTION_DENSITY)
@@ -149,18 +163,30 @@ def target_jump_experiment(arm: str = "arm2_muscle6", delay=MODEL_DEFAULT, senso
     if any(not 0 <= kp < problem.horizon - 1 for kp in steps):
         raise ValueError(f"times_before_end must lie within the movement, 0 < t < {final_time:g} s; "
                          f"got {tuple(times_before_end)!r}")
-    calm = monte_carlo(problem, sol.policy, trials, seed)
+    failures = 0
+    if controller == "fixed":
+        trials_of = lambda W: monte_carlo(problem, sol.policy, trials, seed, disturbance=W)      # noqa: E731
+    else:
+        ctrl = replanning.controller(with_target_state(base, TARGET_MOTION_DENSITY), disturbance_model)
+
+        def trials_of(W):
+            nonlocal failures
+            out, failed = replanning.monte_carlo(ctrl, problem, sol.u, trials, seed, disturbance=W)
+            failures += failed
+            return out
+    calm = trials_of(None)
     hand = lambda x: None if x is None else np.asarray(hand_position(np.asarray(x)[..., :2]))    # noqa: E731
     ls = 0 if problem.observation is None else problem.observation.delay_steps
     jumped_x, analyses = [], []
     for t, kp in zip(times_before_end, steps):
         W = np.zeros((problem.horizon, problem.n_states))
         W[kp, -2:] = vec
-        runs = monte_carlo(problem, sol.policy, trials, seed, disturbance=W).runs
+        runs = trials_of(W).runs
         jumped_x.append(np.asarray(runs.x))
         analyses.append(analyse(calm.runs.u, runs.u, hand(calm.runs.x), hand(runs.x), vec, new_target, kp,
                                 problem.dt, problem.delay_steps, float(t), ls, hand(calm.runs.x_hat), hand(runs.x_hat)))
-    return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses, np.asarray(calm.runs.cost))
+    return JumpResult(problem, sol, vec, np.asarray(calm.runs.x), jumped_x, analyses, np.asarray(calm.runs.cost),
+                      controller, failures)
 
 
 def comparison(result: JumpResult) -> list[dict]:

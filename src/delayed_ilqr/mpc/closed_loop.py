@@ -98,7 +98,8 @@ def _sensors(ctrl: MPC, plant: Problem):
     return plant.observation if plant.observation is not None else ctrl.problem.observation
 
 
-def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], bound: float, key, x0, disturbance):
+def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], bound: float, key, x0, disturbance,
+           plan=None):
     """One trial: (x [T+1, n], u [T, d], cost, diverged, failed, solver_failures, status [T], estimate [T, n])."""
     nd, p = plant.n_controls, plant.n_noise
     s = int(ctrl.charge_solve_time)
@@ -125,7 +126,10 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
         past = jnp.concatenate([past[1:], x_new[None]])
         return (state, past, pending), (x_new, u, out.status, out.estimate)
 
-    init = (ctrl.init(), jnp.broadcast_to(x0, (ls + 1, x0.shape[0])), jnp.zeros((queue, nd)))
+    start = ctrl.init()
+    if plan is not None:
+        start = start._replace(plan=plan)
+    init = (start, jnp.broadcast_to(x0, (ls + 1, x0.shape[0])), jnp.zeros((queue, nd)))
     _, (xs, us, status, estimate) = jax.lax.scan(step, init, (xi, v, times, disturbance))
     xs = jnp.concatenate([x0[None], xs])
     cost_fn = receding_cost(plant.cost, ctrl.reference)
@@ -140,14 +144,14 @@ def _trial(ctrl: MPC, plant: Problem, ticks: int, failure: Optional[Callable], b
 @partial(jax.jit, static_argnames=("plant_static", "ticks", "failure", "bound", "n_trials", "sequential",
                                    "several"))
 def _run(ctrl, plant_static, plant_data, ticks, failure, bound, n_trials, key, x0, disturbance, sequential,
-         several=False):
+         several=False, plan=None):
     keys = jax.random.split(key, n_trials)
 
     def trials(data):
         plant = jax.tree_util.tree_unflatten(plant_static, data)
         start = plant.x0 if x0 is None else x0
         in_axes = (0, None if start.ndim == 1 else 0, None if disturbance.ndim == 2 else 0)
-        trial = lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w)
+        trial = lambda k, x, w: _trial(ctrl, plant, ticks, failure, bound, k, x, w, plan)
         # on CPU the trials run one after another under the vmap (the solver's CPU batching rule): each
         # tick's solve stays a small loop instead of a batched one (docs/performance.md#receding-horizon-control)
         return jax.vmap(one_after_another(trial) if sequential else trial, in_axes=in_axes)(keys, start, disturbance)
@@ -195,7 +199,7 @@ def _stacked(ctrl: MPC, plants) -> tuple:
 
 
 def simulate(ctrl: MPC, plant, ticks: int, n_trials: int = 1, seed: int = 0, disturbance=None,
-             x0=None, failure: Optional[Callable] = None, bound: float = math.inf) -> ClosedLoop:
+             x0=None, failure: Optional[Callable] = None, bound: float = math.inf, u_init=None) -> ClosedLoop:
     """Runs ``ctrl`` against ``plant`` for ``ticks`` ticks, ``n_trials`` times, in one compiled loop.
 
     Args:
@@ -218,6 +222,9 @@ def simulate(ctrl: MPC, plant, ticks: int, n_trials: int = 1, seed: int = 0, dis
             horizontal); a trial fails when it holds at any tick.
         bound: a trial diverges when a state component leaves [-bound, bound] (default: only
             non-finite states).
+        u_init: optional [K_t, d] the controller's plan before the first tick (its warm start,
+            e.g. the solution of the first tick's problem; K_t = ``ctrl.strategy.horizon``);
+            default zeros, as ``MPC.init``.
 
     Returns:
         [`ClosedLoop`][delayed_ilqr.mpc.ClosedLoop] with x [N, T+1, n], u [N, T, d], cost [N] and the failure flags
@@ -251,8 +258,9 @@ def simulate(ctrl: MPC, plant, ticks: int, n_trials: int = 1, seed: int = 0, dis
         shape = (ticks, nx) if np.ndim(disturbance) == 2 else (n_trials, ticks, nx)
         disturbance = _validate.array(disturbance, "disturbance", shape)
     x0 = None if x0 is None else jnp.asarray(_validate.array(x0, "x0", (n_trials, nx)))
+    plan = None if u_init is None else ctrl.init(u_init).plan
     out = _run(ctrl, static, data, ticks, failure, float(bound), n_trials, jax.random.PRNGKey(seed), x0,
-               jnp.asarray(disturbance), jax.default_backend() == "cpu", several)
+               jnp.asarray(disturbance), jax.default_backend() == "cpu", several, plan)
     times = plant.dt * jnp.arange(ticks + 1, dtype=jnp.float64)
     reference = jax.vmap(lambda t: ctrl.reference.lookup(ctrl.reference.samples, t))(times)
     return ClosedLoop(*out, reference=reference)

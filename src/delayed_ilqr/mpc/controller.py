@@ -137,6 +137,12 @@ class MPC:
             Give one for a model without noise, or the filter never corrects its model.
         initial_cov: with sensors, the covariance of the filter's initial estimate ``problem.x0``
             [n, n] (symmetric PSD); default zeros (x0 known exactly, as in the problem).
+        innovation_gate: with sensors, an optional threshold on the normalised squared innovation
+            (chi-square with m degrees of freedom while the model holds): above it the filter adds
+            ``gate_cov`` to its prior covariance before the update, believing an unexpected push at
+            once (``estimation.filter_update``). Default None: no gate.
+        gate_cov: [n, n] (symmetric PSD) the covariance added when the gate opens; required with
+            ``innovation_gate``.
 
     Raises:
         ValueError, TypeError: naming the argument, for an unknown compensation, a non-positive
@@ -145,11 +151,13 @@ class MPC:
     """
 
     __slots__ = ("problem", "iterations", "compensation", "charge_solve_time", "reference", "replay_history",
-                 "options", "strategy", "template", "process_cov", "initial_cov")
+                 "options", "strategy", "template", "process_cov", "initial_cov",
+                 "innovation_gate", "gate_cov")
 
     def __init__(self, problem: Problem, iterations: int = 1, compensation: str = "inflight",
                  charge_solve_time: bool = False, reference=None, replay_history: str = "sent",
-                 options: Options | None = None, process_cov=None, initial_cov=None):
+                 options: Options | None = None, process_cov=None, initial_cov=None,
+                 innovation_gate=None, gate_cov=None):
         if not isinstance(problem, Problem):
             raise TypeError(f"problem must be a delayed_ilqr.Problem; got {type(problem).__name__}")
         _precision.require_x64("mpc.MPC")
@@ -161,6 +169,7 @@ class MPC:
             raise ValueError(f"replay_history must be 'sent' or 'planned'; got {replay_history!r}")
         _check_sensors(problem.observation)
         process_cov, initial_cov = _filter_covariances(problem, process_cov, initial_cov)
+        innovation_gate, gate_cov = _gate(problem, innovation_gate, gate_cov)
         if problem.delay_jitter is not None:
             raise ValueError("mpc.MPC takes a fixed input delay: its tick problems and replay assume the command sent "
                              f"l steps ago acts now; got a problem with delay_jitter={problem.delay_jitter!r}")
@@ -188,7 +197,8 @@ class MPC:
                       strategy=strat,
                       template=tick_problem(problem, ref, _channel_delays(problem, charge_solve_time)
                                             if per_channel else strat.model_delay, strat.horizon),
-                      process_cov=process_cov, initial_cov=initial_cov)
+                      process_cov=process_cov, initial_cov=initial_cov, innovation_gate=innovation_gate,
+                      gate_cov=gate_cov)
         for name, value in values.items():
             object.__setattr__(self, name, value)
 
@@ -241,21 +251,22 @@ class MPC:
 # An MPC is a JAX pytree: its problems' arrays and the reference's samples are data, the rest static,
 # so controllers that differ only in arrays (x0, weights, a reference trajectory) share one
 # compiled tick and one compiled closed loop.
-_STATIC = ("iterations", "compensation", "charge_solve_time", "replay_history", "options", "strategy")
+_STATIC = ("iterations", "compensation", "charge_solve_time", "replay_history", "options", "strategy",
+           "innovation_gate")
 
 
 def _flatten(ctrl: MPC):
-    return ((ctrl.problem, ctrl.template, ctrl.reference.samples, ctrl.process_cov, ctrl.initial_cov),
+    return ((ctrl.problem, ctrl.template, ctrl.reference.samples, ctrl.process_cov, ctrl.initial_cov, ctrl.gate_cov),
             tuple(getattr(ctrl, name) for name in _STATIC) + (ctrl.reference.lookup,))
 
 
 def _unflatten(aux, data):
     new = object.__new__(MPC)
-    problem, template, samples, process_cov, initial_cov = data
+    problem, template, samples, process_cov, initial_cov, gate_cov = data
     for name, value in zip(_STATIC, aux):
         object.__setattr__(new, name, value)
     for name, value in (("problem", problem), ("template", template), ("reference", Reference(aux[-1], samples)),
-                        ("process_cov", process_cov), ("initial_cov", initial_cov)):
+                        ("process_cov", process_cov), ("initial_cov", initial_cov), ("gate_cov", gate_cov)):
         object.__setattr__(new, name, value)
     return new
 
@@ -304,6 +315,24 @@ def _filter_covariances(problem: Problem, process_cov, initial_cov):
     return tuple(checked)
 
 
+def _gate(problem: Problem, innovation_gate, gate_cov):
+    """The filter's (innovation_gate, gate_cov), checked: both None, or a positive number and a
+    symmetric PSD [n, n], with sensors."""
+    if innovation_gate is None and gate_cov is None:
+        return None, None
+    if problem.observation is None:
+        raise ValueError("innovation_gate and gate_cov belong to the delayed filter: give them only for a problem "
+                         "with an observation (sensors); got them for a problem without one")
+    if innovation_gate is None or gate_cov is None:
+        raise ValueError("innovation_gate and gate_cov go together (the threshold and the covariance added when "
+                         f"it is crossed); got innovation_gate={innovation_gate!r} and gate_cov "
+                         f"{'None' if gate_cov is None else 'given'}")
+    gate = _validate.positive_float(innovation_gate, "innovation_gate")
+    n = problem.n_states
+    cov = _validate.array(gate_cov, "gate_cov", (n, n))
+    return gate, jnp.asarray(_validate.symmetric_psd(np.asarray(cov), "gate_cov", definite=False), jnp.float64)
+
+
 jax.tree_util.register_pytree_node(MPC, _flatten, _unflatten)
 
 
@@ -328,7 +357,7 @@ def tick(ctrl: MPC, state: ControllerState, x) -> tuple[ControllerState, Tick]:
     s: Strategy = ctrl.strategy
     dt = ctrl.problem.dt
     if ctrl.sensors:
-        x_del, P_post = filter_update(ctrl.problem, state.estimate, x)
+        x_del, P_post = filter_update(ctrl.problem, state.estimate, x, ctrl.innovation_gate, ctrl.gate_cov)
         commands = jnp.concatenate([state.estimate.earlier, state.in_flight])
         x = present_estimate(ctrl.problem, x_del, commands, state.tick, ctrl.controller_delay)
     t0 = dt * state.tick.astype(x.dtype)

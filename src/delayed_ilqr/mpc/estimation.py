@@ -53,15 +53,26 @@ def filter_init(x0, initial_cov, sensory_delay: int, n_controls: int) -> FilterS
     return FilterState(x0, initial_cov, jnp.zeros((sensory_delay, n_controls), x0.dtype))
 
 
-def filter_update(problem, fstate: FilterState, y):
-    """The measurement update with y_k [m]: (x_del [n], P_post [n, n]) (module docstring)."""
+def filter_update(problem, fstate: FilterState, y, gate=None, gate_cov=None):
+    """The measurement update with y_k [m]: (x_del [n], P_post [n, n]) (module docstring).
+
+    With an innovation ``gate`` (a number) and ``gate_cov`` [n, n]: when the innovation's
+    normalised square e' S^-1 e (e = y_k - h(x_tilde); chi-square with m degrees of freedom while
+    the model holds) exceeds ``gate``, the filter concludes that something it did not model moved
+    the state (a push, a kick) and adds ``gate_cov`` to its prior covariance before the update,
+    so that it believes the sensors at once instead of explaining them away as noise."""
     obs, x_tilde, P = problem.observation, fstate.x_prior, fstate.cov
     H = obs.jacobian(x_tilde)
     G = obs.noise_matrix(x_tilde)
+    innovation = y - obs.measure(x_tilde)
+    if gate is not None:
+        S = _sym(H @ P @ H.T + G @ G.T)
+        surprise = innovation @ jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(S, lower=True), innovation)
+        P = jnp.where(surprise > gate, P + gate_cov, P)
     S = _sym(H @ P @ H.T + G @ G.T)
     gain = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(S, lower=True), H @ P).T     # P H' S^-1
     J = jnp.eye(P.shape[0], dtype=P.dtype) - gain @ H
-    x_del = x_tilde + gain @ (y - obs.measure(x_tilde))
+    x_del = x_tilde + gain @ innovation
     return x_del, _sym(J @ P @ J.T + gain @ G @ G.T @ gain.T)
 
 
