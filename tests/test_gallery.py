@@ -224,6 +224,11 @@ def test_kicked_hand_ends_within_twice_the_unperturbed_error(kick_result):
     assert a.error_ratio <= 2.0, (a.error_kicked.median, a.error_base.median)
 
 
+# The six-muscle arm's jumps re-plan at every tick over three jump times: make bench. The suite holds
+# the same experiment on the torque arm through the command line (reached within 1 cm, the first
+# change at the loop latency: test_target_jump_command_writes_an_atomic_folder_with_its_manifest) and
+# the fixed law's overshoot on the six-muscle arm below.
+@pytest.mark.full
 def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
     assert jump_result.solution.converged
     for a in jump_result.analyses:
@@ -231,6 +236,7 @@ def test_target_jump_correction_starts_at_the_loop_latency(jump_result):
         assert a.believed is not None and np.isfinite(a.believed)      # the filter's belief is measured
 
 
+@pytest.mark.full
 def test_early_target_jumps_are_reached_and_late_ones_left_incomplete(jump_result):
     """Liu & Todorov 2007 with the model's re-planning controller: jumps 200 and 300 ms before the
     end are reached within 1 cm, the later the jump the less of it is made up (100 ms: almost none,
