@@ -37,7 +37,7 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "current_taps",
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "acting_blocks", "current_taps",
            "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
@@ -105,11 +105,24 @@ def add_acting(v, new, acting, axis: int = 0):
     """``v`` with ``new`` added at ``acting`` along ``axis`` (repeated indices add up): the
     recursion's write of the acting blocks. For one tap per channel the entries there are zero
     (the command has acted, docs/derivation.md §17-18) and this is `put_acting`; a second tap
-    reads a command that is still pending at k+1, whose blocks must be kept (§20)."""
+    reads a command that is still pending at k+1, whose blocks must be kept (§20).
+
+    Written as one read-add-write of a slice per block (`acting_blocks`), not a scatter: the
+    scatter kept XLA from updating the pending blocks in place in the recursion's loop."""
+    for offset, part in acting_blocks(acting, new.shape[axis]):
+        block = jax.lax.slice_in_dim(new, part.start, part.stop, axis=axis)
+        old = jax.lax.dynamic_slice_in_dim(v, offset, block.shape[axis], axis=axis)
+        v = jax.lax.dynamic_update_slice_in_dim(v, old + block, offset, axis=axis)
+    return v
+
+
+def acting_blocks(acting, m: int):
+    """The writes of m acting components at ``acting`` as contiguous blocks: [(offset, part)],
+    ``part`` the slice of the m components that goes to ``offset``. One block of d for one
+    delay (an offset); one component each for per-channel delays or taps (m indices)."""
     if jnp.ndim(acting) == 0:
-        return put_acting(v, new, acting, axis)
-    index = (slice(None),) * axis + (acting,)
-    return v.at[index].add(new)
+        return [(acting, slice(0, m))]
+    return [(acting[i], slice(i, i + 1)) for i in range(m)]
 
 
 def acting_commands(us, l, framed: bool):

@@ -285,9 +285,10 @@ def _pending_blocks(z: ZColumns, dyn: Propagated, noise: Noise, ZRt, value: Valu
     r = r_pre + update[rows.s, nx:]
     Rt = Rt_pre + update[rows.S, nx:]
     if acting is not None:
-        R, R_next = r_update.update_framed(value.R, ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], M_p, W_p,
-                                           data.slot, acting, data.next_slot)
-        return r, Rt, R, value.factors, R_next
+        R, factors, R_next = r_update.update_framed(value.R, value.factors, ZRt[z.ud],
+                                                    dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], M_p, W_p, data.slot,
+                                                    acting, data.next_slot, data.factor_row)
+        return r, Rt, R, factors, R_next
     row = _moved(ZRt[z.ud], dyn.ZSZ[z.ud, z.ud] + noise.CSC[u1, u1], data.slot, acting, axis=1, nd=nd)
     R, factors, R_next = r_update.update(value.R, value.factors, row, M_p, W_p, data.slot, data.next_slot,
                                          data.factor_row)
@@ -347,7 +348,7 @@ def _structured_step(carry, data: StepData, *, l: int, reg, store_value: bool, s
     carry = (ValueCarry(s_tilde, s, S, r, Rt, R, R_next, value.ok & step_ok, I, factors), prediction)
     out = (I, Kfb, s_tilde) + ((s, S) if store_S else ())
     if store_value:
-        exact = R if l == 0 or acting is not None else r_update.exact(R, factors, data.k, l, nd)
+        exact = R if l == 0 else r_update.exact(R, factors, data.k, l, nd, stale=acting is None)
         out = out + value_blocks(r, Rt, exact, data.k, l, nd)
     return carry, out
 
@@ -412,10 +413,7 @@ def structured_slot_scan(lqg: DelayedLQG | StepModels, reg=0.0, store_value: boo
     """
     models = stored_models(lqg) if isinstance(lqg, DelayedLQG) else lqg
     K, l, nd = models.horizon, models.frame_steps, models.n_controls
-    if models.delay_frame is None:
-        strategy = r_update.RStrategy.choose(l, nd, None if block is None else _validate.positive_int(block, "block"))
-    else:   # the framed update keeps R whole (r_update.update_framed)
-        strategy = r_update.RStrategy(1, False)
+    strategy = r_update.RStrategy.choose(l, nd, None if block is None else _validate.positive_int(block, "block"))
     if store_value and not store_S:
         raise ValueError("store_S=False needs store_value=False: the value blocks include S")
     steps = K + (-K % strategy.block)
