@@ -16,7 +16,7 @@ With one delay per command channel (``delay_steps`` a [d] vector l_j, always in 
 L >= max_j l_j slots, docs/derivation.md §18) component j of slot (k - l_j) mod L is channel j's
 command acting at step k: `acting_offset` then returns the [d] indices of those components, and
 `take_acting` / `put_acting` read and write them (a contiguous slice for one delay, a gather or
-scatter for several).
+scatter for several); the recursion writes its blocks there with `move_acting`.
 
 More generally ``delay_steps`` may hold t d *tap* delays (a multiple of d): tap i acts on channel
 i mod d with that channel's command sent l_i steps ago. A fractional delay (l + phi) dt is two
@@ -37,7 +37,7 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "acting_blocks", "current_taps",
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "acting_blocks", "move_acting", "current_taps",
            "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
@@ -107,8 +107,8 @@ def add_acting(v, new, acting, axis: int = 0):
     (the command has acted, docs/derivation.md §17-18) and this is `put_acting`; a second tap
     reads a command that is still pending at k+1, whose blocks must be kept (§20).
 
-    Written as one read-add-write of a slice per block (`acting_blocks`), not a scatter: the
-    scatter kept XLA from updating the pending blocks in place in the recursion's loop."""
+    Written as one read-add-write of a slice per block (`acting_blocks`), not a scatter: XLA does
+    not compile a loop that holds a scatter as one function (docs/performance.md#per-channel-delays)."""
     for offset, part in acting_blocks(acting, new.shape[axis]):
         block = jax.lax.slice_in_dim(new, part.start, part.stop, axis=axis)
         old = jax.lax.dynamic_slice_in_dim(v, offset, block.shape[axis], axis=axis)
@@ -123,6 +123,24 @@ def acting_blocks(acting, m: int):
     if jnp.ndim(acting) == 0:
         return [(acting, slice(0, m))]
     return [(acting[i], slice(i, i + 1)) for i in range(m)]
+
+
+def move_acting(blocks, new, slot, acting, axis: int, nd: int):
+    """``blocks`` with the acting command's ``new`` blocks written at its slot, along ``axis``.
+
+    Without a frame (``acting`` None) they replace slot sigma's, where du_{k-l} follows du_k. With
+    one, slot sigma (``nd`` wide) is cleared first (du_{k-L} has acted) and slot alpha = ``acting``
+    receives them; alpha = sigma where l = L. With one delay per channel ``acting`` holds the
+    [d] indices of the channels' acting components, and column j of ``new`` goes to index j; with
+    taps (a fractional delay), [t d] indices, and the blocks are added (`add_acting`: a
+    command read by the later tap is still pending at k+1)."""
+    start = lambda offset: (offset,) if blocks.ndim == 1 else ((0, offset) if axis == 1 else (offset, 0))
+    if acting is not None:
+        axis = axis if blocks.ndim > 1 else 0
+        blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros(new.shape[:axis] + (nd,) + new.shape[axis + 1:],
+                                                                new.dtype), start(slot))
+        return add_acting(blocks, new, acting, axis)
+    return jax.lax.dynamic_update_slice(blocks, new, start(slot))
 
 
 def acting_commands(us, l, framed: bool):
