@@ -117,12 +117,12 @@ def update_framed(R, factors, Y, X, M, W, slot, acting, next_slot, factor_row):
     has acted, Y is zero there) and this writes them; a fractional delay's second tap reads a
     command that is still pending (§20).
 
-    Without deferral (``factors = ()``) the whole step is one elementwise loop over R, which XLA
-    runs in place: slot sigma cleared by a mask and P'V + V'P + M'W + W'M as rank-one updates, P's
-    rows one-hot. Deferred (``factors = (F,)``, as in `update`), R + sum_p M_p'W_p + W_p'M_p over
-    the block's steps p is the exact R: clearing slot sigma clears its rows and columns in R and
-    its columns in F, P'V + V'P is written into R's acting rows and columns, and the step's M, W
-    join F, so that a step costs O(q d^2 L d) instead of O((L d)^2).
+    P'V + V'P is added to R's acting rows and columns (m of each, read-add-write of slices: no
+    scatter, see `frame.add_acting`). Without deferral (``factors = ()``) the clearing of slot sigma
+    (a mask) and M'W + W'M are one elementwise loop over R, which XLA runs in place. Deferred
+    (``factors = (F,)``, as in `update`), R + sum_p M_p'W_p + W_p'M_p over the block's steps p is
+    the exact R: clearing slot sigma clears its rows and columns in R and its columns in F, and the
+    step's M, W join F, so that a step costs O(q d^2 L d) instead of O((L d)^2).
 
     Args:
         R: [L d, L d] the stored R of J(k+1) (symmetric); factors: () or (F,), see `update`.
@@ -140,22 +140,21 @@ def update_framed(R, factors, Y, X, M, W, slot, acting, next_slot, factor_row):
     index = jnp.arange(Ld)
     kept = (index < slot) | (index >= slot + nd)
     V = add_acting(jnp.where(kept, Y, 0.0), 0.5 * X, acting, axis=1)
-    if not factors:
-        components = acting + jnp.arange(nd) if jnp.ndim(acting) == 0 else acting
-        P = (index[None, :] == components[:, None]).astype(R.dtype)
-        R = jnp.where(kept[:, None] & kept[None, :], R, 0.0)
-        R = add_symmetric_product(R, jnp.concatenate([M, P]), jnp.concatenate([W, V]))
-        return R, factors, jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
-    (F,) = factors
-    clear = jnp.zeros((nd, Ld), R.dtype)
-    R = jax.lax.dynamic_update_slice(R, clear, (slot, 0))
-    R = jax.lax.dynamic_update_slice(R, clear.T, (0, slot))
+    if factors:
+        (F,) = factors
+        clear = jnp.zeros((nd, Ld), R.dtype)
+        R = jax.lax.dynamic_update_slice(R, clear, (slot, 0))
+        R = jax.lax.dynamic_update_slice(R, clear.T, (0, slot))
+        F = jax.lax.dynamic_update_slice(F, jnp.zeros((F.shape[0], nd), F.dtype), (0, slot))
+        F = jax.lax.dynamic_update_slice_in_dim(F, jnp.concatenate([M, W]), factor_row, axis=0)
+        factors = (F,)
+    else:
+        R = add_symmetric_product(jnp.where(kept[:, None] & kept[None, :], R, 0.0), M, W)
     R = add_acting(add_acting(R, V, acting, axis=0), V.T, acting, axis=1)
-    F = jax.lax.dynamic_update_slice(F, jnp.zeros((F.shape[0], nd), F.dtype), (0, slot))
-    F = jax.lax.dynamic_update_slice_in_dim(F, jnp.concatenate([M, W]), factor_row, axis=0)
-    cols = jax.lax.dynamic_slice_in_dim(F, next_slot, nd, axis=1)
-    R_next = jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0) + matmul_t(_swap_factors(cols, nd), F)
-    return R, (F,), R_next
+    R_next = jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
+    if factors:
+        R_next = R_next + matmul_t(_swap_factors(jax.lax.dynamic_slice_in_dim(F, next_slot, nd, axis=1), nd), F)
+    return R, factors, R_next
 
 
 def _swap_factors(F, nd: int):
