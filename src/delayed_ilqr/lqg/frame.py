@@ -83,7 +83,8 @@ def take_acting(v, acting, nd: int, axis: int = 0):
     its [d] indices for per-channel delays)."""
     if jnp.ndim(acting) == 0:
         return jax.lax.dynamic_slice_in_dim(v, acting, nd, axis=axis)
-    return jnp.take(v, acting, axis=axis)
+    return jnp.concatenate([jax.lax.dynamic_slice_in_dim(v, acting[i], 1, axis=axis)      # no gather (`add_acting`)
+                            for i in range(jnp.shape(acting)[0])], axis=axis)
 
 
 def put_acting(v, new, acting, axis: int = 0):
@@ -151,11 +152,10 @@ def acting_commands(us, l, framed: bool):
     if framed:      # one dynamic slice of us behind K zeros (a gather made the loops that read it slower)
         K = us.shape[0]
         padded = jnp.concatenate([jnp.zeros_like(us), us])
-        if jnp.ndim(l) == 1:
-            rows = jnp.arange(K)[:, None] + (K - jnp.minimum(l, K))[None, :]
-            if jnp.shape(l)[0] != us.shape[1]:      # taps: column i reads channel i mod d
-                return padded[rows, tap_channels(jnp.shape(l)[0], us.shape[1])[None, :]]
-            return jnp.take_along_axis(padded, rows, axis=0)
+        if jnp.ndim(l) == 1:    # column i (tap or channel) reads channel i mod d, one slice each
+            nd = us.shape[1]
+            return jnp.stack([jax.lax.dynamic_slice_in_dim(padded[:, i % nd], K - jnp.minimum(l[i], K), K)
+                              for i in range(jnp.shape(l)[0])], axis=1)
         return jax.lax.dynamic_slice_in_dim(padded, K - jnp.minimum(l, K), K)
     if l == 0:
         return us
