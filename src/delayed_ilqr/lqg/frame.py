@@ -15,8 +15,9 @@ and zero gains, and for l = L the two slots coincide as above.
 With one delay per command channel (``delay_steps`` a [d] vector l_j, always in a frame of
 L >= max_j l_j slots, docs/derivation.md §18) component j of slot (k - l_j) mod L is channel j's
 command acting at step k: `acting_offset` then returns the [d] indices of those components, and
-`take_acting` / `put_acting` read and write them (a contiguous slice for one delay, a gather or
-scatter for several); the recursion writes its blocks there with `move_acting`.
+`take_acting` reads them and the recursion writes its blocks there (`move_acting`, `add_acting`): a
+contiguous slice for one delay, one slice per component for several (no gather or scatter, which
+would keep XLA from compiling the loops as one function).
 
 More generally ``delay_steps`` may hold t d *tap* delays (a multiple of d): tap i acts on channel
 i mod d with that channel's command sent l_i steps ago. A fractional delay (l + phi) dt is two
@@ -37,8 +38,8 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "acting_blocks", "move_acting", "current_taps",
-           "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "add_acting", "acting_blocks", "move_acting",
+           "current_taps", "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -83,16 +84,8 @@ def take_acting(v, acting, nd: int, axis: int = 0):
     its [d] indices for per-channel delays)."""
     if jnp.ndim(acting) == 0:
         return jax.lax.dynamic_slice_in_dim(v, acting, nd, axis=axis)
-    return jnp.concatenate([jax.lax.dynamic_slice_in_dim(v, acting[i], 1, axis=axis)      # no gather (`add_acting`)
+    return jnp.concatenate([jax.lax.dynamic_slice_in_dim(v, acting[i], 1, axis=axis)
                             for i in range(jnp.shape(acting)[0])], axis=axis)
-
-
-def put_acting(v, new, acting, axis: int = 0):
-    """``v`` with ``new`` ([d] along ``axis``) written at ``acting`` (as in `take_acting`)."""
-    if jnp.ndim(acting) == 0:
-        return jax.lax.dynamic_update_slice_in_dim(v, new, acting, axis=axis)
-    index = (slice(None),) * axis + (acting,)
-    return v.at[index].set(new)
 
 
 def current_taps(u, l):
@@ -105,7 +98,7 @@ def current_taps(u, l):
 def add_acting(v, new, acting, axis: int = 0):
     """``v`` with ``new`` added at ``acting`` along ``axis`` (repeated indices add up): the
     recursion's write of the acting blocks. For one tap per channel the entries there are zero
-    (the command has acted, docs/derivation.md §17-18) and this is `put_acting`; a second tap
+    (the command has acted, docs/derivation.md §17-18) and this writes them; a second tap
     reads a command that is still pending at k+1, whose blocks must be kept (§20).
 
     Written as one read-add-write of a slice per block (`acting_blocks`), not a scatter: XLA does
