@@ -77,7 +77,7 @@ class Prediction(NamedTuple):
 
 
 class StepData(NamedTuple):
-    """Per-step inputs of the reverse scan, time-major (see `_step_data`)."""
+    """Per-step inputs of the reverse scan, time-major (see `structured._step_data`)."""
 
     k: jax.Array
     slot: jax.Array              # (k mod l) d: slot sigma in the flat pending axis
