@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from delayed_ilqr import lqg as _lqg
 from delayed_ilqr.lqg import DelayedLQG
 from delayed_ilqr.lqg.augmented import augment
+from delayed_ilqr.lqg.structured import structured_scan
 
 from comparisons import WorstDifference, rel_err, solution_errors   # tests/comparisons.py
 from test_lqg import random_arrays                  # tests/test_lqg.py
@@ -37,6 +38,10 @@ def _channel_delays(data, d: int, L: int):
     return delays
 
 
+# the pass with its R update deferred to blocks of 3 steps (by default from L d >= 300 on)
+_blocked_scan = jax.jit(lambda q, reg: structured_scan(q, reg, store_value=True, block=3))
+
+
 def _errors(gains, value, ref_gains, ref_value):
     errs = {f: rel_err(getattr(gains, f), getattr(ref_gains, f))
             for f in ("feedforward", "state_feedback", "delay_feedback")}
@@ -49,8 +54,9 @@ def _errors(gains, value, ref_gains, ref_value):
        reg=st.sampled_from([0.0, 0.3]))
 def test_per_channel_pass_equals_augmentation(shape, data, seed, reg):
     """Random time-varying data and random channel delays (0, 1, equal, l >= K among them): every
-    gain and value block of the structured pass equals the augmented pass's to round-off, and
-    J(0) is the exact expected cost of the returned policy."""
+    gain and value block of the structured pass, with its R update deferred to blocks or not,
+    equals the augmented pass's to round-off, and J(0) is the exact expected cost of the returned
+    policy."""
     K, n, d, p, L = shape
     delays = _channel_delays(data, d, L)
     lqg = DelayedLQG(**random_arrays(seed, K, n, d, p, delays))
@@ -59,6 +65,10 @@ def test_per_channel_pass_equals_augmentation(shape, data, seed, reg):
     assert bool(value.positive_definite) and bool(ref_value.positive_definite)
     errs = _errors(gains, value, ref_gains, ref_value)
     errs["policy_cost"] = rel_err(_lqg.policy_cost(lqg, gains), value.expected_cost)
+    blocked_gains, blocked_value, _ = _blocked_scan(lqg, reg)
+    errs.update({f"blocked {f}": rel_err(got, getattr(ref_gains, f)) for f, got in zip(gains._fields, blocked_gains)})
+    errs.update({f"blocked {f}": rel_err(got, getattr(ref_value, f)[:-1])
+                 for f, got in zip(("s_tilde", "s", "S", "r", "Rt", "R"), blocked_value)})
     worst = max(errs, key=errs.get)
     _WORST.record(errs[worst], f"{worst}, K={K} n={n} d={d} p={p} delays={delays} reg={reg}")
     assert all(e <= RTOL for e in errs.values()), (delays, errs)
@@ -66,6 +76,15 @@ def test_per_channel_pass_equals_augmentation(shape, data, seed, reg):
     M = np.asarray(gains.delay_feedback)
     for j, l_j in enumerate(delays):
         assert not np.any(M[:, :L - l_j, :, j]), (j, l_j)
+
+
+def test_per_channel_pass_compiles_as_one_function():
+    """The framed pass writes the acting components by slices, not scatters, so that XLA compiles
+    its loop as one function (with configure_cpu's flags, set by conftest.py); with scatters each
+    operation of a step ran as a thunk (docs/performance.md#per-channel-delays)."""
+    lqg = DelayedLQG(**random_arrays(5, 6, 2, 3, 2, [1, 4, 0]))
+    hlo = jax.jit(lambda q: structured_scan(q, 0.0, store_value=False)[1][0]).lower(lqg).compile().as_text()
+    assert 'xla_cpu_small_call="true"' in hlo
 
 
 @pytest.mark.parametrize("l", [0, 1, 4])
@@ -197,7 +216,6 @@ def test_per_channel_limits_on_the_lqg(delays):
     import jax.numpy as jnp
     from delayed_ilqr.lqg.augmented import augmented_scan
     from delayed_ilqr.lqg.gains import boxed_gains
-    from delayed_ilqr.lqg.structured import structured_scan
     K, n, d = 10, 3, 2
     lqg = DelayedLQG(**random_arrays(21, K, n, d, 1, delays))
     half = 0.5 * float(jnp.max(jnp.abs(structured_scan(lqg, store_value=False)[0].feedforward)))

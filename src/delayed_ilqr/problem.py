@@ -19,115 +19,16 @@ compiled solver, and ``jax.vmap`` over a batch of problems works.
 """
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple, Optional
+from typing import Callable, Optional
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _delays, _fractional, _precision, _validate
-from .delay_jitter import DelayJitter
-from .lqg.model import frame_delay_leaf
+from . import _delays, _fractional, _precision, _problem_checks, _problem_tree, _validate
+from .costs import GeneralCost, QuadraticCost
 
 __all__ = ["Problem", "QuadraticCost", "GeneralCost"]
-
-
-class QuadraticCost(NamedTuple):
-    """Eq. (2): running cost x'P x + u'Q u (per unit time), final cost (x - x_target)'P_final (x - x_target).
-
-    Attributes:
-        P: [n, n] symmetric positive semi-definite state weight.
-        Q: [d, d] symmetric positive definite command weight.
-        P_final: [n, n] symmetric positive semi-definite final weight.
-        x_target: [n] final target state.
-    """
-
-    P: Any
-    Q: Any
-    P_final: Any
-    x_target: Any
-
-    time_dependent = False        # a class attribute, not a field: eq. (2) does not depend on time
-
-    def running(self, x, u, t=None):
-        """x'P x + u'Q u (``t`` is accepted and ignored, as for any time-independent cost)."""
-        return x @ self.P @ x + u @ self.Q @ u
-
-    def final(self, x, t=None):
-        err = x - self.x_target
-        return err @ self.P_final @ err
-
-
-class GeneralCost:
-    """A cost that is not quadratic in x, e.g. a hand-position error through the arm's kinematics.
-
-    Args:
-        running: ``running(x, u, params) -> scalar``, cost per unit time (multiplied by dt, eq. 2).
-        final: ``final(x, params) -> scalar`` (not multiplied by dt).
-        params: a pytree of arrays (targets, weights) passed to both; it is data, so problems that
-            differ only in ``params`` share one compiled solver.
-        time_dependent: if True, the functions take the time as a last argument:
-            ``running(x, u, params, t)`` at t = k dt and ``final(x, params, t)`` at t = K dt
-            (seconds), for via-points and moving targets. Static: it is part of the compiled solver.
-
-    The quadratisation keeps the x-u cross term of ``running``; the running cost may not depend on
-    the delayed command (eq. 4 has no such terms).
-    """
-
-    def __init__(self, running: Callable, final: Callable, params=None, time_dependent: bool = False):
-        t = ", t" if time_dependent else ""
-        if not callable(running):
-            raise TypeError(f"running must be callable as running(x, u, params{t}); got {type(running).__name__}")
-        if not callable(final):
-            raise TypeError(f"final must be callable as final(x, params{t}); got {type(final).__name__}")
-        if not isinstance(time_dependent, (bool, np.bool_)):
-            raise TypeError(f"time_dependent must be True or False; got {time_dependent!r}")
-        self.running_fn, self.final_fn, self.time_dependent = running, final, bool(time_dependent)
-        self.params = jax.tree_util.tree_map(_param, params)
-
-    def running(self, x, u, t=None):
-        """The running cost at (x, u), at time t (s) if the cost is time-dependent."""
-        args = (x, u, self.params) + self._time(t, "running")
-        return jnp.asarray(self.running_fn(*args), x.dtype)     # a constant may be a float
-
-    def final(self, x, t=None):
-        """The final cost at x, at the final time t = K dt if the cost is time-dependent."""
-        return jnp.asarray(self.final_fn(*(x, self.params) + self._time(t, "final")), x.dtype)
-
-    def _time(self, t, what):
-        if not self.time_dependent:
-            return ()
-        if t is None:
-            raise TypeError(f"this GeneralCost is time-dependent: cost.{what} needs the time t (s); got t=None")
-        return (t,)
-
-    def __repr__(self):
-        flag = ", time_dependent=True" if self.time_dependent else ""
-        return f"GeneralCost(running={self.running_fn!r}, final={self.final_fn!r}{flag})"
-
-
-def _param(leaf):
-    """A leaf of GeneralCost.params as an array of numbers (checked here, not inside the solver)."""
-    if isinstance(leaf, jax.core.Tracer):
-        return leaf
-    arr = np.asarray(leaf) if not isinstance(leaf, jax.Array) else leaf
-    if arr.dtype.kind not in "biuf":
-        raise TypeError(f"GeneralCost params must be a pytree of numeric arrays; got a leaf {leaf!r} of dtype {arr.dtype}")
-    return jnp.asarray(leaf)
-
-
-jax.tree_util.register_pytree_node(
-    GeneralCost,
-    lambda c: ((c.params,), (c.running_fn, c.final_fn, c.time_dependent)),
-    lambda aux, data: _general_cost_from(aux, data[0]),
-)
-
-
-def _general_cost_from(aux, params):
-    new = object.__new__(GeneralCost)
-    new.running_fn, new.final_fn, new.time_dependent = aux
-    new.params = params
-    return new
 
 
 class Problem:
@@ -232,19 +133,19 @@ class Problem:
             nd_cost = None
         else:
             raise TypeError(f"cost must be a QuadraticCost or a GeneralCost; got {type(cost).__name__}")
-        nd = _resolve_n_controls(n_controls, nd_cost, u_min, u_max)
+        nd = _problem_checks.resolve_n_controls(n_controls, nd_cost, u_min, u_max)
         self.n_controls = nd
         self.delay_fraction = None      # the callables are checked as the user wrote them
-        delay_steps, delay_fraction = _delay_below_horizon(delay_steps, self.horizon, nd)
+        delay_steps, delay_fraction = _problem_checks.delay_below_horizon(delay_steps, self.horizon, nd)
         self.x0, self.cost = jnp.asarray(x0), cost
-        self.u_min, self.u_max, self._has_limits = _limits(u_min, u_max, nd)
-        _check_labels(metadata, self.n_states, nd)
-        self._check_callables()
+        self.u_min, self.u_max, self._has_limits = _problem_checks.checked_limits(u_min, u_max, nd)
+        _problem_checks.check_labels(metadata, self.n_states, nd)
+        _problem_checks.check_callables(self)
         self.delay_steps, self.delay_fraction = delay_steps, delay_fraction
-        self.observation = _observation(observation, self.x0, self.horizon)
-        self.delay_frame = _frame(delay_frame, self.delay_steps, self.observation, self.horizon,
-                                  delay_fraction is not None)
-        self.delay_jitter = _jitter(delay_jitter, self.delay_steps, self)
+        self.observation = _problem_checks.checked_sensors(observation, self.x0, self.horizon)
+        self.delay_frame = _problem_checks.checked_frame(delay_frame, self.delay_steps, self.observation,
+                                                         self.horizon, delay_fraction is not None)
+        self.delay_jitter = _problem_checks.checked_jitter(delay_jitter, self.delay_steps, self)
 
     # -- sizes ---------------------------------------------------------------------------------
     @property
@@ -373,7 +274,7 @@ class Problem:
         new.delay_fraction = None
         if delay_frame is not None and isinstance(delay_steps, jax.core.Tracer):
             # a traced delay is checked against the frame by the solver (Status.INVALID_TRACED_INPUT)
-            new.delay_frame = _frame(delay_frame, 0, new.observation, new.horizon)
+            new.delay_frame = _problem_checks.checked_frame(delay_frame, 0, new.observation, new.horizon)
             if jnp.issubdtype(delay_steps.dtype, jnp.floating):        # a fractional delay as data
                 whole = jax.lax.stop_gradient(jnp.floor(delay_steps))
                 new.delay_fraction = jnp.broadcast_to(delay_steps - whole, (new.n_controls,))
@@ -384,9 +285,10 @@ class Problem:
         if isinstance(delay_steps, (np.ndarray, jax.Array)) and delay_steps.ndim == 0 \
                 and np.issubdtype(delay_steps.dtype, np.integer):
             delay_steps = int(delay_steps)      # a framed problem's leaf, outside jit
-        new.delay_steps, new.delay_fraction = _delay_below_horizon(delay_steps, new.horizon, new.n_controls)
-        new.delay_frame = _frame(delay_frame, new.delay_steps, new.observation, new.horizon,
-                                 new.delay_fraction is not None)
+        new.delay_steps, new.delay_fraction = _problem_checks.delay_below_horizon(delay_steps, new.horizon,
+                                                                                  new.n_controls)
+        new.delay_frame = _problem_checks.checked_frame(delay_frame, new.delay_steps, new.observation, new.horizon,
+                                                        new.delay_fraction is not None)
         return new
 
     def _delay_repr(self):
@@ -394,104 +296,11 @@ class Problem:
             return self.delay_steps
         return np.round(np.asarray(self.delay_in_steps, np.float64), 12).tolist()
 
-    def _check_callables(self):
-        nx, nd = self.n_states, self.n_controls
-        x, u = jax.ShapeDtypeStruct((nx,), jnp.float64), jax.ShapeDtypeStruct((nd,), jnp.float64)
-        t = jax.ShapeDtypeStruct((), jnp.float64)
-        ts = ", t" if self.time_dependent else ""
-        at = f" and t of shape ()" if self.time_dependent else ""
-        try:
-            out = jax.eval_shape(self.dynamics_at, x, u, u, t)
-        except Exception as exc:  # a user's function failing on shapes: say which and why
-            raise ValueError(f"dynamics(x, u, ud{ts}) failed on x of shape ({nx},) and u, ud of shape ({nd},)"
-                             f"{at}: {exc}") from exc
-        if getattr(out, "shape", None) != (nx,):
-            raise ValueError(f"dynamics(x, u, ud{ts}) must return shape ({nx},); got {getattr(out, 'shape', type(out))}")
-        if not jnp.issubdtype(out.dtype, jnp.floating):
-            raise ValueError(f"dynamics(x, u, ud{ts}) must return floating-point values (autodiff needs them); "
-                             f"got dtype {out.dtype}")
-        if self.noise is not None:
-            try:
-                out = jax.eval_shape(self.noise_at, x, u, u, t)
-            except Exception as exc:
-                raise ValueError(f"noise(x, u, ud{ts}) failed on x of shape ({nx},) and u, ud of shape ({nd},)"
-                                 f"{at}: {exc}") from exc
-            shape = getattr(out, "shape", None)
-            if shape is None or len(shape) != 2 or shape[0] != nx:
-                raise ValueError(f"noise(x, u, ud{ts}) must return shape ({nx}, p); got {shape}")
-            if not jnp.issubdtype(out.dtype, jnp.floating):
-                raise ValueError(f"noise(x, u, ud{ts}) must return floating-point values; got dtype {out.dtype}")
-        ct = ", t" if getattr(self.cost, "time_dependent", False) else ""
-        for what, fn, args in ((f"cost.running(x, u{ct})", self.cost.running, (x, u, t)),
-                               (f"cost.final(x{ct})", self.cost.final, (x, t))):
-            try:
-                out = jax.eval_shape(fn, *args)
-            except Exception as exc:
-                raise ValueError(f"{what} failed on x of shape ({nx},) and u of shape ({nd},): {exc}") from exc
-            if getattr(out, "shape", None) != ():
-                raise ValueError(f"{what} must return a scalar; got shape {getattr(out, 'shape', type(out))}")
-
     def __repr__(self):
         return (f"Problem({self.name!r}, n={self.n_states}, d={self.n_controls}, p={self.n_noise}, "
                 f"K={self.horizon}, dt={self.dt}, delay_steps={self._delay_repr()}"
                 + ("" if self.delay_frame is None else f", delay_frame={self.delay_frame}")
                 + ("" if self.delay_jitter is None else f", delay_jitter={self.delay_jitter!r}") + ")")
-
-
-def _delay_below_horizon(delay_steps, horizon: int, n_controls: int):
-    """A valid (l, phi) for a horizon K: a whole number of steps below K and phi None, or for a
-    fractional delay its taps [l_j, l_j + 1] (l_j + 1 < K) and phi [d]."""
-    split = _delays.fractional(delay_steps, n_controls)
-    if split is not None:
-        whole, phi = split
-        if np.any(whole + 1 >= horizon):
-            raise ValueError(f"delay_steps must be below the horizon less one step when it is not whole: the command "
-                             f"acting over a step is u_(k-l) and u_(k-l-1), and both must act within the horizon; "
-                             f"got delay_steps={np.asarray(delay_steps).tolist()!r}, horizon={horizon}")
-        return _delays.taps_of(whole, n_controls), phi
-    delay_steps = _delays.checked(delay_steps, n_controls)
-    if _delays.is_per_channel(delay_steps):
-        _delays.check_below_horizon(delay_steps, horizon)
-    elif delay_steps >= horizon:
-        raise ValueError(f"delay_steps must be below the horizon: a command sent at step k acts at k + l, so with "
-                         f"l >= K no command ever acts; got delay_steps={delay_steps}, horizon={horizon}")
-    return delay_steps, None
-
-
-def _frame(delay_frame, delay_steps: int, observation, horizon: int, fractional: bool = False):
-    """A valid delay_frame for delay l and horizon K (None, or l <= L < K), refused with sensors."""
-    if fractional and observation is not None:
-        raise ValueError("a delay_steps that is not a whole number of steps is not available with an observation "
-                         "(delayed sensors): the delayed filter takes one whole input delay; got delay_steps="
-                         f"{_delays.as_json(delay_steps)[:len(delay_steps) // 2]} plus a fraction")
-    if _delays.is_per_channel(delay_steps) and observation is not None:
-        raise ValueError("per-channel delay_steps are not available with an observation (delayed sensors): the "
-                         f"delayed filter takes one input delay; got delay_steps={_delays.as_json(delay_steps)}")
-    delay_frame = _delays.checked_frame(delay_frame, delay_steps)
-    if delay_frame is not None and delay_frame >= horizon:
-        raise ValueError(f"delay_frame must be below the horizon: it holds delays l < K, so a larger frame only "
-                         f"costs memory and time; got delay_frame={delay_frame}, "
-                         f"horizon={horizon}")
-    if delay_frame is not None and observation is not None:
-        raise ValueError("delay_frame is not available with an observation (delayed sensors): the output-feedback "
-                         f"layer needs a static delay; got delay_frame={delay_frame} with an observation")
-    return delay_frame
-
-
-def _jitter(delay_jitter, delay_steps, problem: "Problem"):
-    """A valid delay_jitter (None, or a DelayJitter whose longest delay is ``delay_steps``)."""
-    if delay_jitter is None:
-        return None
-    if not isinstance(delay_jitter, DelayJitter):
-        raise TypeError(f"delay_jitter must be None or a delayed_ilqr.DelayJitter; got {type(delay_jitter).__name__}")
-    if _delays.is_per_channel(delay_steps) or delay_steps != delay_jitter.longest:
-        raise ValueError("with delay_jitter, delay_steps must be the jitter's longest delay (the commands in flight "
-                         f"the policy keeps); got delay_steps={problem._delay_repr()} with {delay_jitter!r}")
-    for name, value in (("observation", problem.observation), ("delay_frame", problem.delay_frame)):
-        if value is not None:
-            raise ValueError(f"delay_jitter is not available with {name} (the jittered solver takes full-state "
-                             f"feedback and a static delay); got {name}={value!r}")
-    return delay_jitter
 
 
 def shared_delay_frame(problems) -> Optional[int]:
@@ -516,120 +325,4 @@ def delay_key(delay_steps):
     return tuple(value) if isinstance(value, list) else value
 
 
-def _check_labels(metadata, nx: int, nd: int) -> None:
-    """The metadata's labels name every state and command (figures and tables read them)."""
-    for field, size, symbol in (("state_labels", nx, "n"), ("control_labels", nd, "d")):
-        labels = getattr(metadata, field, None)
-        if labels is not None and len(labels) != size:
-            raise ValueError(f"metadata.{field} must have one label per {'state' if symbol == 'n' else 'command'} "
-                             f"({symbol} = {size}); got {len(labels)}: {labels!r}")
-
-
-def _resolve_n_controls(n_controls, nd_cost, u_min, u_max) -> int:
-    candidates = {}
-    if n_controls is not None:
-        candidates["n_controls"] = _validate.positive_int(n_controls, "n_controls")
-    if nd_cost is not None:
-        candidates["cost.Q"] = nd_cost
-    for name, lim in (("u_min", u_min), ("u_max", u_max)):
-        if lim is not None and np.ndim(lim) == 1:
-            candidates[name] = np.shape(lim)[0]
-    if not candidates:
-        raise ValueError("n_controls must be given when it cannot be read from cost.Q, u_min or u_max; got None")
-    if len(set(candidates.values())) > 1:
-        raise ValueError(f"the number of controls must agree across arguments; got {candidates}")
-    return next(iter(candidates.values()))
-
-
-def _limit(value, name, nd, default):
-    """A limit as a [d] array: None, a scalar (every command) or shape (d,)."""
-    if value is None:
-        return np.full(nd, default)
-    shape = (nd,) if np.ndim(value) else ()
-    arr = _validate.array(value, name, shape, finite=False)
-    if isinstance(arr, jax.core.Tracer):
-        return jnp.broadcast_to(arr, (nd,))
-    return np.broadcast_to(arr, (nd,)).copy()
-
-
-def _limits(u_min, u_max, nd):
-    """(u_min [d], u_max [d], has_limits). Concrete limits are checked here, in NumPy (under
-    ``jit`` a ``jnp`` array made from them is a tracer already); traced ones (a ``vmap`` over
-    limits) cannot be, and count as limits."""
-    lo, hi = _limit(u_min, "u_min", nd, -np.inf), _limit(u_max, "u_max", nd, np.inf)
-    if isinstance(lo, jax.core.Tracer) or isinstance(hi, jax.core.Tracer):
-        return jnp.asarray(lo), jnp.asarray(hi), True
-    for name, lim in (("u_min", lo), ("u_max", hi)):
-        if np.any(np.isnan(lim)):
-            raise ValueError(f"{name} must not contain NaN; got {lim}")
-    if np.any(lo >= hi):
-        raise ValueError(f"u_min must be below u_max in every component; got u_min={lo}, u_max={hi}")
-    return jnp.asarray(lo), jnp.asarray(hi), bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
-
-
-def _observation(observation, x0, horizon):
-    """The problem's observation, checked against its state size and horizon (None: full state)."""
-    if observation is None:
-        return None
-    from .sensor_list import checked_observation      # the sensors' module imports the LQG layer
-    return checked_observation(observation, x0, horizon)
-
-
-def _data_or_static(fn):
-    """(data, static) of a dynamics or noise callable: one registered as a JAX pytree (a dataclass
-    registered with ``jax.tree_util.register_dataclass``, an equinox module) is data, so its array
-    fields are leaves (differentiable, and problems that differ only in them share one compiled
-    solver); any other callable is static, hashed into the compilation as before."""
-    if fn is None or jax.tree_util.treedef_is_leaf(jax.tree_util.tree_structure(fn)):
-        return None, fn
-    return fn, None
-
-
-def _problem_flatten(p: Problem):
-    dynamics, dynamics_static = _data_or_static(p.dynamics)
-    noise, noise_static = _data_or_static(p.noise)
-    # with a frame the delay is data (a leaf), so that problems of different delays share a treedef
-    # a fractional delay's phi is a leaf too: the solve is differentiable in it (derivation §20);
-    # a jitter's probabilities are leaves (its support is its own static part)
-    framed, fractional = p.delay_frame is not None, p.delay_fraction is not None
-    return ((p.x0, p.cost, p.u_min, p.u_max, p.observation, dynamics, noise, p.delay_jitter)
-            + ((_delay_leaf(p.delay_steps),) if framed else ()) + ((p.delay_fraction,) if fractional else ()),
-            (dynamics_static, noise_static, p.dt, p.horizon, None if framed else p.delay_steps, p.n_controls, p.name,
-             p._has_limits, p.metadata, p.time_dependent, p.delay_frame, fractional))
-
-
-def _delay_leaf(delay_steps):
-    """A framed problem's delay as its leaf: a whole number of steps held as a float64 scalar, so
-    that ``jax.grad`` over a whole problem takes it (its derivative is zero: the delay is discrete)."""
-    leaf = frame_delay_leaf(delay_steps)
-    dtype = getattr(leaf, "dtype", None)
-    return leaf.astype(np.float64 if isinstance(leaf, np.ndarray) else jnp.float64) \
-        if dtype is not None and np.issubdtype(dtype, np.integer) else leaf
-
-
-def _delay_from_leaf(leaf):
-    """The delay l (int32) from its leaf (`_delay_leaf`); anything that is not an array of
-    numbers (JAX's own placeholders) as it is."""
-    dtype = getattr(leaf, "dtype", None)
-    if dtype is None or not np.issubdtype(dtype, np.floating):
-        return leaf
-    return leaf.astype(np.int32) if isinstance(leaf, np.ndarray) else leaf.astype(jnp.int32)
-
-
-def _problem_unflatten(aux, data):
-    new = object.__new__(Problem)
-    (dynamics_static, noise_static, new.dt, new.horizon, new.delay_steps, new.n_controls, new.name,
-     new._has_limits, new.metadata, new.time_dependent, new.delay_frame, fractional) = aux
-    new.delay_fraction = None
-    if fractional:
-        *data, new.delay_fraction = data
-    if new.delay_frame is not None:
-        *data, leaf = data
-        new.delay_steps = _delay_from_leaf(leaf)
-    new.x0, new.cost, new.u_min, new.u_max, new.observation, dynamics, noise, new.delay_jitter = data
-    new.dynamics = dynamics_static if dynamics is None else dynamics
-    new.noise = noise_static if noise is None else noise
-    return new
-
-
-jax.tree_util.register_pytree_node(Problem, _problem_flatten, _problem_unflatten)
+_problem_tree.register(Problem)

@@ -1,5 +1,5 @@
 """The line search's candidates: the nonlinear plant in closed loop around the nominal, under the
-delayed law with the feedforward scaled by the step size alpha (``closed_loop.closed_loop_step``):
+delayed law with the feedforward scaled by the step size alpha (``lqg.law.closed_loop_step``):
 
     u_k = clip(u_bar_k + alpha I_k + L_k (x_k - x_bar_k) + sum_i M_k^i (u_{k+i-l} - u_bar_{k+i-l}))
 

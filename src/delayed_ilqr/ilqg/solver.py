@@ -374,10 +374,9 @@ _solve_large = jax.jit(_solve_body, compiler_options=_cpu.LIBRARY_DOTS)
 
 def compiled_solver(problem: Problem):
     """The jitted ``(problem, u_init, options) -> Solution`` that [`solve`][delayed_ilqr.solve] calls for ``problem``
-    outside JAX transformations. A framed problem's pass keeps R whole (no deferred blocks), so it
-    never needs the large products' compilation."""
-    return _solve_large if problem.delay_frame is None and problem.delay_steps * problem.n_controls >= DEFER_MIN_LD \
-        else _solve
+    outside JAX transformations: the large products' compilation from L d = ``DEFER_MIN_LD`` pending
+    components on (L the frame, or the delay without one), where the backward pass defers its blocks."""
+    return _solve_large if problem.frame_steps * problem.n_controls >= DEFER_MIN_LD else _solve
 
 
 #: ``_solve`` whose ``vmap`` solves the problems one after another (`one_after_another`), the

@@ -15,8 +15,9 @@ and zero gains, and for l = L the two slots coincide as above.
 With one delay per command channel (``delay_steps`` a [d] vector l_j, always in a frame of
 L >= max_j l_j slots, docs/derivation.md §18) component j of slot (k - l_j) mod L is channel j's
 command acting at step k: `acting_offset` then returns the [d] indices of those components, and
-`take_acting` / `put_acting` read and write them (a contiguous slice for one delay, a gather or
-scatter for several).
+`take_acting` reads them and the recursion writes its blocks there (`move_acting`, `add_acting`): a
+contiguous slice for one delay, one slice per component for several (no gather or scatter, which
+would keep XLA from compiling the loops as one function).
 
 More generally ``delay_steps`` may hold t d *tap* delays (a multiple of d): tap i acts on channel
 i mod d with that channel's command sent l_i steps ago. A fractional delay (l + phi) dt is two
@@ -37,8 +38,8 @@ import jax.numpy as jnp
 
 from .model import Gains
 
-__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "put_acting", "add_acting", "current_taps",
-           "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
+__all__ = ["SlotGains", "slot_offsets", "acting_offset", "take_acting", "add_acting", "acting_blocks", "move_acting",
+           "current_taps", "acting_commands", "tap_channels", "to_slots", "from_slots", "pending_order", "value_blocks"]
 
 
 class SlotGains(NamedTuple):
@@ -83,15 +84,8 @@ def take_acting(v, acting, nd: int, axis: int = 0):
     its [d] indices for per-channel delays)."""
     if jnp.ndim(acting) == 0:
         return jax.lax.dynamic_slice_in_dim(v, acting, nd, axis=axis)
-    return jnp.take(v, acting, axis=axis)
-
-
-def put_acting(v, new, acting, axis: int = 0):
-    """``v`` with ``new`` ([d] along ``axis``) written at ``acting`` (as in `take_acting`)."""
-    if jnp.ndim(acting) == 0:
-        return jax.lax.dynamic_update_slice_in_dim(v, new, acting, axis=axis)
-    index = (slice(None),) * axis + (acting,)
-    return v.at[index].set(new)
+    return jnp.concatenate([jax.lax.dynamic_slice_in_dim(v, acting[i], 1, axis=axis)
+                            for i in range(jnp.shape(acting)[0])], axis=axis)
 
 
 def current_taps(u, l):
@@ -104,12 +98,43 @@ def current_taps(u, l):
 def add_acting(v, new, acting, axis: int = 0):
     """``v`` with ``new`` added at ``acting`` along ``axis`` (repeated indices add up): the
     recursion's write of the acting blocks. For one tap per channel the entries there are zero
-    (the command has acted, docs/derivation.md §17-18) and this is `put_acting`; a second tap
-    reads a command that is still pending at k+1, whose blocks must be kept (§20)."""
+    (the command has acted, docs/derivation.md §17-18) and this writes them; a second tap
+    reads a command that is still pending at k+1, whose blocks must be kept (§20).
+
+    Written as one read-add-write of a slice per block (`acting_blocks`), not a scatter: XLA does
+    not compile a loop that holds a scatter as one function (docs/performance.md#per-channel-delays)."""
+    for offset, part in acting_blocks(acting, new.shape[axis]):
+        block = jax.lax.slice_in_dim(new, part.start, part.stop, axis=axis)
+        old = jax.lax.dynamic_slice_in_dim(v, offset, block.shape[axis], axis=axis)
+        v = jax.lax.dynamic_update_slice_in_dim(v, old + block, offset, axis=axis)
+    return v
+
+
+def acting_blocks(acting, m: int):
+    """The writes of m acting components at ``acting`` as contiguous blocks: [(offset, part)],
+    ``part`` the slice of the m components that goes to ``offset``. One block of d for one
+    delay (an offset); one component each for per-channel delays or taps (m indices)."""
     if jnp.ndim(acting) == 0:
-        return put_acting(v, new, acting, axis)
-    index = (slice(None),) * axis + (acting,)
-    return v.at[index].add(new)
+        return [(acting, slice(0, m))]
+    return [(acting[i], slice(i, i + 1)) for i in range(m)]
+
+
+def move_acting(blocks, new, slot, acting, axis: int, nd: int):
+    """``blocks`` with the acting command's ``new`` blocks written at its slot, along ``axis``.
+
+    Without a frame (``acting`` None) they replace slot sigma's, where du_{k-l} follows du_k. With
+    one, slot sigma (``nd`` wide) is cleared first (du_{k-L} has acted) and slot alpha = ``acting``
+    receives them; alpha = sigma where l = L. With one delay per channel ``acting`` holds the
+    [d] indices of the channels' acting components, and column j of ``new`` goes to index j; with
+    taps (a fractional delay), [t d] indices, and the blocks are added (`add_acting`: a
+    command read by the later tap is still pending at k+1)."""
+    start = lambda offset: (offset,) if blocks.ndim == 1 else ((0, offset) if axis == 1 else (offset, 0))
+    if acting is not None:
+        axis = axis if blocks.ndim > 1 else 0
+        blocks = jax.lax.dynamic_update_slice(blocks, jnp.zeros(new.shape[:axis] + (nd,) + new.shape[axis + 1:],
+                                                                new.dtype), start(slot))
+        return add_acting(blocks, new, acting, axis)
+    return jax.lax.dynamic_update_slice(blocks, new, start(slot))
 
 
 def acting_commands(us, l, framed: bool):
@@ -120,11 +145,10 @@ def acting_commands(us, l, framed: bool):
     if framed:      # one dynamic slice of us behind K zeros (a gather made the loops that read it slower)
         K = us.shape[0]
         padded = jnp.concatenate([jnp.zeros_like(us), us])
-        if jnp.ndim(l) == 1:
-            rows = jnp.arange(K)[:, None] + (K - jnp.minimum(l, K))[None, :]
-            if jnp.shape(l)[0] != us.shape[1]:      # taps: column i reads channel i mod d
-                return padded[rows, tap_channels(jnp.shape(l)[0], us.shape[1])[None, :]]
-            return jnp.take_along_axis(padded, rows, axis=0)
+        if jnp.ndim(l) == 1:    # column i (tap or channel) reads channel i mod d, one slice each
+            nd = us.shape[1]
+            return jnp.stack([jax.lax.dynamic_slice_in_dim(padded[:, i % nd], K - jnp.minimum(l[i], K), K)
+                              for i in range(jnp.shape(l)[0])], axis=1)
         return jax.lax.dynamic_slice_in_dim(padded, K - jnp.minimum(l, K), K)
     if l == 0:
         return us

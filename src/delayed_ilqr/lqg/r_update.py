@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 
 from .._kernels.dense import add_symmetric_product, matmul_t
-from .frame import put_acting
+from .frame import add_acting
 
 __all__ = ["RStrategy", "update", "update_framed", "flush", "exact", "COPIED_FACTORS_MIN_LD", "DEFER_MIN_LD", "DEFER_BLOCK"]
 
@@ -104,43 +104,57 @@ def update(R, factors, row, M, W, slot, next_slot, factor_row):
     return R, (F,), R_next
 
 
-def update_framed(R, Y, X, M, W, slot, acting, next_slot):
+def update_framed(R, factors, Y, X, M, W, slot, acting, next_slot, factor_row):
     """R at k from R at k+1 in a frame of L slots with the delay as data (docs/derivation.md §17).
 
     The stale-column invariant above rests on the slot written being the slot eliminated, which
     a frame breaks (du_{k-l} is written into slot alpha = (k - l) mod L, du_{k-L}'s slot sigma is
-    cleared): R is kept whole and symmetric instead, rows and columns written alike. With w_a =
-    P w the acting components of the frame w at k (P the selection ``acting``), substituting
-    x_{k+1} = ... + B1 P w into J(k+1) adds P'Y + Y'P + P'X P to R with its slot sigma cleared:
-    Y = B1'Rt (Rt of J(k+1), slot sigma excluded) and X = B1'S B1 + sum_j C1_j'S C1_j. With one tap
-    per channel the acting rows of R are zero before (the command has acted, Y is zero there) and
-    this writes them; a fractional delay's second tap reads a command that is still pending (§20).
+    cleared): R is kept symmetric instead, rows and columns written alike. With w_a = P w the
+    acting components of the frame w at k (P the selection ``acting``), substituting
+    x_{k+1} = ... + B1 P w into J(k+1) adds P'Y + Y'P + P'X P = P'V + V'P, V = Y + X P / 2, to R
+    with its slot sigma cleared: Y = B1'Rt (Rt of J(k+1), slot sigma excluded) and X = B1'S B1 +
+    sum_j C1_j'S C1_j. With one tap per channel the acting rows of R are zero before (the command
+    has acted, Y is zero there) and this writes them; a fractional delay's second tap reads a
+    command that is still pending (§20).
+
+    P'V + V'P is added to R's acting rows and columns (m of each, read-add-write of slices: no
+    scatter, see `frame.add_acting`). Without deferral (``factors = ()``) the clearing of slot sigma
+    (a mask) and M'W + W'M are one elementwise loop over R, which XLA runs in place. Deferred
+    (``factors = (F,)``, as in `update`), R + sum_p M_p'W_p + W_p'M_p over the block's steps p is
+    the exact R: clearing slot sigma clears its rows and columns in R and its columns in F, and the
+    step's M, W join F, so that a step costs O(q d^2 L d) instead of O((L d)^2).
 
     Args:
-        R: [L d, L d] the exact R of J(k+1).
+        R: [L d, L d] the stored R of J(k+1) (symmetric); factors: () or (F,), see `update`.
         Y: [m, L d] B1'Rt (slot sigma is cleared here); X: [m, m] (m = d, or t d taps).
-        M, W: [d, L d] the step's delay feedback and W, zero at slot sigma.
+        M, W: [d, L d] the step's delay feedback and W.
         slot, acting, next_slot: sigma d, alpha d and ((k - 1) mod L) d (``acting``: the [m]
             indices of the acting components with per-channel delays or taps, `frame.acting_offset`).
+        factor_row: 2 (k mod q) d, the step's rows in the deferred factors.
 
     Returns:
-        (R, R_next): R at k and its rows [d, L d] of the slot that step k-1 eliminates.
+        (R, factors, R_next): the stored R and factors at k, and the exact rows [d, L d] of the slot
+        that step k-1 eliminates.
     """
-    nd = M.shape[0]
-    clear = jnp.zeros((nd, R.shape[0]), R.dtype)
-    R = jax.lax.dynamic_update_slice(R, clear, (slot, 0))
-    R = jax.lax.dynamic_update_slice(R, clear.T, (0, slot))
-    Y = jax.lax.dynamic_update_slice(Y, jnp.zeros((Y.shape[0], nd), Y.dtype), (0, slot))
-    if jnp.ndim(acting) == 0:       # one delay: the acting slot's rows and columns are zero, written
-        row = jax.lax.dynamic_update_slice(Y, X, (0, acting))
-        R = put_acting(R, row, acting, axis=0)
-        R = put_acting(R, row.T, acting, axis=1)
+    nd, Ld = M.shape
+    index = jnp.arange(Ld)
+    kept = (index < slot) | (index >= slot + nd)
+    V = add_acting(jnp.where(kept, Y, 0.0), 0.5 * X, acting, axis=1)
+    if factors:
+        (F,) = factors
+        clear = jnp.zeros((nd, Ld), R.dtype)
+        R = jax.lax.dynamic_update_slice(R, clear, (slot, 0))
+        R = jax.lax.dynamic_update_slice(R, clear.T, (0, slot))
+        F = jax.lax.dynamic_update_slice(F, jnp.zeros((F.shape[0], nd), F.dtype), (0, slot))
+        F = jax.lax.dynamic_update_slice_in_dim(F, jnp.concatenate([M, W]), factor_row, axis=0)
+        factors = (F,)
     else:
-        R = R.at[acting, :].add(Y)
-        R = R.at[:, acting].add(Y.T)
-        R = R.at[acting[:, None], acting[None, :]].add(X)
-    R = add_symmetric_product(R, M, W)
-    return R, jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
+        R = add_symmetric_product(jnp.where(kept[:, None] & kept[None, :], R, 0.0), M, W)
+    R = add_acting(add_acting(R, V, acting, axis=0), V.T, acting, axis=1)
+    R_next = jax.lax.dynamic_slice_in_dim(R, next_slot, nd, axis=0)
+    if factors:
+        R_next = R_next + matmul_t(_swap_factors(jax.lax.dynamic_slice_in_dim(F, next_slot, nd, axis=1), nd), F)
+    return R, factors, R_next
 
 
 def _swap_factors(F, nd: int):
@@ -154,8 +168,9 @@ def flush(R, factors, nd: int):
     return R + F.T @ _swap_factors(F, nd), (jnp.zeros_like(F),)
 
 
-def exact(R, factors, k, l: int, nd: int):
-    """The exact (symmetric) R from its stored form, after step k.
+def exact(R, factors, k, l: int, nd: int, stale: bool = True):
+    """The exact (symmetric) R from its stored form, after step k (``stale=False``: a framed R,
+    stored symmetric, see `update_framed`).
 
     The pass runs down in k, so slot s was last replaced at step k + ((s - k) mod l), that many
     steps ago; entry (i, j) is exact in the row of whichever of the two slots was replaced more
@@ -164,6 +179,8 @@ def exact(R, factors, k, l: int, nd: int):
     if factors:
         (F,) = factors
         R = R + F.T @ _swap_factors(F, nd)
+    if not stale:
+        return R
     age = (jnp.arange(l) - k) % l                           # steps since slot s was replaced
     age = jnp.repeat(age, nd)
     return jnp.where(age[:, None] <= age[None, :], R, R.T)
