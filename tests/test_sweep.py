@@ -8,7 +8,6 @@ the solvers compiled here instead of compiling them again.
 """
 import json
 import os
-import pathlib
 import sys
 
 import jax
@@ -23,7 +22,7 @@ import delayed_ilqr as di                                      # noqa: E402
 from delayed_ilqr import statistics                            # noqa: E402
 from delayed_ilqr.experiments.engine import endpoint_error     # noqa: E402
 from delayed_ilqr.models import point_mass                     # noqa: E402
-from delayed_ilqr.sweeps import compute, run, store as store_module   # noqa: E402
+from delayed_ilqr.sweeps import compute, run   # noqa: E402
 
 K = 20
 TARGETS = [(0.2, 0.1, 0.0, 0.0), (0.1, 0.2, 0.0, 0.0), (0.0, 0.15, 0.0, 0.0)]

@@ -4,7 +4,7 @@ designs, Monte Carlo on the noisy plant (docs/results/noise_calibration.md §2).
     .venv/bin/python benchmarks/studies/arm2_noise_calibration.py SIGMAS DELAYS TRIALS [EXTRA_STEPS]
     e.g. ... 0.01 0,0.05,0.1,0.15 2000
 """
-import sys, time, jax
+import sys, jax
 jax.config.update("jax_enable_x64", True)
 import delayed_ilqr as di; di.configure_cpu()
 import numpy as np, jax.numpy as jnp

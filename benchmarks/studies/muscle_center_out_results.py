@@ -8,7 +8,6 @@ and design, then per-target details.
 import sys, time, jax
 jax.config.update("jax_enable_x64", True)
 import delayed_ilqr; delayed_ilqr.configure_cpu()
-import numpy as np
 from delayed_ilqr.experiments import center_out as co, tables
 sigma = float(sys.argv[1]); delays = [float(d) for d in sys.argv[2].split(",")]; n = int(sys.argv[3])
 t0 = time.time()

@@ -12,7 +12,6 @@ import sys
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import numpy as np  # noqa: E402
 
 import delayed_ilqr as di  # noqa: E402
 from delayed_ilqr.experiments.engine import solve_batch  # noqa: E402

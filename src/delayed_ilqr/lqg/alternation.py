@@ -150,7 +150,7 @@ def _gains_from(LM, feedforward, n: int, l: int):
 @jax.jit
 def _controller_sweep(lqg: DelayedLQG, obs: DelayedObservation, gains: Gains, fgains: FilterGains, free):
     lqg = merged_if_undelayed(lqg)
-    K, n, nd, l, ls = lqg.horizon, lqg.n_states, lqg.n_controls, lqg.delay_steps, obs.delay_steps
+    n, nd, l, ls = lqg.n_states, lqg.n_controls, lqg.delay_steps, obs.delay_steps
     dt = lqg.A.dtype
     blocks = _Blocks(n, l, nd)
     S_o, S_del = _selectors(blocks, nd, dt)

@@ -31,7 +31,6 @@ from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .. import _precision, _validate
 from .exact import checked_gains

@@ -112,7 +112,7 @@ class _Blocks(NamedTuple):
 
 def _measurement_update(mu, X, blocks, H, R, Kd, Kc, Phi):
     """zeta <- U zeta + V v with e = H eps + G v: a += Phi Kd e, x_hat += Kc e, eps -= Kd e."""
-    n, Nz = blocks.n, blocks.size
+    Nz = blocks.size
     gain = jnp.zeros((Nz, H.shape[0]), mu.dtype)
     gain = gain.at[blocks.a()].set(Phi @ Kd).at[blocks.b()].set(Kc).at[blocks.eps()].set(-Kd)
     U = jnp.eye(Nz, dtype=mu.dtype).at[:, blocks.eps()].add(gain @ H)

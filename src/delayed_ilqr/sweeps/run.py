@@ -5,7 +5,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import importlib.metadata
-import math
 import numbers
 import pathlib
 from typing import Callable, Mapping, Optional, Sequence
