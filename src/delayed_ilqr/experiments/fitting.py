@@ -145,10 +145,15 @@ class Evaluator:
     program that every fit of the same model shares (a coarse search before a fit reuses it).
 
     Args:
-        make_problem, conditions, data, u_init, mean_scale, options, delay_steps: as for
-            [`fit`][delayed_ilqr.experiments.fitting.fit].
+        make_problem: as for [`fit`][delayed_ilqr.experiments.fitting.fit].
+        conditions: as for `fit`.
+        data: as for `fit`.
         params0: positive floats by name: the first condition's problem at these values is the
             one ``data`` are checked against.
+        u_init: as for `fit`.
+        mean_scale: as for `fit`.
+        options: as for `fit`.
+        delay_steps: as for `fit`.
 
     Calling it with ``params`` (a dict of positive floats, the same names) returns (the loss, its
     gradient in log theta by name, the statuses [C] of the solves), all NumPy; the loss is inf
